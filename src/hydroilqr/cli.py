@@ -1,0 +1,238 @@
+"""Command-line interface: ``hydroilqr <command> ...`` (see ``hydroilqr --help``).
+
+Every command reports bad input as one line on stderr and exits non-zero; set
+HYDROILQR_DEBUG=1 to see tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+
+from .config import ConfigError
+
+console = Console(stderr=False, highlight=False)
+
+
+# ------------------------------------------------------------------------------------------
+# Shared pieces
+# ------------------------------------------------------------------------------------------
+
+
+def add_task_args(p: argparse.ArgumentParser, positional: bool = True) -> None:
+    if positional:
+        p.add_argument("task", nargs="?", help="built-in task name or a task YAML file")
+    p.add_argument("--task-file", help="a task YAML file (same as giving its path as TASK)")
+    p.add_argument("--config", help="YAML file merged over the task")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a task key, e.g. solver.max_iterations=20 (repeatable)")
+    p.add_argument("--smoke", action="store_true", help="shrink the task (tests, quick tries)")
+
+
+def load_task_from_args(args, extra_overrides: list[str] | None = None):
+    from .task import Task
+
+    name = getattr(args, "task_file", None) or getattr(args, "task", None)
+    if not name:
+        raise ConfigError("no task given (try `hydroilqr tasks`)")
+    overrides = list(args.set or []) + list(extra_overrides or [])
+    task = Task.load(name, overrides, args.config, args.smoke)
+    task.validate()
+    return task
+
+
+class IterationTable:
+    """Prints one row per iteration: iteration, cost, ε, μ, seconds, phase split."""
+
+    def __init__(self, prefix: str = ""):
+        self.prefix = prefix
+        self.header = False
+
+    def __call__(self, info) -> None:
+        if not self.header:
+            console.print(f"{self.prefix}[bold]{'iter':>4} {'cost':>12} {'eps':>8} {'reg':>8} "
+                          f"{'sec':>7}  rollout/deriv/backward/linesearch[/bold]")
+            self.header = True
+        ph = info.phases
+        mark = "" if info.accepted else "  (no step)"
+        console.print(
+            f"{self.prefix}{info.iteration:>4} {info.cost:>12.6g} {info.eps:>8.3g} "
+            f"{info.mu:>8.1e} {info.seconds:>7.3f}  {ph['rollout']:.3f}/{ph['derivatives']:.3f}/"
+            f"{ph['backward_pass']:.3f}/{ph['line_search']:.3f}{mark}"
+        )
+
+
+# ------------------------------------------------------------------------------------------
+# Commands
+# ------------------------------------------------------------------------------------------
+
+
+def cmd_tasks(args) -> int:
+    from .config import TASKS_DIR, list_tasks, load_raw
+
+    for name in list_tasks():
+        desc = load_raw(TASKS_DIR / f"{name}.yaml").get("description", "")
+        console.print(f"[bold]{name:<22}[/bold] {desc}")
+    return 0
+
+
+def cmd_solve(args) -> int:
+    from . import api, report
+
+    extra = []
+    if args.derivatives:
+        extra.append(f"solver.derivatives={args.derivatives}")
+    if args.max_iterations is not None:
+        extra.append(f"solver.max_iterations={args.max_iterations}")
+    if args.threads is not None:
+        extra.append(f"solver.threads={args.threads}")
+    resume_dir = args.resume
+    out = Path(args.out or resume_dir or f"runs/{Path(args.task or args.task_file).stem}")
+    task = load_task_from_args(args, extra)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = task.config
+    dyn = task.dynamics
+    console.print(
+        f"[bold]{task.name}[/bold]: nx={dyn.nx} nu={dyn.nu} dt={dyn.dt} "
+        f"steps={task.steps} contact={cfg.plant.contact_approximation} "
+        f"derivatives={cfg.solver.derivatives} -> {out}"
+    )
+    t0 = time.perf_counter()
+    if cfg.receding_horizon is not None:
+        from .progress import ResolveProgress
+
+        ck = out / "checkpoint.npz"
+        if ck.exists() and not resume_dir:
+            raise ConfigError(f"{out} holds a checkpoint: pass --resume {out} to continue it, "
+                              "or choose another --out")
+        with ResolveProgress(cfg.receding_horizon.resolves) as prog:
+            sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
+    else:
+        sol = api.solve(task, callbacks=[IterationTable()])
+    wall = time.perf_counter() - t0
+    console.print(f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
+                  f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s")
+    if args.view:
+        from .replay import meshcat_instance
+
+        console.print(f"live view: {meshcat_instance().web_url()}")
+    summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
+    summary["wall_seconds"] = wall
+    report.write_json(out / "summary.json", summary)
+    m = summary["metrics"]
+    shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
+    console.print("metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()))
+    console.print(f"wrote {out}/summary.json, solution.npz, convergence.png"
+                  + ("" if args.no_replay else ", replay.html"))
+    if args.view:
+        from .replay import write_replay
+
+        write_replay(task, sol.X, sol.t, out / "replay.html")
+        console.print("serving the live view; press Ctrl+C to stop")
+        try:
+            while True:
+                time.sleep(1)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def _fmt(v) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
+def cmd_check(args) -> int:
+    from .check import check_task
+
+    task = load_task_from_args(args)
+    check_task(task, console)
+    return 0
+
+
+COMMANDS = {}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hydroilqr",
+        description="Contact-implicit trajectory optimization: iLQR over Drake's hydroelastic "
+                    "contact.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("tasks", help="list the built-in tasks")
+    p.set_defaults(func=cmd_tasks)
+
+    p = sub.add_parser("solve", help="solve a task and write its results")
+    add_task_args(p)
+    p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
+    p.add_argument("--max-iterations", type=int)
+    p.add_argument("--threads", type=int, help="threads for batched derivatives (0 = all)")
+    p.add_argument("--out", help="output directory (default runs/TASK)")
+    p.add_argument("--resume", metavar="DIR", help="continue an interrupted receding-horizon run")
+    p.add_argument("--view", action="store_true", help="serve a live Meshcat page")
+    p.add_argument("--no-replay", action="store_true", help="skip writing replay.html")
+    p.set_defaults(func=cmd_solve)
+
+    p = sub.add_parser("check", help="validate a task and report its layout and contacts")
+    add_task_args(p)
+    p.set_defaults(func=cmd_check)
+
+    for name, (helptext, setup) in COMMANDS.items():
+        p = sub.add_parser(name, help=helptext)
+        setup(p)
+    return parser
+
+
+def register(name: str, helptext: str):
+    """Decorator for commands defined in other modules: fn(parser) sets args and func."""
+    def deco(setup):
+        COMMANDS[name] = (helptext, setup)
+        return setup
+    return deco
+
+
+def _load_plugins() -> None:
+    import importlib
+
+    for mod in ("sweep", "playback", "bench", "mpc"):
+        try:
+            importlib.import_module(f"hydroilqr.{mod}")
+        except ModuleNotFoundError as e:
+            if e.name != f"hydroilqr.{mod}":
+                raise
+
+
+def main(argv: list[str] | None = None) -> int:
+    from .plant import SimulationError
+
+    _load_plugins()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ConfigError as e:
+        print(f"hydroilqr: error: {e}", file=sys.stderr)
+        return 2
+    except SimulationError as e:
+        print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("hydroilqr: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - the promise is one line, never a traceback
+        if os.environ.get("HYDROILQR_DEBUG"):
+            raise
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        print(f"hydroilqr: internal error: {type(e).__name__}: {msg} "
+              "(set HYDROILQR_DEBUG=1 for a traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,503 @@
+"""Task configuration: typed dataclasses loaded from YAML, with dotted command-line overrides.
+
+A task file is the one way to define a problem; every built-in task (``hydroilqr tasks``) is
+such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unless noted)::
+
+    name: my-task
+    description: one line
+    models:                       # required: one or more SDFormat/URDF files
+      - file: robot.sdf           # relative to the YAML file; package:// allowed
+        weld: {parent: world, child: base_link, xyz: [0, 0, 0.1], rpy: [0, 0, 0]}
+    package_map: {my_pkg: ./my_pkg}
+    scene:                        # static geometry welded to the world
+      - {name: ground, shape: box, size: [25, 25, 1], xyz: [0, 0, -0.5],
+         compliance: compliant, hydroelastic_modulus: 5e6, dissipation: 0, friction: 0.5}
+    geometry:                     # overrides of the model's collision properties
+      tip: {hydroelastic_modulus: 2e6}      # by collision name or body name
+    plant: {time_step: 0.01, contact_approximation: sap}
+    horizon: 1.0                  # seconds (or num_steps: N)
+    blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
+    initial_state: {pole_angle: 3.64}
+    initial_guess: zeros          # zeros | gravity_compensation | hold | path/to/U.npz
+    cost:
+      Q: {pole_angle: 1.0}
+      R: 0.001                    # scalar, list per actuator, or {actuator_name: w}
+      Qf: {pole_angle: 200}
+      nominal: {pole_angle: 3.14159}
+      nominal_rate: {}            # x_nom(t) = nominal + rate * t (per block)
+    solver: {max_iterations: 100, derivatives: central}
+    receding_horizon: null        # {window_steps, shift_steps, resolves}
+    metrics: [default]
+
+Overrides use dotted keys (``--set solver.max_iterations=5``). A key whose first part names a
+``geometry`` entry or a ``scene`` object may omit the section: ``tip.hydroelastic_modulus`` is
+``geometry.tip.hydroelastic_modulus``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+TASKS_DIR = Path(__file__).parent / "tasks"
+
+
+class ConfigError(ValueError):
+    """A task file or override is invalid. The message names the offending key."""
+
+
+# --------------------------------------------------------------------------------------------
+# Dataclasses
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class WeldConfig:
+    parent: str = "world"
+    child: str = ""
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
+@dataclass
+class ModelConfig:
+    file: str = ""
+    weld: WeldConfig | None = None
+
+
+@dataclass
+class ContactProperties:
+    """Hydroelastic/contact properties of one collision geometry (None = keep the model's)."""
+
+    compliance: str | None = None  # "rigid" | "compliant"
+    hydroelastic_modulus: float | None = None  # Pa
+    dissipation: float | None = None  # Hunt-Crossley, s/m
+    friction: float | None = None  # Coulomb (static = dynamic)
+    resolution_hint: float | None = None  # m
+    margin: float | None = None  # m
+    relaxation_time: float | None = None  # s (SAP)
+    slab_thickness: float | None = None  # m (compliant half spaces)
+
+
+@dataclass
+class SceneObject(ContactProperties):
+    """Static collision + visual geometry welded to the world."""
+
+    name: str = ""
+    shape: str = "box"  # box | sphere | cylinder | halfspace
+    size: list[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])  # box
+    radius: float = 0.1  # sphere / cylinder
+    length: float = 1.0  # cylinder
+    xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    color: list[float] = field(default_factory=lambda: [0.6, 0.6, 0.6, 1.0])
+
+
+@dataclass
+class PlantConfig:
+    time_step: float = 0.01
+    contact_approximation: str = "sap"  # sap | similar | lagged | tamsi
+    contact_model: str = "hydroelastic_with_fallback"
+    contact_surface_representation: str = "polygon"  # polygon | triangle
+    gravity: list[float] = field(default_factory=lambda: [0.0, 0.0, -9.81])
+
+
+@dataclass
+class CostConfig:
+    Q: dict[str, Any] = field(default_factory=dict)
+    R: Any = 0.0
+    Qf: dict[str, Any] = field(default_factory=dict)
+    nominal: dict[str, Any] = field(default_factory=dict)
+    nominal_rate: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class SolverConfig:
+    max_iterations: int = 100
+    derivatives: str = "central"  # autodiff | forward | central
+    fd_epsilon: float = 1e-6
+    threads: int = 0  # 0 = all cores
+    relative_cost_tolerance: float = 1e-4
+    expected_decrease_tolerance: float = 1e-7
+    line_search_factor: float = 0.5
+    line_search_max_steps: int = 12
+    armijo: float = 1e-4
+    regularization_init: float = 1e-6
+    regularization_min: float = 1e-9
+    regularization_max: float = 1e10
+    regularization_factor: float = 10.0
+    derivative_interval: int = 1  # >1: exact derivatives every k steps, interpolated between
+
+
+@dataclass
+class RecedingHorizonConfig:
+    window_steps: int = 40
+    shift_steps: int = 4
+    resolves: int = 100
+    max_iterations: int = 10  # per resolve (the first window uses solver.max_iterations)
+
+
+@dataclass
+class TaskConfig:
+    name: str = ""
+    description: str = ""
+    models: list[ModelConfig] = field(default_factory=list)
+    package_map: dict[str, str] = field(default_factory=dict)
+    scene: list[SceneObject] = field(default_factory=list)
+    geometry: dict[str, ContactProperties] = field(default_factory=dict)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    horizon: float = 1.0
+    num_steps: int = 0  # if > 0, overrides horizon
+    blocks: dict[str, list[str]] = field(default_factory=dict)
+    initial_state: dict[str, Any] = field(default_factory=dict)
+    initial_guess: str = "zeros"
+    cost: CostConfig = field(default_factory=CostConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    receding_horizon: RecedingHorizonConfig | None = None
+    metrics: list[str] = field(default_factory=lambda: ["default"])
+    metric_params: dict[str, Any] = field(default_factory=dict)
+    # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
+    smoke: dict[str, Any] = field(default_factory=dict)
+    # Set by the loader: directory that relative paths are resolved against.
+    base_dir: str = ""
+
+    @property
+    def steps(self) -> int:
+        if self.num_steps > 0:
+            return int(self.num_steps)
+        return max(1, int(round(self.horizon / self.plant.time_step)))
+
+    def resolve_path(self, path: str) -> Path:
+        p = Path(path).expanduser()
+        if not p.is_absolute():
+            p = Path(self.base_dir or ".") / p
+        return p
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d.pop("base_dir", None)
+        return d
+
+
+# --------------------------------------------------------------------------------------------
+# Typed loading with key paths in every error message
+# --------------------------------------------------------------------------------------------
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp)).replace("typing.", "")
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    """Converts a YAML value to type ``tp`` (from the dataclass annotations)."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, key)
+            except ConfigError as e:
+                errors.append(str(e))
+        raise ConfigError(errors[0] if errors else f"{key}: invalid value {value!r}")
+    if dataclasses.is_dataclass(tp):
+        if value is None:
+            value = {}
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        return _build_dataclass(tp, value, key)
+    if origin is list:
+        if value is None:
+            return []
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        return [_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value)]
+    if origin is dict:
+        if value is None:
+            return {}
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        return {str(k): _coerce(v, args[1], f"{key}.{k}") for k, v in value.items()}
+    if tp is float:
+        if isinstance(value, bool):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if isinstance(value, str):
+            try:
+                value = float(value)
+            except ValueError:
+                raise ConfigError(f"{key}: expected a number, got {value!r}") from None
+        if not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, str):
+            try:
+                value = int(value)
+            except ValueError:
+                raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if tp is bool:
+        if isinstance(value, str) and value.lower() in ("true", "false", "yes", "no", "1", "0"):
+            return value.lower() in ("true", "yes", "1")
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true/false, got {value!r}")
+        return value
+    if tp is str:
+        if isinstance(value, (dict, list)) or value is None:
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return str(value)
+    raise ConfigError(f"{key}: unsupported type {_type_name(tp)}")
+
+
+def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    kwargs = {}
+    for k, v in data.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        if k not in names or k == "base_dir":
+            valid = ", ".join(sorted(n for n in names if n != "base_dir"))
+            raise ConfigError(f"{key}: unknown key (expected one of: {valid})")
+        kwargs[k] = _coerce(v, hints[k], key)
+    return cls(**kwargs)
+
+
+def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
+    parts = key.split(".")
+    top = {f.name for f in dataclasses.fields(TaskConfig)}
+    if parts[0] not in top:
+        geometry = data.get("geometry") or {}
+        scene_names = [o.get("name") for o in (data.get("scene") or []) if isinstance(o, dict)]
+        if parts[0] in scene_names:
+            idx = scene_names.index(parts[0])
+            parts = ["scene", str(idx)] + parts[1:]
+        elif parts[0] in geometry or len(parts) == 2:
+            # Shortcut for geometry overrides: tip.hydroelastic_modulus
+            if parts[1] in {f.name for f in dataclasses.fields(ContactProperties)}:
+                parts = ["geometry"] + parts
+    node: Any = data
+    for i, p in enumerate(parts[:-1]):
+        where = ".".join(parts[: i + 1])
+        if isinstance(node, list):
+            try:
+                node = node[int(p)]
+            except (ValueError, IndexError):
+                raise ConfigError(f"{key}: no list element {where}") from None
+            continue
+        if not isinstance(node, dict):
+            raise ConfigError(f"{key}: {where} is not a section")
+        if node.get(p) is None:
+            node[p] = {}
+        node = node[p]
+    if isinstance(node, list):
+        try:
+            node[int(parts[-1])] = value
+        except (ValueError, IndexError):
+            raise ConfigError(f"{key}: no list element") from None
+    elif isinstance(node, dict):
+        node[parts[-1]] = value
+    else:
+        raise ConfigError(f"{key}: cannot set a value inside a non-section")
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """``key=value`` -> (key, YAML-parsed value)."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r}: expected key=value")
+    key, raw = text.split("=", 1)
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return key.strip(), value
+
+
+def task_file(name_or_path: str) -> Path:
+    """Built-in task name or a path to a task YAML file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        if not p.exists():
+            raise ConfigError(f"task file {name_or_path}: no such file")
+        return p
+    builtin = TASKS_DIR / f"{name_or_path}.yaml"
+    if not builtin.exists():
+        raise ConfigError(
+            f"unknown task {name_or_path!r} (built-in tasks: {', '.join(list_tasks())})"
+        )
+    return builtin
+
+
+def list_tasks() -> list[str]:
+    return sorted(p.stem for p in TASKS_DIR.glob("*.yaml") if not p.stem.startswith("_"))
+
+
+def load_raw(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ConfigError(f"task file {path}: {e.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or "malformed YAML"
+        raise ConfigError(f"task file {path}:{where}: {problem}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"task file {path}: expected a mapping at the top level")
+    # `extends: other.yaml` shares a base file between related tasks.
+    base = data.pop("extends", None)
+    if base is not None:
+        parent = load_raw((path.parent / str(base)).resolve())
+        data = _merge(parent, data)
+    return data
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def load_task(
+    name_or_path: str,
+    overrides: list[str] | dict[str, Any] | None = None,
+    config_file: str | None = None,
+    smoke: bool = False,
+) -> TaskConfig:
+    """Loads a built-in task or task file, merges ``config_file`` and ``key=value`` overrides.
+
+    With ``smoke``, the task's own ``smoke`` overrides (or generic ones) shrink it first.
+    """
+    path = task_file(name_or_path)
+    data = load_raw(path)
+    if config_file:
+        extra = load_raw(Path(config_file))
+        data = _merge(data, extra)
+    if smoke:
+        shrink = data.get("smoke") or _generic_smoke(data)
+        if not isinstance(shrink, dict):
+            raise ConfigError("smoke: expected a mapping of dotted keys to values")
+        for key, value in shrink.items():
+            _set_dotted(data, key, value)
+    items = overrides.items() if isinstance(overrides, dict) else map(parse_override, overrides or [])
+    for key, value in items:
+        _set_dotted(data, key, value)
+    data.setdefault("name", path.stem)
+    cfg = _build_dataclass(TaskConfig, data, "")
+    cfg.base_dir = str(path.resolve().parent)
+    validate(cfg)
+    return cfg
+
+
+def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
+    cfg = _build_dataclass(TaskConfig, copy.deepcopy(data), "")
+    cfg.base_dir = str(Path(base_dir).resolve())
+    validate(cfg)
+    return cfg
+
+
+APPROXIMATIONS = ("sap", "similar", "lagged", "tamsi")
+DERIVATIVES = ("autodiff", "forward", "central")
+
+
+def _check_contact(p: ContactProperties, key: str) -> None:
+    if p.compliance is not None and p.compliance not in ("rigid", "compliant"):
+        raise ConfigError(f"{key}.compliance: expected rigid or compliant, got {p.compliance!r}")
+    for name in ("hydroelastic_modulus", "resolution_hint", "slab_thickness", "relaxation_time"):
+        v = getattr(p, name)
+        if v is not None and v <= 0:
+            raise ConfigError(f"{key}.{name}: must be positive, got {v}")
+    for name in ("dissipation", "friction", "margin"):
+        v = getattr(p, name)
+        if v is not None and v < 0:
+            raise ConfigError(f"{key}.{name}: must be non-negative, got {v}")
+
+
+def validate(cfg: TaskConfig) -> None:
+    """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
+    if not cfg.models:
+        raise ConfigError("models: at least one model file is required")
+    for i, m in enumerate(cfg.models):
+        if not m.file:
+            raise ConfigError(f"models[{i}].file: required")
+        if not m.file.startswith("package://") and not cfg.resolve_path(m.file).exists():
+            raise ConfigError(f"models[{i}].file: no such file {cfg.resolve_path(m.file)}")
+    if cfg.plant.time_step <= 0:
+        raise ConfigError(f"plant.time_step: must be positive, got {cfg.plant.time_step}")
+    if cfg.plant.contact_approximation not in APPROXIMATIONS:
+        raise ConfigError(
+            f"plant.contact_approximation: expected one of {', '.join(APPROXIMATIONS)}, "
+            f"got {cfg.plant.contact_approximation!r}"
+        )
+    if cfg.plant.contact_surface_representation not in ("polygon", "triangle"):
+        raise ConfigError("plant.contact_surface_representation: expected polygon or triangle")
+    if cfg.horizon <= 0 and cfg.num_steps <= 0:
+        raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
+    if cfg.solver.derivatives not in DERIVATIVES:
+        raise ConfigError(
+            f"solver.derivatives: expected one of {', '.join(DERIVATIVES)}, "
+            f"got {cfg.solver.derivatives!r}"
+        )
+    if cfg.solver.max_iterations < 0:
+        raise ConfigError("solver.max_iterations: must be >= 0")
+    if cfg.solver.fd_epsilon <= 0:
+        raise ConfigError("solver.fd_epsilon: must be positive")
+    if cfg.solver.derivative_interval < 1:
+        raise ConfigError("solver.derivative_interval: must be >= 1")
+    for name, p in cfg.geometry.items():
+        _check_contact(p, f"geometry.{name}")
+    for i, o in enumerate(cfg.scene):
+        _check_contact(o, f"scene[{i}]")
+        if o.shape not in ("box", "sphere", "cylinder", "halfspace"):
+            raise ConfigError(f"scene[{i}].shape: expected box, sphere, cylinder or halfspace")
+        if o.shape == "box" and (len(o.size) != 3 or min(o.size) <= 0):
+            raise ConfigError(f"scene[{i}].size: expected three positive numbers")
+    for section in ("Q", "Qf", "nominal_rate"):
+        for k, v in getattr(cfg.cost, section).items():
+            vals = v if isinstance(v, list) else [v]
+            for x in vals:
+                if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
+                    raise ConfigError(f"cost.{section}.{k}: expected numbers, got {v!r}")
+                if section != "nominal_rate" and x < 0:
+                    raise ConfigError(f"cost.{section}.{k}: weights must be non-negative, got {x}")
+    rh = cfg.receding_horizon
+    if rh is not None and (rh.window_steps < 1 or rh.shift_steps < 1 or rh.resolves < 1):
+        raise ConfigError("receding_horizon: window_steps, shift_steps, resolves must be >= 1")
+
+
+def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:
+    """Default shrink for tasks without a ``smoke`` section."""
+    out: dict[str, Any] = {"solver.max_iterations": 3}
+    if data.get("receding_horizon"):
+        out.update({"receding_horizon.window_steps": 10, "receding_horizon.shift_steps": 2,
+                    "receding_horizon.resolves": 3, "receding_horizon.max_iterations": 2})
+    else:
+        out["num_steps"] = 20
+    return out

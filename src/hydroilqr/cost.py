@@ -1,0 +1,150 @@
+"""Quadratic cost of paper eq. (3a), with named, weighted terms.
+
+    J = Σ_{k<N} [ x̃_kᵀ Q x̃_k + u_kᵀ R u_k ] + x̃_Nᵀ Q_f x̃_N,   x̃_k = x_k ⊖ x_nom(t_k)
+
+``⊖`` is the tangent-space difference of ``state.StateLayout`` (rotation-vector error on
+quaternion blocks), so Q and Q_f are diagonal over the tangent space (size 2 nv) and given
+per named block in the task file. The nominal may move linearly in time,
+``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed).
+
+``quadratize`` returns the derivatives iLQR needs in Drake's coordinates: with
+``r = x ⊖ x_nom`` and ``Jr = ∂r/∂x``, ``l_x = 2 Jrᵀ Q r`` and ``l_xx = 2 Jrᵀ Q Jr``
+(Gauss-Newton on quaternion blocks, exact elsewhere).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import ConfigError, CostConfig
+from .state import StateLayout
+
+
+@dataclass
+class Quadratization:
+    """Cost derivatives along a trajectory.
+
+    lx: [N+1, nx], lxx: [N+1, nx, nx], lu: [N, nu], luu: [N, nu, nu].
+    """
+
+    lx: np.ndarray
+    lxx: np.ndarray
+    lu: np.ndarray
+    luu: np.ndarray
+
+
+class QuadraticCost:
+    """Diagonal quadratic cost. q, qf: [2 nv] tangent weights; r: [nu]; x_nom: [nx]."""
+
+    def __init__(self, layout: StateLayout, q, qf, r, x_nom, rate, dt: float,
+                 terms: dict[str, tuple[str, tuple[int, ...]]] | None = None):
+        self.layout = layout
+        self.q = np.asarray(q, float)
+        self.qf = np.asarray(qf, float)
+        self.r = np.asarray(r, float)
+        self.x_nom = np.asarray(x_nom, float)
+        self.rate = np.asarray(rate, float)
+        self.dt = dt
+        self.terms = terms or {}
+
+    @staticmethod
+    def from_config(layout: StateLayout, cfg: CostConfig, dt: float) -> QuadraticCost:
+        q = layout.tangent_vector(cfg.Q, "cost.Q")
+        qf = layout.tangent_vector(cfg.Qf, "cost.Qf")
+        nu = len(layout.actuators)
+        if isinstance(cfg.R, dict):
+            r = np.zeros(nu)
+            for name, w in cfg.R.items():
+                if name not in layout.actuators:
+                    raise ConfigError(
+                        f"cost.R.{name}: unknown actuator (known: {', '.join(layout.actuators)})"
+                    )
+                r[layout.actuators.index(name)] = float(w)
+        else:
+            vals = np.atleast_1d(np.asarray(cfg.R, dtype=float))
+            if vals.size == 1:
+                vals = np.full(nu, vals[0])
+            if vals.size != nu:
+                raise ConfigError(f"cost.R: expected 1 or {nu} values, got {vals.size}")
+            r = vals
+        if not np.all(np.isfinite(r)) or np.any(r < 0):
+            raise ConfigError("cost.R: weights must be finite and non-negative")
+        x_nom = layout.coordinate_vector(cfg.nominal, "cost.nominal", layout.default_nominal())
+        rate = np.zeros(layout.nx)
+        for name, v in cfg.nominal_rate.items():
+            b = layout.block(name, f"cost.nominal_rate.{name}")
+            if b.kind == "quaternion":
+                raise ConfigError(f"cost.nominal_rate.{name}: not supported for orientations")
+            vals = np.atleast_1d(np.asarray(v, float))
+            if vals.size == 1:
+                vals = np.full(len(b.coords), vals[0])
+            if vals.size != len(b.coords):
+                raise ConfigError(f"cost.nominal_rate.{name}: expected {len(b.coords)} values")
+            rate[list(b.coords)] = vals
+        terms = {}
+        for section in ("Q", "Qf"):
+            for name in getattr(cfg, section):
+                terms[f"{section}.{name}"] = (section, layout.block(name).tangent)
+        return QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms)
+
+    # ------------------------------------------------------------------------------------
+    def nominal(self, t: np.ndarray) -> np.ndarray:
+        """x_nom at times t: [T] -> [T, nx]."""
+        return self.x_nom[None, :] + np.asarray(t)[:, None] * self.rate[None, :]
+
+    def times(self, N: int, t0: float) -> np.ndarray:
+        return t0 + self.dt * np.arange(N + 1)
+
+    def stage_costs(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> np.ndarray:
+        """Cost of each step (last entry is the terminal cost). X: [N+1, nx], U: [N, nu]."""
+        N = U.shape[0]
+        R = self.layout.diff(X, self.nominal(self.times(N, t0)))  # [N+1, 2nv]
+        c = np.empty(N + 1)
+        c[:N] = np.einsum("ki,i,ki->k", R[:N], self.q, R[:N]) + np.einsum(
+            "ki,i,ki->k", U, self.r, U)
+        c[N] = R[N] @ (self.qf * R[N])
+        return c
+
+    def total(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> float:
+        return float(np.sum(self.stage_costs(X, U, t0)))
+
+    def breakdown(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> dict[str, float]:
+        """Value of each named term (Q.<block>, Qf.<block>, R)."""
+        N = U.shape[0]
+        R = self.layout.diff(X, self.nominal(self.times(N, t0)))
+        out = {}
+        for name, (section, idx) in self.terms.items():
+            idx = list(idx)
+            if section == "Q":
+                out[name] = float(np.sum(R[:N, idx] ** 2 * self.q[idx]))
+            else:
+                out[name] = float(np.sum(R[N, idx] ** 2 * self.qf[idx]))
+        out["R"] = float(np.sum(U**2 * self.r))
+        return out
+
+    def quadratize(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> Quadratization:
+        N = U.shape[0]
+        Xn = self.nominal(self.times(N, t0))
+        R = self.layout.diff(X, Xn)  # [N+1, 2nv]
+        W = np.empty_like(R)
+        W[:N] = self.q
+        W[N] = self.qf
+        if self.layout.quaternions:
+            J = self.layout.diff_jacobian(X, Xn)  # [N+1, 2nv, nx]
+            lx = 2.0 * np.einsum("kij,ki->kj", J, W * R)
+            lxx = 2.0 * np.einsum("kij,ki,kil->kjl", J, W, J)
+        else:
+            # No quaternions: the tangent space is a permutation of the coordinates.
+            c, t = self.layout._euclid_index()
+            nx = self.layout.nx
+            lx = np.zeros((N + 1, nx))
+            lx[:, c] = 2.0 * W[:, t] * R[:, t]
+            lxx = np.zeros((N + 1, nx, nx))
+            lxx[:, c, c] = 2.0 * W[:, t]
+        lu = 2.0 * U * self.r
+        luu = np.zeros((N, U.shape[1], U.shape[1]))
+        iu = np.arange(U.shape[1])
+        luu[:, iu, iu] = 2.0 * self.r
+        return Quadratization(lx, lxx, lu, luu)

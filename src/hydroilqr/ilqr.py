@@ -1,0 +1,268 @@
+"""Iterative LQR (paper §III-B, eqs. 4-8) as small array kernels plus a driver.
+
+Backward pass (eqs. 5-6), with the second-order dynamics terms dropped (iLQR, not DDP) and a
+Levenberg-Marquardt term μ I added to Q_uu:
+
+    Q_x  = l_x  + A_kᵀ V'_x            Q_u  = l_u  + B_kᵀ V'_x
+    Q_xx = l_xx + A_kᵀ V'_xx A_k       Q_uu = l_uu + B_kᵀ V'_xx B_k + μ I
+    Q_ux = B_kᵀ V'_xx A_k
+    κ_k = Q_uu⁻¹ Q_u,   K_k = Q_uu⁻¹ Q_ux
+    V_x  = Q_x − K_kᵀ Q_u − Q_uxᵀ κ_k + K_kᵀ Q_uu κ_k
+    V_xx = Q_xx − K_kᵀ Q_ux − Q_uxᵀ K_k + K_kᵀ Q_uu K_k
+
+(the last two equal eq. 6 when μ = 0 and stay consistent when μ > 0).
+
+Forward pass (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k − x̄_k). The predicted cost change of a
+step of size ε is ΔJ(ε) = −ε Σ κᵀQ_u + ½ ε² Σ κᵀ Q_uu κ; a step is accepted when the actual
+decrease is at least ``armijo`` times the predicted one. A rollout that fails (contact solver
+not converging, non-finite state) is a rejected step. When no ε works, μ grows and the
+backward pass is repeated; μ shrinks after successful steps.
+
+After convergence, u_k = ū_k − K_k (x_k − x̄_k) (eq. 8) is the local feedback policy.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import SolverConfig
+from .cost import QuadraticCost, Quadratization
+from .derivatives import DerivativeMethod, linearize
+from .plant import Dynamics, SimulationError
+from .solution import PHASES, Solution
+
+
+@dataclass
+class BackwardPassResult:
+    """K: [N, nu, nx], kappa: [N, nu], dV: (Σ κᵀQ_u, Σ κᵀQ_uu κ); ok=False if Q_uu not PD."""
+
+    K: np.ndarray
+    kappa: np.ndarray
+    dV: tuple[float, float]
+    ok: bool = True
+
+
+def backward_pass(A: np.ndarray, B: np.ndarray, quad: Quadratization, mu: float
+                  ) -> BackwardPassResult:
+    """A: [N, nx, nx], B: [N, nx, nu], quad: cost derivatives, mu: regularization ≥ 0."""
+    N, nx, nu = B.shape
+    K = np.zeros((N, nu, nx))
+    kappa = np.zeros((N, nu))
+    Vx = quad.lx[N].copy()
+    Vxx = quad.lxx[N].copy()
+    d1 = d2 = 0.0
+    eye = np.eye(nu)
+    for k in range(N - 1, -1, -1):
+        Ak, Bk = A[k], B[k]
+        VxxA = Vxx @ Ak
+        VxxB = Vxx @ Bk
+        Qx = quad.lx[k] + Ak.T @ Vx
+        Qu = quad.lu[k] + Bk.T @ Vx
+        Qxx = quad.lxx[k] + Ak.T @ VxxA
+        Quu = quad.luu[k] + Bk.T @ VxxB + mu * eye
+        Qux = Bk.T @ VxxA
+        Quu = 0.5 * (Quu + Quu.T)
+        try:
+            L = np.linalg.cholesky(Quu)
+        except np.linalg.LinAlgError:
+            return BackwardPassResult(K, kappa, (d1, d2), ok=False)
+        sol = _chol_solve(L, np.column_stack([Qu, Qux]))
+        kap, Kk = sol[:, 0], sol[:, 1:]
+        kappa[k], K[k] = kap, Kk
+        Vx = Qx - Kk.T @ Qu - Qux.T @ kap + Kk.T @ (Quu @ kap)
+        Vxx = Qxx - Kk.T @ Qux - Qux.T @ Kk + Kk.T @ Quu @ Kk
+        Vxx = 0.5 * (Vxx + Vxx.T)
+        d1 += kap @ Qu
+        d2 += kap @ Quu @ kap
+    return BackwardPassResult(K, kappa, (float(d1), float(d2)))
+
+
+def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    import scipy.linalg as sla
+
+    y = sla.solve_triangular(L, b, lower=True, check_finite=False)
+    return sla.solve_triangular(L.T, y, lower=False, check_finite=False)
+
+
+def expected_decrease(dV: tuple[float, float], eps: float) -> float:
+    """Predicted cost *decrease* (positive) for step size eps."""
+    return eps * dV[0] - 0.5 * eps**2 * dV[1]
+
+
+@dataclass
+class IterationInfo:
+    """What a callback sees after each iteration."""
+
+    iteration: int
+    cost: float
+    eps: float
+    mu: float
+    seconds: float
+    phases: dict[str, float]
+    expected: float
+    accepted: bool
+
+
+@dataclass
+class Problem:
+    """An optimal control problem (4): dynamics, cost, x0, horizon start time t0."""
+
+    dynamics: Dynamics
+    cost: QuadraticCost
+    x0: np.ndarray
+    t0: float = 0.0
+
+
+@dataclass
+class _State:
+    X: np.ndarray
+    U: np.ndarray
+    cost: float
+    mu: float
+    history: list = field(default_factory=list)
+
+
+def solve(
+    problem: Problem,
+    U0: np.ndarray,
+    settings: SolverConfig | None = None,
+    callbacks: list[Callable[[IterationInfo], None]] | None = None,
+    max_iterations: int | None = None,
+    final_gains: bool = True,
+) -> Solution:
+    """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution."""
+    s = settings or SolverConfig()
+    dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
+    method = DerivativeMethod(s.derivatives)
+    max_it = s.max_iterations if max_iterations is None else max_iterations
+    callbacks = callbacks or []
+    N = U0.shape[0]
+
+    phases = {p: [] for p in PHASES}
+    iter_seconds: list[float] = []
+    t_start = time.perf_counter()
+    U = np.array(U0, dtype=float)
+    try:
+        X = dyn.rollout(x0, U)
+    except SimulationError as e:
+        raise SimulationError(f"initial rollout failed: {e}") from None
+    J = cost.total(X, U, t0)
+    rollout_time = time.perf_counter() - t_start
+    costs = [J]
+    mu = s.regularization_init
+    K = np.zeros((N, dyn.nu, dyn.nx))
+    kappa = np.zeros((N, dyn.nu))
+    reason = "max_iterations"
+    converged = False
+    eps_hist, mu_hist = [], []
+    accepted = False
+
+    for it in range(max_it):
+        t_it = time.perf_counter()
+        ph = dict.fromkeys(PHASES, 0.0)
+        if it == 0:
+            ph["rollout"] = rollout_time
+        t = time.perf_counter()
+        try:
+            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval)
+        except SimulationError as e:
+            reason = f"derivatives failed: {e}"
+            break
+        quad = cost.quadratize(X, U, t0)
+        ph["derivatives"] = time.perf_counter() - t
+
+        accepted = False
+        eps = 0.0
+        expected = 0.0
+        while True:
+            t = time.perf_counter()
+            bp = backward_pass(A, B, quad, mu)
+            ph["backward_pass"] += time.perf_counter() - t
+            if not bp.ok:
+                mu = _increase(mu, s)
+                if mu > s.regularization_max:
+                    break
+                continue
+            K, kappa = bp.K, bp.kappa
+            expected_full = expected_decrease(bp.dV, 1.0)
+            if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
+                expected = expected_full
+                break
+            t = time.perf_counter()
+            eps = 1.0
+            for _ in range(s.line_search_max_steps):
+                expected = expected_decrease(bp.dV, eps)
+                try:
+                    Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
+                    Jn = cost.total(Xn, Un, t0)
+                except SimulationError:
+                    Jn = np.inf
+                if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
+                    accepted = True
+                    break
+                eps *= s.line_search_factor
+            ph["line_search"] += time.perf_counter() - t
+            if accepted:
+                break
+            mu = _increase(mu, s)
+            if mu > s.regularization_max:
+                break
+
+        seconds = time.perf_counter() - t_it
+        iter_seconds.append(seconds)
+        for p in PHASES:
+            phases[p].append(ph[p])
+        if accepted:
+            rel = (J - Jn) / max(abs(J), 1e-12)
+            X, U, J = Xn, Un, Jn
+            mu = max(s.regularization_min, mu / s.regularization_factor)
+        costs.append(J)
+        eps_hist.append(eps if accepted else 0.0)
+        mu_hist.append(mu)
+        info = IterationInfo(it + 1, J, eps if accepted else 0.0, mu, seconds, ph,
+                             expected, accepted)
+        for cb in callbacks:
+            cb(info)
+        if not accepted:
+            if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
+                reason, converged = "expected_decrease", True
+            else:
+                reason = "line_search_failed"
+                # A local minimum at the resolution the dynamics allow: report honestly.
+            break
+        if rel < s.relative_cost_tolerance:
+            reason, converged = "relative_cost_change", True
+            break
+
+    if final_gains and iter_seconds and accepted:
+        # Gains of eq. (8) around the *final* trajectory (the last backward pass was around
+        # the previous one).
+        t = time.perf_counter()
+        try:
+            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval)
+            bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
+            if bp.ok:
+                K, kappa = bp.K, bp.kappa
+        except SimulationError:
+            pass
+        phases["derivatives"][-1] += time.perf_counter() - t
+    return Solution(
+        X=X, U=U, K=K, kappa=kappa,
+        t=cost.times(N, t0),
+        costs=np.array(costs),
+        iteration_seconds=iter_seconds,
+        phase_seconds=phases,
+        converged=converged,
+        reason=reason,
+        derivatives=method.value,
+        eps=eps_hist,
+        mu=mu_hist,
+    )
+
+
+def _increase(mu: float, s: SolverConfig) -> float:
+    return max(mu * s.regularization_factor, 1e-6)

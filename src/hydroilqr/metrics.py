@@ -1,0 +1,148 @@
+"""Task metrics, by name (``metrics: [default, cartpole_wall]`` in a task file).
+
+Each metric function takes (task, solution) and returns a dict of JSON-able numbers. Contact
+metrics replay the trajectory through the plant and read Drake's contact results and
+signed-distance queries, so they measure the simulated physics, not the plan's intent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .config import ConfigError
+
+METRICS: dict[str, Callable] = {}
+
+
+def metric(name: str):
+    def deco(fn):
+        METRICS[name] = fn
+        return fn
+    return deco
+
+
+def compute(task, sol) -> dict:
+    out: dict = {}
+    for name in task.config.metrics:
+        if name not in METRICS:
+            raise ConfigError(f"metrics: unknown metric {name!r} (known: {', '.join(METRICS)})")
+        out.update(METRICS[name](task, sol))
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# Helpers over a trajectory
+# ------------------------------------------------------------------------------------------
+
+
+def geometry_ids(dyn, name: str) -> list:
+    """Collision geometry ids whose collision name or body name is ``name``."""
+    ids = [g for g, (n, b) in dyn.geometry_names().items() if name in (n, b)]
+    if not ids:
+        raise ConfigError(f"metric_params: no collision geometry or body named {name!r}")
+    return ids
+
+
+def signed_distance(dyn, x: np.ndarray, ids_a: list, ids_b: list) -> float:
+    """Smallest signed distance between two sets of geometries at state x (negative = overlap)."""
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+    query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
+    best = np.inf
+    for a in ids_a:
+        for b in ids_b:
+            try:
+                d = query.ComputeSignedDistancePairClosestPoints(a, b).distance
+            except RuntimeError:
+                continue
+            best = min(best, d)
+    return float(best)
+
+
+def contact_pairs(dyn, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:
+    """Hydroelastic/point contacts at x: (geom A, body A, geom B, body B, faces)."""
+    names = dyn.geometry_names()
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+    dyn._input.FixValue(dyn.context, np.zeros(dyn.nu))
+    results = dyn.plant.get_contact_results_output_port().Eval(dyn.plant_context)
+    out = []
+    for i in range(results.num_hydroelastic_contacts()):
+        s = results.hydroelastic_contact_info(i).contact_surface()
+        a, b = names.get(s.id_M(), ("?", "?")), names.get(s.id_N(), ("?", "?"))
+        n = s.num_faces()
+        out.append((a[0], a[1], b[0], b[1], n))
+    for i in range(results.num_point_pair_contacts()):
+        pp = results.point_pair_contact_info(i).point_pair()
+        a, b = names.get(pp.id_A, ("?", "?")), names.get(pp.id_B, ("?", "?"))
+        out.append((a[0], a[1], b[0], b[1], 1))
+    return out
+
+
+def involves(pair, name: str) -> bool:
+    return name in (pair[0], pair[1], pair[2], pair[3])
+
+
+def max_contact_faces(task, sol) -> int:
+    dyn = task.dynamics
+    return int(max((sum(p[4] for p in contact_pairs(dyn, x)) for x in sol.X), default=0))
+
+
+# ------------------------------------------------------------------------------------------
+# Metrics
+# ------------------------------------------------------------------------------------------
+
+
+@metric("default")
+def default_metrics(task, sol) -> dict:
+    """Final cost terms, the final tangent error of every Qf block, and contact polygons."""
+    cost = task.cost
+    N = sol.U.shape[0]
+    t0 = float(sol.t[0])
+    terms = cost.breakdown(sol.X, sol.U, t0)
+    xn = cost.nominal(np.array([sol.t[-1]]))[0]
+    err = cost.layout.diff(sol.X[-1], xn)
+    final_err = {}
+    for name in task.config.cost.Qf:
+        b = cost.layout.block(name)
+        final_err[name] = float(np.linalg.norm(err[list(b.tangent)]))
+    return {
+        "cost_terms": terms,
+        "final_error": final_err,
+        "steps": int(N),
+        "max_contact_faces": max_contact_faces(task, sol),
+    }
+
+
+@metric("cartpole_wall")
+def cartpole_wall(task, sol) -> dict:
+    """final_angle_error_rad, max_overlap_m (tip vs wall), wall_contact_steps, tunnelled."""
+    p = task.config.metric_params
+    dyn = task.dynamics
+    angle = dyn.layout.block(p.get("angle_block", "pole_angle"))
+    a_name, b_name = p.get("contact_pair", ["tip", "wall"])
+    ids_a, ids_b = geometry_ids(dyn, a_name), geometry_ids(dyn, b_name)
+    target = task.cost.nominal(np.array([sol.t[-1]]))[0][angle.coords[0]]
+    dist = np.array([signed_distance(dyn, x, ids_a, ids_b) for x in sol.X])
+    steps = sum(
+        any(involves(pr, a_name) and involves(pr, b_name) for pr in contact_pairs(dyn, x))
+        for x in sol.X[1:]
+    )
+    # Tunnelling: the tip's centre ended up beyond the wall's far face at some step.
+    tunnelled = False
+    wall = next((o for o in task.config.scene if o.name == b_name and o.shape == "box"), None)
+    if wall is not None:
+        far_face = wall.xyz[0] - 0.5 * wall.size[0]
+        body = dyn.plant.GetBodyByName(dyn.geometry_names()[ids_a[0]][1])
+        xs = []
+        for x in sol.X:
+            dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+            xs.append(body.EvalPoseInWorld(dyn.plant_context).translation()[0])
+        tunnelled = bool(np.min(xs) < far_face)
+    return {
+        "final_angle_error_rad": float(abs(sol.X[-1, angle.coords[0]] - target)),
+        "max_overlap_m": float(max(0.0, -np.min(dist))),
+        "min_signed_distance_m": float(np.min(dist)),
+        "wall_contact_steps": int(steps),
+        "tunnelled": tunnelled,
+    }

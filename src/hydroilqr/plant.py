@@ -1,0 +1,397 @@
+"""Discrete dynamics x_{k+1} = f(x_k, u_k) (paper eq. 2) from a task's models and contact config.
+
+``build_diagram`` assembles MultibodyPlant + SceneGraph (and, on request, Meshcat and contact
+visualizers) from a ``TaskConfig``; ``Dynamics`` wraps the plant-only diagram with ``step`` and
+``rollout``. Two Drake traps are handled here (see drake-notes.md): the plant is built with
+``use_sampled_output_ports=False`` so that a forced discrete update really steps, and the
+contact approximation is chosen explicitly (``tamsi`` only to reproduce the paper).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddCompliantHydroelasticPropertiesForHalfSpace,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Box,
+    Cylinder,
+    HalfSpace,
+    IllustrationProperties,
+    ProximityProperties,
+    Rgba,
+    RoleAssign,
+    SceneGraph,
+    Sphere,
+)
+from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
+from pydrake.systems.framework import DiagramBuilder
+
+from .config import ConfigError, ContactProperties, SceneObject, TaskConfig
+from .state import StateLayout
+
+
+class SimulationError(RuntimeError):
+    """A time step failed (contact solver did not converge, or the state became non-finite)."""
+
+
+@dataclass
+class Scene:
+    """A built diagram and handles into it."""
+
+    diagram: object
+    plant: object
+    scene_graph: object
+    actuation_port: int  # diagram input port index of the plant's actuation
+    meshcat: object | None = None
+    visualizers: tuple = ()
+
+
+# ------------------------------------------------------------------------------------------
+# Contact properties
+# ------------------------------------------------------------------------------------------
+
+
+def _proximity_props(p: ContactProperties, old: ProximityProperties | None,
+                     shape: str = "") -> ProximityProperties:
+    """New ProximityProperties: the old material/hydroelastic values overridden by ``p``."""
+    def old_value(group, name, default=None):
+        if old is not None and old.HasProperty(group, name):
+            return old.GetProperty(group, name)
+        return default
+
+    props = ProximityProperties()
+    friction = old_value("material", "coulomb_friction")
+    if p.friction is not None:
+        friction = CoulombFriction(p.friction, p.friction)
+    dissipation = p.dissipation
+    if dissipation is None:
+        dissipation = old_value("material", "hunt_crossley_dissipation")
+    stiffness = old_value("material", "point_contact_stiffness")
+    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness, friction=friction,
+                       properties=props)
+    relaxation = p.relaxation_time
+    if relaxation is None:
+        relaxation = old_value("material", "relaxation_time")
+    if relaxation is not None:
+        props.AddProperty("material", "relaxation_time", relaxation)
+
+    old_modulus = old_value("hydroelastic", "hydroelastic_modulus")
+    compliance = p.compliance
+    if compliance is None:
+        if p.hydroelastic_modulus is not None or old_modulus is not None:
+            compliance = "compliant"
+        elif old is not None and old.HasGroup("hydroelastic") or shape:
+            compliance = "rigid"
+    hint = p.resolution_hint if p.resolution_hint is not None else old_value(
+        "hydroelastic", "resolution_hint")
+    if compliance == "compliant":
+        modulus = p.hydroelastic_modulus if p.hydroelastic_modulus is not None else old_modulus
+        if modulus is None:
+            raise ConfigError("compliant geometry needs hydroelastic_modulus")
+        if shape == "halfspace":
+            slab = p.slab_thickness or old_value("hydroelastic", "slab_thickness", 1.0)
+            AddCompliantHydroelasticPropertiesForHalfSpace(slab, modulus, props)
+        else:
+            AddCompliantHydroelasticProperties(hint if hint else 0.1, modulus, props)
+    elif compliance == "rigid":
+        if shape == "halfspace" or hint is None:
+            AddRigidHydroelasticProperties(props)
+        else:
+            AddRigidHydroelasticProperties(hint, props)
+    margin = p.margin if p.margin is not None else old_value("hydroelastic", "margin")
+    if margin is not None and compliance is not None:
+        props.AddProperty("hydroelastic", "margin", margin)
+    return props
+
+
+def _shape(o: SceneObject):
+    if o.shape == "box":
+        return Box(*o.size)
+    if o.shape == "sphere":
+        return Sphere(o.radius)
+    if o.shape == "cylinder":
+        return Cylinder(o.radius, o.length)
+    return HalfSpace()
+
+
+def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
+    """GeometryId value -> (collision name without model scope, body name)."""
+    inspector = scene_graph.model_inspector()
+    out = {}
+    for gid in inspector.GetAllGeometryIds():
+        if inspector.GetProximityProperties(gid) is None:
+            continue
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        name = inspector.GetName(gid).split("::")[-1]
+        out[gid] = (name, body.name() if body is not None else "world")
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# Building
+# ------------------------------------------------------------------------------------------
+
+
+def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = True) -> Scene:
+    """Builds the task's diagram. With ``meshcat``, adds MeshcatVisualizer + ContactVisualizer."""
+    builder = DiagramBuilder()
+    config = MultibodyPlantConfig(
+        time_step=task.plant.time_step,
+        discrete_contact_approximation=task.plant.contact_approximation,
+        contact_model=task.plant.contact_model,
+        contact_surface_representation=task.plant.contact_surface_representation,
+        use_sampled_output_ports=False,
+    )
+    try:
+        plant, scene_graph = AddMultibodyPlant(config, builder)
+    except Exception as e:  # Drake rejects bad enum strings with a long message
+        raise ConfigError(f"plant: {str(e).splitlines()[0]}") from None
+    parser = Parser(plant)
+    for name, path in task.package_map.items():
+        parser.package_map().Add(name, str(task.resolve_path(path)))
+    for i, m in enumerate(task.models):
+        try:
+            if m.file.startswith("package://"):
+                instances = parser.AddModels(url=m.file)
+            else:
+                instances = parser.AddModels(str(task.resolve_path(m.file)))
+        except Exception as e:
+            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ConfigError(f"models[{i}].file: could not parse {m.file}: {msg}") from None
+        if m.weld is not None:
+            w = m.weld
+            try:
+                parent = (plant.world_frame() if w.parent == "world"
+                          else plant.GetFrameByName(w.parent))
+                child = None
+                for inst in instances:
+                    if plant.HasFrameNamed(w.child, inst):
+                        child = plant.GetFrameByName(w.child, inst)
+                if child is None:
+                    child = plant.GetFrameByName(w.child)
+            except Exception:
+                raise ConfigError(
+                    f"models[{i}].weld: unknown frame {w.parent!r} or {w.child!r}"
+                ) from None
+            X = RigidTransform(RollPitchYaw(w.rpy), np.asarray(w.xyz, dtype=float))
+            plant.WeldFrames(parent, child, X)
+
+    # Static scene geometry.
+    world = plant.world_body()
+    for i, o in enumerate(task.scene):
+        X = RigidTransform(RollPitchYaw(o.rpy), np.asarray(o.xyz, dtype=float))
+        try:
+            props = _proximity_props(o, None, shape=o.shape)
+        except ConfigError as e:
+            raise ConfigError(f"scene[{i}] ({o.name}): {e}") from None
+        name = o.name or f"scene_{i}"
+        plant.RegisterCollisionGeometry(world, X, _shape(o), name, props)
+        if o.shape != "halfspace":
+            plant.RegisterVisualGeometry(world, X, _shape(o), name + "_visual", np.asarray(
+                o.color, dtype=float))
+
+    # Overrides of the models' collision properties.
+    if task.geometry:
+        geoms = collision_geometries(plant, scene_graph)
+        inspector = scene_graph.model_inspector()
+        for key, p in task.geometry.items():
+            hits = [g for g, (n, b) in geoms.items() if key in (n, b)]
+            if not hits:
+                known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
+                raise ConfigError(
+                    f"geometry.{key}: no collision geometry or body of that name "
+                    f"(known: {', '.join(known)})"
+                )
+            for gid in hits:
+                old = inspector.GetProximityProperties(gid)
+                shape = "halfspace" if isinstance(inspector.GetShape(gid), HalfSpace) else ""
+                try:
+                    props = _proximity_props(p, old, shape=shape)
+                except ConfigError as e:
+                    raise ConfigError(f"geometry.{key}: {e}") from None
+                scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+    plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
+    plant.Finalize()
+    if plant.num_actuated_dofs() == 0:
+        raise ConfigError("models: the model has no actuated joints")
+    port = builder.ExportInput(plant.get_actuation_input_port(), "actuation")
+
+    visualizers = ()
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
+        from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
+
+        vis = MeshcatVisualizer.AddToBuilder(
+            builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
+        )
+        visualizers = (vis,)
+        if contact_visualizer:
+            cparams = ContactVisualizerParams()
+            cparams.newtons_per_meter = 40.0
+            cparams.newton_meters_per_meter = 1.0
+            cvis = ContactVisualizer.AddToBuilder(builder, plant, meshcat, cparams)
+            visualizers += (cvis,)
+    diagram = builder.Build()
+    return Scene(diagram, plant, scene_graph, int(port), meshcat, visualizers)
+
+
+class Dynamics:
+    """The discrete dynamics f(x, u) of a task's plant, plus its named state layout.
+
+    Attributes: ``nx = nq + nv``, ``nu`` (actuators), ``dt`` (time step), ``layout``.
+    """
+
+    def __init__(self, task: TaskConfig):
+        self.task = task
+        self.scene = build_diagram(task)
+        self.diagram = self.scene.diagram
+        self.plant = self.scene.plant
+        self.scene_graph = self.scene.scene_graph
+        self.context = self.diagram.CreateDefaultContext()
+        self.plant_context = self.plant.GetMyMutableContextFromRoot(self.context)
+        self.nq = self.plant.num_positions()
+        self.nv = self.plant.num_velocities()
+        self.nx = self.nq + self.nv
+        self.nu = self.plant.num_actuated_dofs()
+        self.dt = task.plant.time_step
+        self.layout = StateLayout.from_plant(self.plant)
+        self.layout.add_groups(task.blocks)
+        self._input = self.diagram.get_input_port(self.scene.actuation_port)
+        self._ad = None
+        self.effort_limits = self._effort_limits()
+
+    # -------------------------------------------------------------------------- stepping
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """x_{k+1} = f(x_k, u_k). x: [nx], u: [nu] -> [nx]. Raises SimulationError."""
+        self.plant.SetPositionsAndVelocities(self.plant_context, x)
+        self._input.FixValue(self.context, u)
+        try:
+            xn = self.plant.EvalUniquePeriodicDiscreteUpdate(self.plant_context).value(0)
+        except RuntimeError as e:
+            raise SimulationError(str(e).strip().splitlines()[0]) from None
+        if not np.all(np.isfinite(xn)):
+            raise SimulationError("non-finite state after a time step")
+        return np.array(xn, copy=True)
+
+    def rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Open-loop simulation. x0: [nx], U: [N, nu] -> X: [N+1, nx]. Raises SimulationError."""
+        N = U.shape[0]
+        X = np.empty((N + 1, self.nx))
+        X[0] = x0
+        for k in range(N):
+            try:
+                X[k + 1] = self.step(X[k], U[k])
+            except SimulationError as e:
+                raise SimulationError(f"step {k}: {e}") from None
+        return X
+
+    def closed_loop_rollout(self, x0, Ubar, Xbar, K, kappa, eps):
+        """Forward pass of iLQR (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k ⊖ x̄_k).
+
+        x0: [nx], Ubar: [N, nu], Xbar: [N+1, nx], K: [N, nu, nx], kappa: [N, nu].
+        Returns X: [N+1, nx], U: [N, nu]. Feedback acts on the coordinate difference (K is
+        expressed in the coordinates in which f was linearized).
+        """
+        N = Ubar.shape[0]
+        X = np.empty((N + 1, self.nx))
+        U = np.empty_like(Ubar)
+        X[0] = x0
+        for k in range(N):
+            U[k] = Ubar[k] - eps * kappa[k] - K[k] @ (X[k] - Xbar[k])
+            try:
+                X[k + 1] = self.step(X[k], U[k])
+            except SimulationError as e:
+                raise SimulationError(f"step {k}: {e}") from None
+        return X, U
+
+    # -------------------------------------------------------------------------- helpers
+    def autodiff(self):
+        """(AutoDiffXd diagram, its context, plant, plant context, input port): built once."""
+        if self._ad is None:
+            ad_diagram = self.diagram.ToAutoDiffXd()
+            ad_context = ad_diagram.CreateDefaultContext()
+            ad_plant = ad_diagram.GetSubsystemByName(self.plant.get_name())
+            ad_plant_context = ad_plant.GetMyMutableContextFromRoot(ad_context)
+            self._ad = (ad_diagram, ad_context, ad_plant, ad_plant_context,
+                        ad_diagram.get_input_port(self.scene.actuation_port))
+        return self._ad
+
+    def default_state(self) -> np.ndarray:
+        ctx = self.plant.CreateDefaultContext()
+        return np.array(self.plant.GetPositionsAndVelocities(ctx))
+
+    def initial_state(self) -> np.ndarray:
+        """x0 from the model defaults and the task's ``initial_state`` (by block name)."""
+        return self.layout.coordinate_vector(
+            self.task.initial_state, "initial_state", self.default_state()
+        )
+
+    def gravity_compensation(self, x: np.ndarray) -> np.ndarray:
+        """u with B u = −τ_g(q) on the actuated coordinates. x: [nx] -> [nu]."""
+        self.plant.SetPositionsAndVelocities(self.plant_context, x)
+        tau_g = self.plant.CalcGravityGeneralizedForces(self.plant_context)
+        B = self.plant.MakeActuationMatrix()
+        return -np.linalg.pinv(B) @ tau_g
+
+    def hold_torques(self, x: np.ndarray, iterations: int = 8) -> np.ndarray:
+        """u that best holds x still for one step: argmin_u ||v_{k+1}(x, u)||² (Gauss-Newton,
+        forward differences). Useful for standing robots where contact carries the weight."""
+        u = self.gravity_compensation(x)
+        nq = self.nq
+        for _ in range(iterations):
+            v1 = self.step(x, u)[nq:]
+            J = np.empty((self.nv, self.nu))
+            h = 1e-4
+            for i in range(self.nu):
+                du = np.zeros(self.nu)
+                du[i] = h
+                J[:, i] = (self.step(x, u + du)[nq:] - v1) / h
+            step, *_ = np.linalg.lstsq(J, -v1, rcond=None)
+            u = u + step
+            if np.linalg.norm(step) < 1e-8:
+                break
+        return u
+
+    def _effort_limits(self) -> np.ndarray:
+        lim = []
+        for i in self.plant.GetJointActuatorIndices():
+            e = self.plant.get_joint_actuator(i).effort_limit()
+            lim.append(e if np.isfinite(e) and e > 0 else np.inf)
+        return np.array(lim)
+
+    def geometry_names(self) -> dict:
+        return collision_geometries(self.plant, self.scene_graph)
+
+    def contact_surfaces(self, x: np.ndarray) -> list:
+        """Hydroelastic contact info at x: list of (geometry A name, B name, num faces)."""
+        self.plant.SetPositionsAndVelocities(self.plant_context, x)
+        self._input.FixValue(self.context, np.zeros(self.nu))
+        results = self.plant.get_contact_results_output_port().Eval(self.plant_context)
+        inspector = self.scene_graph.model_inspector()
+        out = []
+        for i in range(results.num_hydroelastic_contacts()):
+            s = results.hydroelastic_contact_info(i).contact_surface()
+            a = inspector.GetName(s.id_M()).split("::")[-1]
+            b = inspector.GetName(s.id_N()).split("::")[-1]
+            n = s.num_faces()
+            out.append((a, b, n))
+        for i in range(results.num_point_pair_contacts()):
+            pp = results.point_pair_contact_info(i).point_pair()
+            out.append((inspector.GetName(pp.id_A).split("::")[-1],
+                        inspector.GetName(pp.id_B).split("::")[-1], 0))
+        return out
+
+
+def with_illustration_color(props: IllustrationProperties, rgba: Rgba) -> IllustrationProperties:
+    props.AddProperty("phong", "diffuse", rgba)
+    return props
+
+
+__all__ = ["Dynamics", "Scene", "SimulationError", "build_diagram", "SceneGraph"]

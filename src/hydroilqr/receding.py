@@ -1,0 +1,113 @@
+"""Receding-horizon solves (paper §IV-A): solve a W-step window, keep its first S steps, shift
+the start by S steps, warm-start the next window with the previous controls shifted by S (the
+last control repeated at the end), repeat R times. The result has R·S steps.
+
+Each resolve is checkpointed (``checkpoint.npz`` in the run directory), so an interrupted run
+continues where it stopped and ends with the same trajectory as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from .ilqr import IterationInfo, solve
+from .plant import SimulationError
+from .solution import PHASES, Solution
+
+CHECKPOINT = "checkpoint.npz"
+
+
+def shift_guess(U: np.ndarray, shift: int) -> np.ndarray:
+    """Warm start for the next window. U: [W, nu] -> [W, nu]."""
+    return np.vstack([U[shift:], np.tile(U[-1], (shift, 1))])
+
+
+def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None = None,
+                   checkpoint_dir: str | Path | None = None,
+                   on_resolve: Callable[[int, int, Solution], None] | None = None) -> Solution:
+    """Runs the task's receding-horizon schedule. Returns the stitched Solution."""
+    cfg = task.config
+    rh = cfg.receding_horizon
+    W, S, R = rh.window_steps, rh.shift_steps, rh.resolves
+    if S > W:
+        raise ValueError("receding_horizon.shift_steps must not exceed window_steps")
+    dyn = task.dynamics
+    nx, nu = dyn.nx, dyn.nu
+    st = _empty_state(task.x0, task.initial_guess(W), nx, nu)
+    ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
+    if ck is not None and ck.exists():
+        st = _load(ck)
+    while st["done"] < R:
+        r = st["done"]
+        x0 = st["X"][-1]
+        t0 = r * S * dyn.dt
+        max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
+        t_start = time.perf_counter()
+        try:
+            sol = solve(task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it,
+                        final_gains=False)
+        except SimulationError as e:
+            raise SimulationError(f"resolve {r}: {e}") from None
+        wall = time.perf_counter() - t_start
+        st["X"] = np.vstack([st["X"], sol.X[1:S + 1]])
+        st["U"] = np.vstack([st["U"], sol.U[:S]])
+        st["K"] = np.concatenate([st["K"], sol.K[:S]])
+        st["kappa"] = np.vstack([st["kappa"], sol.kappa[:S]])
+        st["guess"] = shift_guess(sol.U, S)
+        st["costs"] += [float(c) for c in sol.costs[1:]]
+        st["iteration_seconds"] += sol.iteration_seconds
+        for p in PHASES:
+            st["phase_seconds"][p] += sol.phase_seconds[p]
+        st["resolves"].append({"iterations": sol.iterations, "seconds": wall,
+                               "cost": sol.final_cost, "converged": sol.converged,
+                               "reason": sol.reason})
+        if r == 0:
+            st["costs"].insert(0, float(sol.costs[0]))
+        st["done"] = r + 1
+        if ck is not None:
+            _save(ck, st)
+        if on_resolve is not None:
+            on_resolve(r + 1, R, sol)
+    res = st["resolves"]
+    N = st["U"].shape[0]
+    return Solution(
+        X=st["X"], U=st["U"], K=st["K"], kappa=st["kappa"],
+        t=dyn.dt * np.arange(N + 1), costs=np.array(st["costs"]),
+        iteration_seconds=st["iteration_seconds"], phase_seconds=st["phase_seconds"],
+        converged=all(r_["converged"] for r_ in res) if res else False,
+        reason=f"{sum(r_['converged'] for r_ in res)}/{len(res)} windows converged",
+        derivatives=cfg.solver.derivatives,
+        extra={"resolves": res, "window_steps": W, "shift_steps": S},
+    )
+
+
+def _empty_state(x0, guess, nx, nu):
+    return {
+        "done": 0, "X": x0[None, :].copy(), "U": np.zeros((0, nu)), "K": np.zeros((0, nu, nx)),
+        "kappa": np.zeros((0, nu)), "guess": guess, "costs": [], "iteration_seconds": [],
+        "phase_seconds": {p: [] for p in PHASES}, "resolves": [],
+    }
+
+
+def _save(path: Path, st: dict) -> None:
+    """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
+    meta = {k: st[k] for k in ("done", "costs", "iteration_seconds", "phase_seconds",
+                               "resolves")}
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, X=st["X"], U=st["U"], K=st["K"], kappa=st["kappa"], guess=st["guess"],
+             meta=np.array(json.dumps(meta)))
+    os.replace(tmp, path)
+
+
+def _load(path: Path) -> dict:
+    with np.load(path, allow_pickle=False) as d:
+        st = json.loads(str(d["meta"]))
+        for k in ("X", "U", "K", "kappa", "guess"):
+            st[k] = np.array(d[k])
+    return st

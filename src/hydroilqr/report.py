@@ -1,0 +1,93 @@
+"""Everything a solve writes into its output directory.
+
+    solution.npz    X, U, K, kappa, t (+ statistics)          -> Solution.load
+    summary.json    task, converged, iterations, final_cost, iteration_seconds,
+                    phase_seconds, derivatives, metrics, config (the fully resolved task)
+    convergence.png cost against iteration (log scale)
+    replay.html     self-contained Meshcat replay with contact surfaces/forces
+    plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from . import metrics as metrics_mod  # noqa: E402
+
+PLOTS: dict[str, Callable] = {}
+
+
+def plot(name: str):
+    def deco(fn):
+        PLOTS[name] = fn
+        return fn
+    return deco
+
+
+def json_safe(obj):
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(json_safe(data), indent=2))
+    tmp.replace(path)
+
+
+def plot_convergence(sol, path: Path, title: str) -> None:
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    c = np.asarray(sol.costs, float)
+    ax.semilogy(np.arange(len(c)), np.maximum(c, 1e-300), "o-", ms=3)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("cost")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
+    """Writes the standard outputs; returns the summary dict."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sol.save(out / "solution.npz")
+    metrics = metrics_mod.compute(task, sol)
+    summary = {
+        "task": task.name,
+        **sol.stats(),
+        "metrics": metrics,
+        "extra": sol.extra,
+        "config": task.config.to_dict(),
+    }
+    write_json(out / "summary.json", summary)
+    plot_convergence(sol, out / "convergence.png", task.name)
+    for name in task.config.metrics:
+        if name in PLOTS:
+            PLOTS[name](task, sol, out)
+    if replay:
+        from .replay import write_replay
+
+        write_replay(task, sol.X, sol.t, out / "replay.html")
+    return summary

@@ -1,0 +1,85 @@
+"""The result of a solve: trajectory, feedback gains and per-iteration statistics."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
+
+
+@dataclass
+class Solution:
+    """An iLQR solution.
+
+    X: [N+1, nx] states, U: [N, nu] inputs, K: [N, nu, nx] feedback gains and
+    kappa: [N, nu] feedforward terms of eqs. (7)-(8), t: [N+1] time grid (s),
+    costs: [iterations+1] cost before the first and after every iteration,
+    iteration_seconds: wall time per iteration, phase_seconds: phase -> per-iteration seconds
+    (rollout, derivatives, backward_pass, line_search).
+    """
+
+    X: np.ndarray
+    U: np.ndarray
+    K: np.ndarray
+    kappa: np.ndarray
+    t: np.ndarray
+    costs: np.ndarray
+    iteration_seconds: list[float]
+    phase_seconds: dict[str, list[float]]
+    converged: bool
+    reason: str
+    derivatives: str
+    eps: list[float] = field(default_factory=list)
+    mu: list[float] = field(default_factory=list)
+    extra: dict = field(default_factory=dict)  # e.g. receding-horizon per-resolve stats
+
+    @property
+    def iterations(self) -> int:
+        return len(self.iteration_seconds)
+
+    @property
+    def final_cost(self) -> float:
+        return float(self.costs[-1])
+
+    @property
+    def total_seconds(self) -> float:
+        return float(np.sum(self.iteration_seconds))
+
+    def stats(self) -> dict:
+        return {
+            "converged": bool(self.converged),
+            "reason": self.reason,
+            "iterations": self.iterations,
+            "final_cost": self.final_cost,
+            "initial_cost": float(self.costs[0]),
+            "costs": [float(c) for c in self.costs],
+            "iteration_seconds": [float(s) for s in self.iteration_seconds],
+            "phase_seconds": {k: [float(x) for x in v] for k, v in self.phase_seconds.items()},
+            "total_seconds": self.total_seconds,
+            "derivatives": self.derivatives,
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Writes an .npz with the arrays and the statistics (as JSON inside)."""
+        np.savez_compressed(
+            path, X=self.X, U=self.U, K=self.K, kappa=self.kappa, t=self.t, costs=self.costs,
+            meta=np.array(json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu,
+                                      "extra": self.extra})),
+        )
+
+    @staticmethod
+    def load(path: str | Path) -> Solution:
+        with np.load(path, allow_pickle=False) as d:
+            meta = json.loads(str(d["meta"]))
+            return Solution(
+                X=d["X"], U=d["U"], K=d["K"], kappa=d["kappa"], t=d["t"], costs=d["costs"],
+                iteration_seconds=meta["iteration_seconds"],
+                phase_seconds=meta["phase_seconds"],
+                converged=meta["converged"], reason=meta["reason"],
+                derivatives=meta["derivatives"], eps=meta.get("eps", []),
+                mu=meta.get("mu", []), extra=meta.get("extra", {}),
+            )

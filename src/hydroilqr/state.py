@@ -1,0 +1,259 @@
+"""Named layout of the state x = [q; v] and a quaternion-aware state difference.
+
+Every joint of the plant contributes *primitive blocks*:
+
+* a 1-DoF joint ``J`` (revolute, prismatic, ...): position block ``J`` and velocity block ``J.v``;
+* a floating body ``B`` (quaternion floating joint): ``B.orientation`` (4 quaternion
+  coordinates wxyz, 3 tangent coordinates), ``B.position`` (3), ``B.angular_velocity`` (3) and
+  ``B.velocity`` (3);
+* any other multi-DoF joint ``J``: ``J`` (positions) and ``J.v`` (velocities).
+
+A task may name *groups* of primitive blocks (``blocks: {arm_q: [joint_1, ..., joint_7]}``) and
+use either kind of name for weights, nominal values and initial states.
+
+The difference ``dx = x ⊖ x_ref`` lives in the tangent space, of size ``2 nv``: plain
+subtraction everywhere except quaternion blocks, whose error is the rotation vector
+``e = 2 sign(w) vec(q_ref* ⊗ q)`` (exact to first order, and the log map's small-angle form).
+``diff_jacobian`` returns ``∂dx/∂x`` so costs in the tangent space can be pulled back to the
+coordinates in which Drake's dynamics are linearized.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import ConfigError
+
+
+@dataclass(frozen=True)
+class Block:
+    """One named piece of the state.
+
+    ``coords``: indices into x (size nx). ``tangent``: indices into the tangent vector (2 nv).
+    ``kind``: "euclidean" or "quaternion" (4 coords, 3 tangent).
+    """
+
+    name: str
+    coords: tuple[int, ...]
+    tangent: tuple[int, ...]
+    kind: str = "euclidean"
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (wxyz). a, b: [..., 4]."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def left_mul_matrix(a: np.ndarray) -> np.ndarray:
+    """L(a) such that a ⊗ b = L(a) b. a: [..., 4] -> [..., 4, 4]."""
+    w, x, y, z = np.moveaxis(a, -1, 0)
+    return np.stack(
+        [
+            np.stack([w, -x, -y, -z], -1),
+            np.stack([x, w, -z, y], -1),
+            np.stack([y, z, w, -x], -1),
+            np.stack([z, -y, x, w], -1),
+        ],
+        -2,
+    )
+
+
+class StateLayout:
+    """The state's named blocks. Built from a finalized MultibodyPlant by ``from_plant``."""
+
+    def __init__(self, nq: int, nv: int, primitives: list[Block], actuators: list[str]):
+        self.nq, self.nv = nq, nv
+        self.nx = nq + nv
+        self.primitives = {b.name: b for b in primitives}
+        self.groups: dict[str, Block] = {}
+        self.actuators = list(actuators)
+        self.quaternions = [b for b in primitives if b.kind == "quaternion"]
+
+    @staticmethod
+    def from_plant(plant) -> StateLayout:
+        from pydrake.multibody.tree import JointIndex
+
+        nq, nv = plant.num_positions(), plant.num_velocities()
+        blocks: list[Block] = []
+        joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+        joints = [j for j in joints if j.num_positions() > 0 or j.num_velocities() > 0]
+        names = [j.name() for j in joints]
+        for j in joints:
+            name = j.name()
+            if names.count(name) > 1:
+                name = f"{plant.GetModelInstanceName(j.model_instance())}::{name}"
+            q0, nqj = j.position_start(), j.num_positions()
+            v0, nvj = j.velocity_start(), j.num_velocities()
+            if j.type_name() == "quaternion_floating":
+                blocks += [
+                    Block(f"{name}.orientation", tuple(range(q0, q0 + 4)),
+                          tuple(range(v0, v0 + 3)), "quaternion"),
+                    Block(f"{name}.position", tuple(range(q0 + 4, q0 + 7)),
+                          tuple(range(v0 + 3, v0 + 6))),
+                    Block(f"{name}.angular_velocity", tuple(range(nq + v0, nq + v0 + 3)),
+                          tuple(range(nv + v0, nv + v0 + 3))),
+                    Block(f"{name}.velocity", tuple(range(nq + v0 + 3, nq + v0 + 6)),
+                          tuple(range(nv + v0 + 3, nv + v0 + 6))),
+                ]
+            else:
+                if nqj != nvj:
+                    raise ConfigError(
+                        f"joint {name}: type {j.type_name()} has nq != nv; not supported"
+                    )
+                blocks += [
+                    Block(name, tuple(range(q0, q0 + nqj)), tuple(range(v0, v0 + nvj))),
+                    Block(f"{name}.v", tuple(range(nq + v0, nq + v0 + nvj)),
+                          tuple(range(nv + v0, nv + v0 + nvj))),
+                ]
+        actuators = [
+            plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()
+        ]
+        return StateLayout(nq, nv, blocks, actuators)
+
+    # ---------------------------------------------------------------------------- names
+    def add_groups(self, groups: dict[str, list[str]]) -> None:
+        for gname, members in groups.items():
+            if gname in self.primitives:
+                raise ConfigError(f"blocks.{gname}: name clashes with a joint/body block")
+            parts = []
+            for m in members:
+                if m not in self.primitives:
+                    raise ConfigError(
+                        f"blocks.{gname}: unknown joint/body block {m!r} "
+                        f"(known: {', '.join(self.primitives)})"
+                    )
+                parts.append(self.primitives[m])
+            kinds = {p.kind for p in parts}
+            if "quaternion" in kinds and len(parts) > 1:
+                raise ConfigError(f"blocks.{gname}: a quaternion block cannot be grouped")
+            self.groups[gname] = Block(
+                gname,
+                tuple(i for p in parts for i in p.coords),
+                tuple(i for p in parts for i in p.tangent),
+                parts[0].kind if parts else "euclidean",
+            )
+
+    def block(self, name: str, key: str = "") -> Block:
+        if name in self.groups:
+            return self.groups[name]
+        if name in self.primitives:
+            return self.primitives[name]
+        known = list(self.groups) + list(self.primitives)
+        raise ConfigError(f"{key or name}: unknown state block {name!r} (known: {', '.join(known)})")
+
+    def names(self) -> list[str]:
+        return list(self.groups) + list(self.primitives)
+
+    def describe(self) -> list[tuple[str, int, int, str]]:
+        """(name, coordinate size, tangent size, kind) of every block, groups first."""
+        return [
+            (b.name, len(b.coords), len(b.tangent), b.kind)
+            for b in list(self.groups.values()) + list(self.primitives.values())
+        ]
+
+    # ---------------------------------------------------------------------------- vectors
+    def tangent_vector(self, spec: dict, key: str, default: float = 0.0) -> np.ndarray:
+        """Weights by block name -> vector over the tangent space, shape [2 nv]."""
+        w = np.full(2 * self.nv, float(default))
+        for name, value in spec.items():
+            b = self.block(name, f"{key}.{name}")
+            vals = np.atleast_1d(np.asarray(value, dtype=float))
+            n = len(b.tangent)
+            if vals.size == 1:
+                vals = np.full(n, vals[0])
+            if vals.size != n:
+                raise ConfigError(f"{key}.{name}: expected 1 or {n} values, got {vals.size}")
+            w[list(b.tangent)] = vals
+        return w
+
+    def coordinate_vector(self, spec: dict, key: str, base: np.ndarray) -> np.ndarray:
+        """Values by block name written into a copy of ``base`` (shape [nx])."""
+        x = np.array(base, dtype=float)
+        for name, value in spec.items():
+            b = self.block(name, f"{key}.{name}")
+            vals = np.atleast_1d(np.asarray(value, dtype=float))
+            n = len(b.coords)
+            if vals.size == 1 and b.kind != "quaternion":
+                vals = np.full(n, vals[0])
+            if vals.size != n:
+                raise ConfigError(f"{key}.{name}: expected {n} values, got {vals.size}")
+            if not np.all(np.isfinite(vals)):
+                raise ConfigError(f"{key}.{name}: values must be finite")
+            if b.kind == "quaternion":
+                norm = np.linalg.norm(vals)
+                if norm < 1e-9:
+                    raise ConfigError(f"{key}.{name}: quaternion must be non-zero")
+                vals = vals / norm
+            x[list(b.coords)] = vals
+        return x
+
+    def default_nominal(self) -> np.ndarray:
+        x = np.zeros(self.nx)
+        for b in self.quaternions:
+            x[b.coords[0]] = 1.0
+        return x
+
+    # ---------------------------------------------------------------------------- difference
+    def diff(self, X: np.ndarray, Xref: np.ndarray) -> np.ndarray:
+        """Tangent-space difference X ⊖ Xref. X, Xref: [..., nx] -> [..., 2 nv]."""
+        X = np.asarray(X)
+        Xref = np.broadcast_to(Xref, X.shape)
+        out = np.empty(X.shape[:-1] + (2 * self.nv,))
+        idx_c, idx_t = self._euclid_index()
+        out[..., idx_t] = X[..., idx_c] - Xref[..., idx_c]
+        for b in self.quaternions:
+            qe = quat_mul(quat_conj(Xref[..., list(b.coords)]), X[..., list(b.coords)])
+            s = np.where(qe[..., :1] < 0, -1.0, 1.0)
+            out[..., list(b.tangent)] = 2.0 * s * qe[..., 1:]
+        return out
+
+    def diff_jacobian(self, X: np.ndarray, Xref: np.ndarray) -> np.ndarray:
+        """∂(X ⊖ Xref)/∂X. X: [T, nx] -> [T, 2 nv, nx] (identity outside quaternion blocks)."""
+        T = X.shape[0]
+        Xref = np.broadcast_to(Xref, X.shape)
+        J = np.zeros((T, 2 * self.nv, self.nx))
+        idx_c, idx_t = self._euclid_index()
+        J[:, idx_t, idx_c] = 1.0
+        for b in self.quaternions:
+            qref_c = quat_conj(Xref[:, list(b.coords)])
+            L = left_mul_matrix(qref_c)  # [T, 4, 4]
+            qe = np.einsum("tij,tj->ti", L, X[:, list(b.coords)])
+            s = np.where(qe[:, 0] < 0, -1.0, 1.0)
+            J[np.ix_(np.arange(T), list(b.tangent), list(b.coords))] = (
+                2.0 * s[:, None, None] * L[:, 1:, :]
+            )
+        return J
+
+    def _euclid_index(self):
+        if not hasattr(self, "_euclid"):
+            c, t = [], []
+            for b in self.primitives.values():
+                if b.kind == "euclidean":
+                    c += b.coords
+                    t += b.tangent
+            self._euclid = (np.array(c, dtype=int), np.array(t, dtype=int))
+        return self._euclid
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        """Re-normalizes quaternion blocks. x: [..., nx]."""
+        x = np.array(x, dtype=float)
+        for b in self.quaternions:
+            q = x[..., list(b.coords)]
+            x[..., list(b.coords)] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        return x

@@ -1,0 +1,107 @@
+"""A task: model + contact scene + cost + initial state and guess, all from one YAML file.
+
+    task = Task.load("cartpole-wall")                      # built-in
+    task = Task.from_yaml("my_task.yaml", overrides=["solver.max_iterations=20"])
+    task.dynamics   # plant.Dynamics (built on first use)
+    task.cost       # cost.QuadraticCost
+    task.x0         # [nx]
+    task.initial_guess(N)  # [N, nu]
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError, TaskConfig, load_task, task_from_dict
+from .cost import QuadraticCost
+from .ilqr import Problem
+from .plant import Dynamics, SimulationError
+
+
+class Task:
+    def __init__(self, config: TaskConfig):
+        self.config = config
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def load(cls, name_or_path: str, overrides=None, config_file: str | None = None,
+             smoke: bool = False) -> Task:
+        """A built-in task by name, or a task YAML file by path."""
+        return cls(load_task(name_or_path, overrides, config_file, smoke))
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, overrides=None, smoke: bool = False) -> Task:
+        return cls(load_task(str(path), overrides, None, smoke))
+
+    @classmethod
+    def from_dict(cls, data: dict, base_dir: str = ".") -> Task:
+        return cls(task_from_dict(data, base_dir))
+
+    # ------------------------------------------------------------------ pieces
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    @functools.cached_property
+    def dynamics(self) -> Dynamics:
+        return Dynamics(self.config)
+
+    @functools.cached_property
+    def cost(self) -> QuadraticCost:
+        return QuadraticCost.from_config(self.dynamics.layout, self.config.cost,
+                                         self.config.plant.time_step)
+
+    @functools.cached_property
+    def x0(self) -> np.ndarray:
+        return self.dynamics.initial_state()
+
+    @property
+    def steps(self) -> int:
+        """Steps of one optimization window (the whole horizon unless receding)."""
+        rh = self.config.receding_horizon
+        return rh.window_steps if rh is not None else self.config.steps
+
+    def validate(self) -> None:
+        """Builds everything that can fail on bad input, before any solve starts."""
+        _ = self.dynamics, self.cost, self.x0
+        self.initial_guess(self.steps)
+
+    def initial_guess(self, N: int, x: np.ndarray | None = None) -> np.ndarray:
+        """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file."""
+        dyn = self.dynamics
+        x = self.x0 if x is None else x
+        kind = self.config.initial_guess
+        if kind == "zeros":
+            return np.zeros((N, dyn.nu))
+        if kind == "gravity_compensation":
+            return np.tile(dyn.gravity_compensation(x), (N, 1))
+        if kind == "hold":
+            try:
+                return np.tile(dyn.hold_torques(x), (N, 1))
+            except SimulationError as e:
+                raise ConfigError(f"initial_guess: hold torques failed: {e}") from None
+        path = self.config.resolve_path(kind)
+        if not path.exists():
+            raise ConfigError(
+                f"initial_guess: expected zeros, gravity_compensation, hold or a file; "
+                f"no such file {path}"
+            )
+        try:
+            if path.suffix == ".npz":
+                with np.load(path) as d:
+                    U = np.asarray(d["U"], float)
+            else:
+                U = np.loadtxt(path, delimiter=",", ndmin=2)
+        except Exception as e:
+            raise ConfigError(f"initial_guess: could not read {path}: {e}") from None
+        if U.ndim != 2 or U.shape[1] != dyn.nu:
+            raise ConfigError(f"initial_guess: {path} must hold U with {dyn.nu} columns")
+        if U.shape[0] < N:
+            U = np.vstack([U, np.tile(U[-1], (N - U.shape[0], 1))])
+        return U[:N].copy()
+
+    def problem(self, x0: np.ndarray | None = None, t0: float = 0.0) -> Problem:
+        return Problem(self.dynamics, self.cost, self.x0 if x0 is None else x0, t0)
