@@ -234,7 +234,9 @@ def solve(
                 reason = "line_search_failed"
                 # A local minimum at the resolution the dynamics allow: report honestly.
             break
-        if rel < s.relative_cost_tolerance:
+        # Small progress from a shortened step is not convergence: the model may just be
+        # poorly approximated there. Only a full step with little change counts.
+        if rel < s.relative_cost_tolerance and eps >= 1.0:
             reason, converged = "relative_cost_change", True
             break
 

@@ -23,7 +23,23 @@ def metric(name: str):
     return deco
 
 
+# Modules that register task-specific metrics and plots (``metrics_<name>.py``).
+PLUGINS = ("metrics_kinova", "metrics_cheetah")
+
+
+def load_plugins() -> None:
+    import importlib
+
+    for mod in PLUGINS:
+        try:
+            importlib.import_module(f"hydroilqr.{mod}")
+        except ModuleNotFoundError as e:
+            if e.name != f"hydroilqr.{mod}":
+                raise
+
+
 def compute(task, sol) -> dict:
+    load_plugins()
     out: dict = {}
     for name in task.config.metrics:
         if name not in METRICS:
