@@ -406,7 +406,10 @@ def load_task(
             raise ConfigError("smoke: expected a mapping of dotted keys to values")
         for key, value in shrink.items():
             _set_dotted(data, key, value)
-    items = overrides.items() if isinstance(overrides, dict) else map(parse_override, overrides or [])
+    if isinstance(overrides, dict):
+        items = overrides.items()
+    else:
+        items = map(parse_override, overrides or [])
     for key, value in items:
         _set_dotted(data, key, value)
     data.setdefault("name", path.stem)

@@ -20,9 +20,7 @@ from pydrake.geometry import (
     Box,
     Cylinder,
     HalfSpace,
-    IllustrationProperties,
     ProximityProperties,
-    Rgba,
     RoleAssign,
     SceneGraph,
     Sphere,
@@ -387,11 +385,6 @@ class Dynamics:
             out.append((inspector.GetName(pp.id_A).split("::")[-1],
                         inspector.GetName(pp.id_B).split("::")[-1], 0))
         return out
-
-
-def with_illustration_color(props: IllustrationProperties, rgba: Rgba) -> IllustrationProperties:
-    props.AddProperty("phong", "diffuse", rgba)
-    return props
 
 
 __all__ = ["Dynamics", "Scene", "SimulationError", "build_diagram", "SceneGraph"]

@@ -155,7 +155,9 @@ class StateLayout:
         if name in self.primitives:
             return self.primitives[name]
         known = list(self.groups) + list(self.primitives)
-        raise ConfigError(f"{key or name}: unknown state block {name!r} (known: {', '.join(known)})")
+        raise ConfigError(
+            f"{key or name}: unknown state block {name!r} (known: {', '.join(known)})"
+        )
 
     def names(self) -> list[str]:
         return list(self.groups) + list(self.primitives)
