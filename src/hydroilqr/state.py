@@ -216,7 +216,7 @@ class StateLayout:
         """Tangent-space difference X ⊖ Xref. X, Xref: [..., nx] -> [..., 2 nv]."""
         X = np.asarray(X)
         Xref = np.broadcast_to(Xref, X.shape)
-        out = np.empty(X.shape[:-1] + (2 * self.nv,))
+        out = np.zeros(X.shape[:-1] + (2 * self.nv,))
         idx_c, idx_t = self._euclid_index()
         out[..., idx_t] = X[..., idx_c] - Xref[..., idx_c]
         for b in self.quaternions:

@@ -1,0 +1,233 @@
+"""Foundation: LQR = Riccati, derivatives agree, the plant really steps, cart-pole solves."""
+
+import numpy as np
+import pytest
+
+from hydroilqr import DerivativeMethod, Task, linearize, solve
+from hydroilqr.config import SolverConfig
+from hydroilqr.cost import Quadratization
+from hydroilqr.ilqr import Problem, backward_pass
+from hydroilqr.ilqr import solve as ilqr_solve
+from hydroilqr.state import StateLayout
+
+
+def riccati_gains(A, B, Q, R, Qf, N):
+    P = Qf
+    gains = []
+    for _ in range(N):
+        K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+        P = Q + A.T @ P @ A - A.T @ P @ B @ K
+        gains.append(K)
+    return gains[::-1]
+
+
+def test_backward_pass_equals_riccati():
+    rng = np.random.default_rng(0)
+    nx, nu, N = 4, 2, 25
+    A = np.eye(nx) + 0.1 * rng.standard_normal((nx, nx))
+    B = rng.standard_normal((nx, nu))
+    Q, R, Qf = np.diag([1.0, 2.0, 0.5, 0.1]), np.diag([0.3, 0.7]), 10 * np.eye(nx)
+    quad = Quadratization(
+        lx=np.zeros((N + 1, nx)),
+        lxx=np.stack([2 * Q] * N + [2 * Qf]),
+        lu=np.zeros((N, nu)),
+        luu=np.stack([2 * R] * N),
+    )
+    bp = backward_pass(np.stack([A] * N), np.stack([B] * N), quad, mu=0.0)
+    assert bp.ok
+    for k, K in enumerate(riccati_gains(A, B, Q, R, Qf, N)):
+        np.testing.assert_allclose(bp.K[k], K, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(bp.kappa, 0.0, atol=1e-14)
+
+
+class LinearDynamics:
+    """x+ = A x + B u, duck-typed like plant.Dynamics for the solver."""
+
+    def __init__(self, A, B):
+        self.A, self.B = A, B
+        self.nx, self.nu, self.dt = A.shape[0], B.shape[1], 0.1
+
+    def step(self, x, u):
+        return self.A @ x + self.B @ u
+
+    def rollout(self, x0, U):
+        X = [x0]
+        for u in U:
+            X.append(self.step(X[-1], u))
+        return np.array(X)
+
+    def closed_loop_rollout(self, x0, Ubar, Xbar, K, kappa, eps):
+        X, U = [x0], []
+        for k in range(len(Ubar)):
+            U.append(Ubar[k] - eps * kappa[k] - K[k] @ (X[-1] - Xbar[k]))
+            X.append(self.step(X[-1], U[-1]))
+        return np.array(X), np.array(U)
+
+
+def test_ilqr_solves_lqr_in_one_step(monkeypatch):
+    """On a linear system with quadratic cost, the first full iLQR step is optimal."""
+    import hydroilqr.ilqr as ilqr_mod
+    from hydroilqr.cost import QuadraticCost
+    from hydroilqr.state import Block
+
+    rng = np.random.default_rng(1)
+    nx, nu, N = 2, 1, 30
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.005], [0.1]])
+    dyn = LinearDynamics(A, B)
+    monkeypatch.setattr(ilqr_mod, "linearize",
+                        lambda d, X, U, *a, **k: (np.stack([A] * N), np.stack([B] * N)))
+    layout = StateLayout(1, 1, [Block("p", (0,), (0,)), Block("p.v", (1,), (1,))], ["f"])
+    cost = QuadraticCost(layout, [1.0, 0.1], [50.0, 5.0], [0.01], np.zeros(2), np.zeros(2), 0.1)
+    x0 = np.array([1.0, 0.0])
+    sol = ilqr_solve(Problem(dyn, cost, x0), rng.standard_normal((N, nu)),
+                     SolverConfig(max_iterations=5, regularization_init=0.0,
+                                  regularization_min=0.0))
+    # Closed-form optimum: stack the LQR as a least-squares problem in U.
+    Phi = np.zeros((N + 1, nx, N * nu))
+    Ak = np.eye(nx)
+    free = [x0]
+    for k in range(1, N + 1):
+        Phi[k] = A @ Phi[k - 1]
+        Phi[k][:, (k - 1) * nu:k * nu] += B[:, :]
+        Ak = A @ Ak
+        free.append(Ak @ x0)
+    free = np.array(free)
+    W = [np.diag([1.0, 0.1])] * N + [np.diag([50.0, 5.0])]
+    H = 0.01 * np.eye(N * nu)
+    g = np.zeros(N * nu)
+    for k in range(N + 1):
+        H += Phi[k].T @ W[k] @ Phi[k]
+        g += Phi[k].T @ W[k] @ free[k]
+    U_opt = -np.linalg.solve(H, g)
+    np.testing.assert_allclose(sol.U.ravel(), U_opt, rtol=1e-6, atol=1e-8)
+    assert sol.converged
+    assert sol.eps[0] == 1.0
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    return Task.load("cartpole-wall")
+
+
+def test_autodiff_matches_central_differences_in_and_out_of_contact(cartpole):
+    dyn = cartpole.dynamics
+    # Out of contact, then the tip pressed ~3 mm into the wall (generic, non-symmetric poses).
+    free = np.array([0.013, 3.52, -0.21, 0.37])
+    theta = np.pi + np.arcsin((0.45 - 0.05 + 0.003 - 0.011) / 0.5)
+    touching = np.array([-0.011, theta, -0.05, 0.12])
+    assert not dyn.contact_surfaces(free)
+    assert dyn.contact_surfaces(touching), "the tip should touch the wall"
+    X = np.stack([free, touching, touching])
+    U = np.array([[1.3], [-2.1], [0.7]])
+    A_ad, B_ad = linearize(dyn, X, U, DerivativeMethod.AUTODIFF)
+    A_fd, B_fd = linearize(dyn, X, U, DerivativeMethod.CENTRAL)
+    for k in range(2):
+        J_ad = np.hstack([A_ad[k], B_ad[k]])
+        J_fd = np.hstack([A_fd[k], B_fd[k]])
+        err = np.max(np.abs(J_ad - J_fd)) / np.max(np.abs(J_ad))
+        assert err < 1e-4, f"step {k}: relative error {err:.2e}"
+    # Contact changes the partials (the wall is felt).
+    assert np.max(np.abs(A_ad[1] - A_ad[0])) > 1e-3
+
+
+def test_forward_differences_close_to_autodiff(cartpole):
+    dyn = cartpole.dynamics
+    X = np.array([[0.02, 3.3, 0.1, -0.2]])
+    U = np.array([[0.5]])
+    A_ad, B_ad = linearize(dyn, X, U, "autodiff")
+    A_fw, B_fw = linearize(dyn, X, U, "forward")
+    assert np.max(np.abs(A_ad - A_fw)) / np.max(np.abs(A_ad)) < 1e-4
+    assert np.max(np.abs(B_ad - B_fw)) / np.max(np.abs(B_ad)) < 1e-4
+
+
+def test_falling_body_falls(tmp_path):
+    """A discrete plant's step must really advance (drake-notes: sampled-output-port trap)."""
+    from hydroilqr.config import TASKS_DIR
+
+    task = Task.from_dict(
+        {
+            "models": [{"file": str(TASKS_DIR / "../models/cartpole_wall/cartpole.sdf")},
+                       {"file": str(TASKS_DIR / "../models/kinova_gen3/ball.sdf")}],
+            "plant": {"time_step": 0.01},
+            "initial_state": {"ball.position": [2.0, 0.0, 1.0], "pole_pin": 0.3},
+        }
+    )
+    dyn = task.dynamics
+    X = dyn.rollout(task.x0, np.zeros((30, dyn.nu)))
+    z = X[:, dyn.layout.block("ball.position").coords[2]]
+    assert z[-1] < z[0] - 0.3  # ~0.44 m after 0.3 s of free fall
+    assert np.all(np.diff(z) <= 1e-12)
+    assert X[-1, dyn.layout.block("pole_pin").coords[0]] < 0.3  # the pole swings down
+
+
+def test_quaternion_difference_jacobian():
+    from hydroilqr.state import Block
+
+    layout = StateLayout(7, 6, [Block("b.orientation", (0, 1, 2, 3), (0, 1, 2), "quaternion"),
+                                Block("b.position", (4, 5, 6), (3, 4, 5)),
+                                Block("b.angular_velocity", (7, 8, 9), (6, 7, 8)),
+                                Block("b.velocity", (10, 11, 12), (9, 10, 11))], [])
+    rng = np.random.default_rng(3)
+    x = np.concatenate([rng.standard_normal(4), rng.standard_normal(3), rng.standard_normal(6)])
+    x[:4] /= np.linalg.norm(x[:4])
+    ref = layout.normalize(x + 0.1 * rng.standard_normal(13))
+    J = layout.diff_jacobian(x[None], ref[None])[0]
+    h = 1e-7
+    Jn = np.stack([(layout.diff(x + h * e, ref) - layout.diff(x - h * e, ref)) / (2 * h)
+                   for e in np.eye(13)], axis=1)
+    np.testing.assert_allclose(J, Jn, atol=1e-6)
+    # A rotation of angle a about z gives an error of (0, 0, ~a).
+    a = 0.2
+    q = np.array([np.cos(a / 2), 0, 0, np.sin(a / 2)])
+    xq = np.concatenate([q, np.zeros(9)])
+    ident = np.concatenate([[1.0, 0, 0, 0], np.zeros(9)])
+    np.testing.assert_allclose(layout.diff(xq, ident)[:3], [0, 0, 2 * np.sin(a / 2)])
+
+
+def test_cartpole_smoke_solve_uses_the_wall(tmp_path):
+    from hydroilqr import metrics
+
+    task = Task.load("cartpole-wall", smoke=True)
+    sol = solve(task)
+    assert np.all(np.diff(sol.costs) < 0), "cost must decrease monotonically"
+    assert sol.costs[-1] < 0.05 * sol.costs[0]
+    m = metrics.compute(task, sol)
+    assert m["max_overlap_m"] > 0 and m["wall_contact_steps"] > 0
+    # The pole is brought from 0.5 rad past upright to near upright, braced on the wall.
+    assert m["final_angle_error_rad"] < 0.25
+    assert set(sol.phase_seconds) == {"rollout", "derivatives", "backward_pass", "line_search"}
+    assert sol.K.shape == (task.config.steps, 1, 4) and sol.X.shape == (task.config.steps + 1, 4)
+    sol.save(tmp_path / "s.npz")
+    from hydroilqr import Solution
+
+    back = Solution.load(tmp_path / "s.npz")
+    np.testing.assert_array_equal(back.X, sol.X)
+    assert back.reason == sol.reason
+
+
+def test_overrides_and_shortcuts():
+    task = Task.load("cartpole-wall", ["tip.hydroelastic_modulus=3e5", "wall.friction=0.1",
+                                       "solver.max_iterations=7"])
+    assert task.config.geometry["tip"].hydroelastic_modulus == 3e5
+    assert task.config.scene[0].friction == 0.1
+    assert task.config.solver.max_iterations == 7
+
+
+def test_cli_solve_writes_outputs(tmp_path):
+    import json
+
+    from hydroilqr.cli import main
+
+    out = tmp_path / "run"
+    assert main(["solve", "cartpole-wall", "--smoke", "--set", "solver.max_iterations=2",
+                 "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("task", "converged", "iterations", "final_cost", "iteration_seconds",
+                "phase_seconds", "derivatives", "metrics"):
+        assert key in summary
+    for key in ("final_angle_error_rad", "max_overlap_m", "wall_contact_steps"):
+        assert key in summary["metrics"]
+    for f in ("solution.npz", "convergence.png", "replay.html"):
+        assert (out / f).stat().st_size > 0
+    assert "<html" in (out / "replay.html").read_text()[:2000].lower()
