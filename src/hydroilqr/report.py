@@ -80,6 +80,9 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
         "metrics": metrics,
         "extra": sol.extra,
         "config": task.config.to_dict(),
+        # Directory the config's relative paths resolve against (rebuild with
+        # config.task_from_dict(summary["config"], summary["base_dir"])).
+        "base_dir": task.config.base_dir,
     }
     write_json(out / "summary.json", summary)
     plot_convergence(sol, out / "convergence.png", task.name)
