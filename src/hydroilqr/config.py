@@ -146,6 +146,16 @@ class RecedingHorizonConfig:
 
 
 @dataclass
+class MPCConfig:
+    """Defaults for ``hydroilqr mpc`` (each can be overridden on the command line)."""
+
+    rate: float = 50.0  # Hz, control updates
+    horizon: float = 0.3  # s
+    iterations_per_update: int = 1
+    duration: float = 2.0  # s
+
+
+@dataclass
 class TaskConfig:
     name: str = ""
     description: str = ""
@@ -162,6 +172,7 @@ class TaskConfig:
     cost: CostConfig = field(default_factory=CostConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     receding_horizon: RecedingHorizonConfig | None = None
+    mpc: MPCConfig = field(default_factory=MPCConfig)
     metrics: list[str] = field(default_factory=lambda: ["default"])
     metric_params: dict[str, Any] = field(default_factory=dict)
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).

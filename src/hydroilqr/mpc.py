@@ -1,0 +1,429 @@
+"""Closed-loop model predictive control over hydroelastic contact.
+
+A plant simulation (the task's own model, a separate Drake context) runs forward. At every
+control update the controller reads the current state x, warm-starts from its previous plan
+shifted by the time that has passed, runs at most K iLQR iterations over a short horizon, and
+the plant then receives the local policy of eq. (8) between updates:
+
+    u(t) = ū_i − K_i (x(t) − x̄_i),   i = (t − t_plan) / dt
+
+clipped to the actuators' effort limits.
+
+Two clocks:
+
+* lock-step (default): the simulation waits for the controller; the report says how far from
+  real time the controller is (``controller_realtime_factor`` = control period / solve time);
+* ``realtime``: while the controller computes, the simulation keeps running with the old policy
+  for the wall time the solve took, so its latency is felt; the new plan, computed from the
+  state measured at the start of the solve, is applied from then on (indexed by time since that
+  measurement).
+
+``--push TIME:BODY:FX,FY,FZ`` applies an external force (N, world frame, at the body origin)
+for ``push_duration`` seconds to show recovery.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import ConfigError
+from .ilqr import Problem
+from .ilqr import solve as ilqr_solve
+from .plant import Dynamics, SimulationError
+from .solution import Solution
+
+
+@dataclass
+class Push:
+    time: float
+    body: str
+    force: np.ndarray  # [3] N, world frame
+    duration: float = 0.1
+
+    @staticmethod
+    def parse(text: str, duration: float) -> Push:
+        try:
+            t, body, f = text.split(":")
+            force = np.array([float(v) for v in f.split(",")])
+            if force.size != 3 or not np.all(np.isfinite(force)):
+                raise ValueError
+            return Push(float(t), body, force, duration)
+        except ValueError:
+            raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
+
+
+@dataclass
+class MPCSettings:
+    duration: float = 2.0
+    rate: float = 50.0
+    horizon: float = 0.3
+    iterations_per_update: int = 1
+    realtime: bool = False
+    pushes: list[Push] = field(default_factory=list)
+
+
+@dataclass
+class MPCResult:
+    """Closed-loop trajectory and controller statistics.
+
+    X: [T+1, nx], U: [T, nu], t: [T+1]; solve_seconds / update_times: one per update.
+    """
+
+    X: np.ndarray
+    U: np.ndarray
+    t: np.ndarray
+    update_times: list[float]
+    solve_seconds: list[float]
+    iterations: list[int]
+    failures: int
+    wall_seconds: float
+    settings: MPCSettings
+
+    def stats(self) -> dict:
+        s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
+        sim = float(self.t[-1] - self.t[0])
+        period = 1.0 / self.settings.rate
+        return {
+            "duration_s": sim,
+            "updates": len(self.solve_seconds),
+            "requested_rate_hz": self.settings.rate,
+            "achieved_rate_hz": len(self.solve_seconds) / sim if sim > 0 else 0.0,
+            "horizon_s": self.settings.horizon,
+            "iterations_per_update": self.settings.iterations_per_update,
+            "mean_iterations": float(np.mean(self.iterations)) if self.iterations else 0.0,
+            "realtime_mode": self.settings.realtime,
+            "solve_seconds": {
+                "p50": float(np.percentile(s, 50)),
+                "p95": float(np.percentile(s, 95)),
+                "max": float(np.max(s)),
+                "mean": float(np.mean(s)),
+            },
+            "controller_realtime_factor": period / float(np.mean(s)) if np.mean(s) > 0 else None,
+            "realtime_factor": sim / self.wall_seconds if self.wall_seconds > 0 else None,
+            "wall_seconds": self.wall_seconds,
+            "solver_failures": self.failures,
+            "pushes": [
+                {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
+                for p in self.settings.pushes
+            ],
+        }
+
+    def as_solution(self) -> Solution:
+        """The closed-loop run in Solution form (for metrics, plots and replays)."""
+        T, nu = self.U.shape
+        nx = self.X.shape[1]
+        return Solution(
+            self.X,
+            self.U,
+            np.zeros((T, nu, nx)),
+            np.zeros((T, nu)),
+            self.t,
+            np.zeros(1),
+            [],
+            {},
+            True,
+            "mpc",
+            "",
+        )
+
+
+class Controller:
+    """Receding-horizon iLQR with warm starts. ``update(x, t)`` returns a plan."""
+
+    def __init__(self, task, horizon_steps: int, iterations: int):
+        self.task = task
+        self.dyn = task.dynamics
+        self.cost = task.cost
+        self.N = horizon_steps
+        self.iterations = iterations
+        self.U = task.initial_guess(horizon_steps)
+        self.t_plan = 0.0
+        self.plan: Solution | None = None
+
+    def update(self, x: np.ndarray, t: float) -> tuple[Solution | None, bool]:
+        if self.plan is not None:
+            shift = int(round((t - self.t_plan) / self.dyn.dt))
+            shift = min(max(shift, 0), self.N)
+            if shift:
+                self.U = np.vstack([self.U[shift:], np.tile(self.U[-1], (shift, 1))])
+        try:
+            sol = ilqr_solve(
+                Problem(self.dyn, self.cost, x, t),
+                self.U,
+                self.task.config.solver,
+                max_iterations=self.iterations,
+                final_gains=False,
+            )
+        except SimulationError:
+            return self.plan, False
+        self.U = sol.U.copy()
+        self.t_plan = t
+        self.plan = sol
+        return sol, True
+
+
+class Truth:
+    """The simulated plant being controlled (its own Drake context), with external pushes."""
+
+    def __init__(self, task):
+        self.dyn = Dynamics(task.config)
+        self.plant = self.dyn.plant
+        self.limits = self.dyn.effort_limits
+        self.port = self.plant.get_applied_spatial_force_input_port()
+        self._pushing = None
+        self._set_force(None)
+
+    def _set_force(self, push: Push | None):
+        from pydrake.multibody.math import SpatialForce
+        from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+
+        if push is self._pushing and push is not None:
+            return
+        forces = []
+        if push is not None:
+            try:
+                body = self.plant.GetBodyByName(push.body)
+            except RuntimeError:
+                raise ConfigError(f"--push: no body named {push.body!r}") from None
+            f = ExternallyAppliedSpatialForce()
+            f.body_index = body.index()
+            f.p_BoBq_B = np.zeros(3)
+            f.F_Bq_W = SpatialForce(np.zeros(3), push.force)
+            forces.append(f)
+        self.port.FixValue(self.dyn.plant_context, forces)
+        self._pushing = push
+
+    def step(self, x, u, t, pushes):
+        active = next((p for p in pushes if p.time <= t < p.time + p.duration), None)
+        self._set_force(active)
+        u = np.clip(u, -self.limits, self.limits)
+        return self.dyn.step(x, u), u
+
+
+def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
+    """Runs the closed loop for ``settings.duration`` seconds of simulated time."""
+    dyn = task.dynamics
+    dt = dyn.dt
+    if settings.rate <= 0 or settings.horizon <= 0 or settings.duration <= 0:
+        raise ConfigError("mpc: rate, horizon and duration must be positive")
+    N = max(2, int(round(settings.horizon / dt)))
+    period_steps = max(1, int(round(1.0 / (settings.rate * dt))))
+    total = int(round(settings.duration / dt))
+    ctrl = Controller(task, N, settings.iterations_per_update)
+    truth = Truth(task)
+    for p in settings.pushes:  # fail early on an unknown body
+        truth._set_force(p)
+    truth._set_force(None)
+
+    x = task.x0.copy()
+    X, U = [x], []
+    upd_t, solve_s, iters = [], [], []
+    failures = 0
+    # The first plan is computed before the clock starts (as a robot would before moving).
+    plan, ok = ctrl.update(x, 0.0)
+    if plan is None:
+        raise SimulationError("mpc: the first plan failed")
+    k = 0
+    wall0 = time.perf_counter()
+
+    def advance(n, plan, t_plan):
+        nonlocal x, k
+        for _ in range(n):
+            if k >= total:
+                return
+            # Index into the plan by the time elapsed since its state was measured.
+            i = min(max(k - int(round(t_plan / dt)), 0), plan.U.shape[0] - 1)
+            u = plan.U[i] - plan.K[i] @ (x - plan.X[i])
+            x, u = truth.step(x, u, k * dt, settings.pushes)
+            X.append(x)
+            U.append(u)
+            k += 1
+
+    t_plan = 0.0
+    first = True
+    while k < total:
+        t_now = k * dt
+        if not first:
+            t0 = time.perf_counter()
+            new_plan, ok = ctrl.update(x, t_now)
+            w = time.perf_counter() - t0
+            failures += 0 if ok else 1
+            solve_s.append(w)
+            iters.append(new_plan.iterations if (ok and new_plan) else 0)
+            upd_t.append(t_now)
+            if settings.realtime:
+                # The old policy keeps running while the controller thinks.
+                advance(int(math.ceil(w / dt)), plan, t_plan)
+            if ok:
+                plan, t_plan = new_plan, t_now
+        else:
+            solve_s.append(0.0)
+            iters.append(plan.iterations)
+            upd_t.append(0.0)
+            first = False
+        # Run to the next update time.
+        n_next = (k // period_steps + 1) * period_steps - k
+        advance(max(1, n_next), plan, t_plan)
+        if on_update is not None:
+            on_update(k, total)
+    wall = time.perf_counter() - wall0
+    # The first (pre-start) solve is reported separately and not counted in the percentiles.
+    return MPCResult(
+        np.array(X),
+        np.array(U),
+        dt * np.arange(len(X)),
+        upd_t[1:],
+        solve_s[1:],
+        iters[1:],
+        failures,
+        wall,
+        settings,
+    )
+
+
+# ------------------------------------------------------------------------------------------
+# CLI
+# ------------------------------------------------------------------------------------------
+
+
+def plot_mpc(task, res: MPCResult, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    layout = task.dynamics.layout
+    names = [
+        n
+        for n, w in task.config.cost.Q.items()
+        if np.any(np.asarray(w, float) > 0)
+        and layout.block(n).kind == "euclidean"
+        and not n.endswith("velocity")
+        and not n.endswith(".v")
+    ][:4]
+    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(7, 2.0 * (len(names) + 1)), sharex=True)
+    axes = np.atleast_1d(axes)
+    xn = task.cost.nominal(res.t)
+    for ax, name in zip(axes, names):
+        b = layout.block(name)
+        for j, c in enumerate(b.coords):
+            ax.plot(res.t, res.X[:, c], label=f"{name}[{j}]" if len(b.coords) > 1 else name)
+            ax.plot(res.t, xn[:, c], "--", color="gray", lw=0.8)
+        ax.set_ylabel(name)
+        ax.legend(fontsize=7, loc="best")
+    for p in res.settings.pushes:
+        for ax in axes:
+            ax.axvspan(p.time, p.time + p.duration, color="red", alpha=0.15)
+    ax = axes[-1]
+    ax.plot(res.update_times, 1e3 * np.array(res.solve_seconds), ".", ms=3, label="solve time")
+    ax.axhline(1e3 / res.settings.rate, color="k", ls="--", lw=0.8, label="control period")
+    ax.set_ylabel("ms")
+    ax.set_xlabel("time [s]")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _setup(p):
+    from .cli import add_task_args
+
+    add_task_args(p)
+    p.add_argument(
+        "--duration", type=float, help="simulated seconds (default: the task's mpc.duration)"
+    )
+    p.add_argument("--rate", type=float, help="control updates per second")
+    p.add_argument("--horizon", type=float, help="planning horizon in seconds")
+    p.add_argument("--iterations-per-update", type=int, help="iLQR iterations per update")
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="simulated time advances by the controller's wall time (latency felt)",
+    )
+    p.add_argument("--push", action="append", default=[], metavar="TIME:BODY:FX,FY,FZ")
+    p.add_argument("--push-duration", type=float, default=0.1)
+    p.add_argument("--threads", type=int)
+    p.add_argument("--out", required=True)
+    p.add_argument("--no-replay", action="store_true")
+    p.set_defaults(func=cmd_mpc)
+
+
+def cmd_mpc(args) -> int:
+    from . import metrics, report
+    from .cli import console, load_task_from_args
+
+    extra = [f"solver.threads={args.threads}"] if args.threads is not None else []
+    task = load_task_from_args(args, extra)
+    m = task.config.mpc
+    settings = MPCSettings(
+        duration=args.duration if args.duration is not None else m.duration,
+        rate=args.rate if args.rate is not None else m.rate,
+        horizon=args.horizon if args.horizon is not None else m.horizon,
+        iterations_per_update=(
+            args.iterations_per_update
+            if args.iterations_per_update is not None
+            else m.iterations_per_update
+        ),
+        realtime=args.realtime,
+        pushes=[Push.parse(s, args.push_duration) for s in args.push],
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    console.print(
+        f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
+        f"{settings.horizon:g} s, {settings.iterations_per_update} it/update, "
+        f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
+    )
+    from rich.progress import Progress
+
+    with Progress(transient=True) as prog:
+        bar = prog.add_task("simulating", total=1.0)
+        res = run_mpc(task, settings, lambda k, n: prog.update(bar, completed=k / n))
+    stats = res.stats()
+    sol = res.as_solution()
+    task_metrics = metrics.compute(task, sol)
+    data = {"task": task.name, **stats, "metrics": task_metrics}
+    report.write_json(out / "mpc.json", data)
+    np.savez_compressed(
+        out / "mpc.npz",
+        X=res.X,
+        U=res.U,
+        t=res.t,
+        update_times=np.array(res.update_times),
+        solve_seconds=np.array(res.solve_seconds),
+    )
+    plot_mpc(task, res, out / "mpc.png")
+    if not args.no_replay:
+        from .replay import write_replay
+
+        write_replay(task, res.X, res.t, out / "mpc.html")
+    s = stats["solve_seconds"]
+    console.print(
+        f"rate {stats['achieved_rate_hz']:.1f} Hz, solve p50 {1e3 * s['p50']:.1f} ms, "
+        f"p95 {1e3 * s['p95']:.1f} ms, max {1e3 * s['max']:.1f} ms, controller real-time factor "
+        f"{stats['controller_realtime_factor']:.2f}, loop real-time factor "
+        f"{stats['realtime_factor']:.2f}"
+    )
+    shown = {k: v for k, v in task_metrics.items() if not isinstance(v, (dict, list))}
+    console.print(
+        "metrics: "
+        + ", ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in shown.items()
+        )
+    )
+    console.print(f"wrote {out}/mpc.json, mpc.png" + ("" if args.no_replay else ", mpc.html"))
+    return 0
+
+
+def _register():
+    from .cli import register
+
+    register("mpc", "closed-loop MPC over hydroelastic contact")(_setup)
+
+
+_register()
