@@ -1,0 +1,671 @@
+"""Hardware-style playback of a solved trajectory on a second, "real" simulation (paper §V).
+
+The paper executed its Kinova trajectories open loop on the robot with a stiff PD+ law
+(eq. 11) at 1 kHz, the trajectory slowed to half speed and the reference (ū, q̄_J, v̄_J)
+updated every 20 ms, with no feedback on the ball. Here the robot is a second simulation of
+the same task: a finer time step (1 ms by default) and a different discrete contact
+approximation from the planner's, started from the plan's initial state.
+
+    from hydroilqr.playback import PlaybackSettings, load_run, playback, write_outputs
+    task, sol, _ = load_run("runs/kinova-forward")
+    result = playback(task, sol, PlaybackSettings(speed=0.5))
+    write_outputs(task, result, "runs/kinova-forward/playback-pd")
+
+Policies:
+
+* ``pd`` (eq. 11): τ = ū − Kp (q_J − q̄_J) − Kd (v_J − v̄_J) on the actuated joints only,
+  computed at ``rate`` Hz from the measured joint state and a reference held for
+  ``update_period`` seconds of playback time. At speed s the reference at playback time τ is
+  the plan at plan time s·τ (linear interpolation of X, the plan's zero-order-hold input);
+  ū is used unchanged (as in the paper) and v̄_J is the plan's velocity times s (the
+  derivative of the time-stretched q̄_J) unless ``scale_velocity_reference`` is off.
+* ``ilqr`` (eq. 8): u = ū_k − K_k (x − x̄_k) with the full state (including unactuated
+  coordinates), recomputed once per plan step (plan time). Only speed 1 reproduces the
+  conditions under which K was computed; at other speeds x̄ still holds the plan's velocities.
+
+Torques are clipped to the actuators' effort limits (as a robot would), and the fraction of
+saturated commands is reported.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import cli
+from .config import APPROXIMATIONS, TASKS_DIR, ConfigError, _set_dotted, task_from_dict
+from .plant import Dynamics, SimulationError
+from .solution import Solution
+from .state import quat_conj, quat_mul
+
+#: Default "real" contact approximation for each planner approximation (always a different one).
+TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "sap"}
+POLICIES = ("pd", "ilqr")
+
+
+# ------------------------------------------------------------------------------------------
+# Settings and result
+# ------------------------------------------------------------------------------------------
+
+
+@dataclass
+class PlaybackSettings:
+    """How the plan is executed. Times in seconds of playback (wall) time unless noted."""
+
+    speed: float = 0.5  # plan time advances s per second of playback
+    kp: float = 500.0  # PD+ stiffness (N·m/rad or N/m), same for every actuated joint
+    kd: float = 5.0  # PD+ damping (N·m·s/rad or N·s/m)
+    rate: float = 1000.0  # Hz, PD+ control loop
+    update_period: float = 0.02  # s, reference (ū, q̄_J, v̄_J) update period
+    policy: str = "pd"  # pd (eq. 11) | ilqr (eq. 8)
+    truth_time_step: float = 0.001  # s, time step of the "real" system
+    truth_contact: str | None = None  # None: TRUTH_CONTACT[planner's approximation]
+    truth_overrides: list[str] = field(default_factory=list)  # KEY=VALUE on the truth task
+    clip_torques: bool = True  # saturate at the actuators' effort limits
+    scale_velocity_reference: bool = True  # v̄_J = s · v_plan (pd policy)
+    object: str | None = None  # state block compared planned vs actual (None: automatic)
+
+    def validate(self) -> None:
+        for name in ("speed", "rate", "update_period", "truth_time_step"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"playback {name.replace('_', '-')}: must be positive, got {v}")
+        for name in ("kp", "kd"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"playback {name}: must be non-negative, got {v}")
+        if self.policy not in POLICIES:
+            raise ConfigError(f"playback policy: expected pd or ilqr, got {self.policy!r}")
+        if self.truth_contact is not None and self.truth_contact not in APPROXIMATIONS:
+            raise ConfigError(f"playback truth-contact: expected one of "
+                              f"{', '.join(APPROXIMATIONS)}, got {self.truth_contact!r}")
+
+
+@dataclass
+class Reference:
+    """The held PD+ reference, one row per update (what a real robot would be sent).
+
+    t: [M] playback time (s); q: [M, nJ] q̄_J; v: [M, nJ] v̄_J; u: [M, nu] ū.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+
+
+@dataclass
+class ObjectSpec:
+    """The unactuated thing whose planned and actual motion are compared."""
+
+    name: str  # state block name, e.g. "ball.position" or "pole_pin"
+    kind: str  # "floating" (3-D position of a free body) or "joint" (joint coordinates)
+    coords: tuple[int, ...]  # indices into x
+    orientation: tuple[int, ...] = ()  # quaternion coords of a floating body
+    unit: str = "m"
+
+
+@dataclass
+class PlaybackResult:
+    """Everything a playback produced. Arrays are sampled at every truth time step."""
+
+    settings: PlaybackSettings
+    planner_contact: str
+    truth_contact: str
+    planner_time_step: float
+    t: np.ndarray  # [T+1] playback time (s)
+    X: np.ndarray  # [T+1, nx] actual state
+    U: np.ndarray  # [T, nu] applied (clipped) inputs
+    X_plan: np.ndarray  # [T+1, nx] plan at plan time speed·t
+    reference: Reference
+    joints: list[str]  # actuated joint of each actuator, in input order
+    joint_units: list[str]  # "rad" or "m"
+    actuators: list[str]
+    q_indices: np.ndarray  # [nu] index into x of each actuated joint's position
+    v_indices: np.ndarray  # [nu] index into x of each actuated joint's velocity
+    obj: ObjectSpec
+    metrics: dict
+    wall_seconds: float
+
+
+# ------------------------------------------------------------------------------------------
+# Loading a solved run
+# ------------------------------------------------------------------------------------------
+
+
+def load_run(run_dir: str | Path):
+    """(Task, Solution, summary dict) from a ``hydroilqr solve`` output directory."""
+    from .task import Task
+
+    run_dir = Path(run_dir)
+    summary_path, sol_path = run_dir / "summary.json", run_dir / "solution.npz"
+    if not run_dir.is_dir():
+        raise ConfigError(f"{run_dir}: no such directory")
+    for p in (summary_path, sol_path):
+        if not p.exists():
+            raise ConfigError(f"{run_dir}: no {p.name} (is this a `hydroilqr solve` output?)")
+    try:
+        summary = json.loads(summary_path.read_text())
+        config = summary["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ConfigError(f"{summary_path}: unreadable or has no 'config'") from None
+    candidates = [summary.get("base_dir"), str(TASKS_DIR), str(run_dir)]
+    err: ConfigError | None = None
+    task = None
+    for base in candidates:
+        if not base:
+            continue
+        try:
+            task = Task(task_from_dict(config, base))
+            break
+        except ConfigError as e:
+            err = err or e
+    if task is None:
+        raise ConfigError(f"{summary_path}: cannot rebuild the task: {err}")
+    try:
+        sol = Solution.load(sol_path)
+    except Exception as e:  # noqa: BLE001 - one line for the user
+        raise ConfigError(f"{sol_path}: unreadable: {e}") from None
+    return task, sol, summary
+
+
+def truth_config(task, settings: PlaybackSettings):
+    """The "real" system's TaskConfig: planner's config, finer step, other contact solver."""
+    cfg = task.config
+    d = cfg.to_dict()
+    d["plant"]["time_step"] = float(settings.truth_time_step)
+    d["plant"]["contact_approximation"] = (
+        settings.truth_contact or TRUTH_CONTACT[cfg.plant.contact_approximation])
+    from .config import parse_override
+
+    for text in settings.truth_overrides:
+        key, value = parse_override(text)
+        _set_dotted(d, key, value)
+    return task_from_dict(d, cfg.base_dir)
+
+
+# ------------------------------------------------------------------------------------------
+# Plant bookkeeping
+# ------------------------------------------------------------------------------------------
+
+
+def actuated_joints(plant):
+    """(actuator names, joint names, joint units, q indices, v indices, effort limits),
+    ordered as the actuation input vector."""
+    acts = [plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()]
+    acts.sort(key=lambda a: a.input_start())
+    names, joints, units, qi, vi, lim = [], [], [], [], [], []
+    for a in acts:
+        j = a.joint()
+        if j.num_positions() != 1 or j.num_velocities() != 1:
+            raise ConfigError(f"actuator {a.name()}: joint {j.name()} is not a 1-DoF joint; "
+                              "PD+ playback needs 1-DoF actuated joints")
+        names.append(a.name())
+        joints.append(j.name())
+        units.append("m" if j.type_name() == "prismatic" else "rad")
+        qi.append(j.position_start())
+        vi.append(plant.num_positions() + j.velocity_start())
+        e = a.effort_limit()
+        lim.append(e if np.isfinite(e) and e > 0 else np.inf)
+    return names, joints, units, np.array(qi, int), np.array(vi, int), np.array(lim)
+
+
+def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
+    """The floating body if any (ball, quadruped body), else the first unactuated joint."""
+    layout, plant = dyn.layout, dyn.plant
+    if requested:
+        b = layout.block(requested, "playback object")
+        if b.kind == "quaternion":
+            raise ConfigError(f"playback object: {requested} is an orientation; "
+                              "give a position block")
+        return ObjectSpec(requested, "joint", b.coords,
+                          unit="m" if requested.endswith("position") else "")
+    for b in layout.quaternions:
+        base = b.name[: -len(".orientation")]
+        pos = layout.primitives[f"{base}.position"]
+        return ObjectSpec(pos.name, "floating", pos.coords, b.coords, "m")
+    actuated = {plant.get_joint_actuator(i).joint().index()
+                for i in plant.GetJointActuatorIndices()}
+    from pydrake.multibody.tree import JointIndex
+
+    first = None
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        if j.num_positions() == 0:
+            continue
+        first = first or j
+        if j.index() not in actuated:
+            first = j
+            break
+    if first is None:
+        raise ConfigError("playback: the model has no moving joint")
+    for b in layout.primitives.values():
+        if b.coords and b.coords[0] == first.position_start() and b.kind == "euclidean":
+            unit = "m" if first.type_name() == "prismatic" else "rad"
+            return ObjectSpec(b.name, "joint", b.coords, unit=unit)
+    raise ConfigError(f"playback: no state block for joint {first.name()}")
+
+
+# ------------------------------------------------------------------------------------------
+# Plan sampling
+# ------------------------------------------------------------------------------------------
+
+
+class PlanSampler:
+    """The plan as a function of plan time p (seconds from its start)."""
+
+    def __init__(self, sol: Solution, quaternions):
+        self.X, self.U, self.K = np.asarray(sol.X), np.asarray(sol.U), np.asarray(sol.K)
+        t = np.asarray(sol.t, float)
+        self.t = t - t[0]
+        self.N = self.U.shape[0]
+        self.duration = float(self.t[-1])
+        self.quats = [list(b.coords) for b in quaternions]
+
+    def index(self, p: float) -> int:
+        """Plan step k whose input is active at plan time p (zero-order hold)."""
+        k = int(np.searchsorted(self.t, p + 1e-9, side="right")) - 1
+        return int(np.clip(k, 0, self.N - 1))
+
+    def state(self, p: float) -> np.ndarray:
+        """x̄(p): linear interpolation between knots; quaternions renormalized."""
+        p = float(np.clip(p, 0.0, self.duration))
+        k = int(np.clip(np.searchsorted(self.t, p, side="right") - 1, 0, self.N - 1))
+        h = self.t[k + 1] - self.t[k]
+        a = 0.0 if h <= 0 else (p - self.t[k]) / h
+        x0, x1 = self.X[k], self.X[k + 1]
+        x = (1.0 - a) * x0 + a * x1
+        for c in self.quats:
+            q1 = x1[c] if np.dot(x0[c], x1[c]) >= 0 else -x1[c]
+            q = (1.0 - a) * x0[c] + a * q1
+            x[c] = q / np.linalg.norm(q)
+        return x
+
+    def input(self, p: float) -> np.ndarray:
+        return self.U[self.index(p)]
+
+
+# ------------------------------------------------------------------------------------------
+# Playback
+# ------------------------------------------------------------------------------------------
+
+
+def playback(task, sol: Solution, settings: PlaybackSettings | None = None,
+             progress=None) -> PlaybackResult:
+    """Executes ``sol`` on the "real" system with the chosen policy. Raises SimulationError
+    if the real system's time step fails, ConfigError on bad settings."""
+    settings = settings or PlaybackSettings()
+    settings.validate()
+    wall0 = time.perf_counter()
+    planner = task.dynamics
+    truth = Dynamics(truth_config(task, settings))
+    if truth.nx != planner.nx or truth.nu != planner.nu:
+        raise ConfigError("playback: the truth model's state/input size differs from the plan's")
+    if sol.X.shape[1] != truth.nx or sol.U.shape[1] != truth.nu:
+        raise ConfigError(f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
+                          f"but the task has nx={truth.nx}, nu={truth.nu}")
+    plant = truth.plant
+    act_names, joint_names, units, qi, vi, limits = actuated_joints(plant)
+    obj = choose_object(truth, settings.object)
+    plan = PlanSampler(sol, truth.layout.quaternions)
+
+    s = float(settings.speed)
+    dt = float(settings.truth_time_step)
+    T_play = plan.duration / s
+    n = max(1, int(round(T_play / dt)))
+    tol = 1e-9 * max(1.0, T_play)
+    ctrl_period = 1.0 / settings.rate
+    if settings.policy == "ilqr":
+        ctrl_period = float(plan.t[1] - plan.t[0]) / s if plan.N > 0 else dt
+    vscale = s if settings.scale_velocity_reference else 1.0
+
+    X = np.empty((n + 1, truth.nx))
+    U = np.empty((n, truth.nu))
+    X[0] = plan.X[0]
+    ref_t, ref_q, ref_v, ref_u = [], [], [], []
+    next_update, next_ctrl = 0.0, 0.0
+    u = np.zeros(truth.nu)
+    qbar = vbar = ubar = None
+    saturated = 0
+    controls = 0
+    for k in range(n):
+        tau = k * dt
+        x = X[k]
+        if settings.policy == "pd":
+            if tau >= next_update - tol:
+                while next_update + settings.update_period <= tau + tol:
+                    next_update += settings.update_period  # update period < truth step
+                xr = plan.state(s * next_update)
+                qbar, vbar = xr[qi], vscale * xr[vi]
+                ubar = plan.input(s * next_update)
+                ref_t.append(next_update)
+                ref_q.append(qbar)
+                ref_v.append(vbar)
+                ref_u.append(ubar)
+                next_update += settings.update_period
+            if tau >= next_ctrl - tol:
+                u = ubar - settings.kp * (x[qi] - qbar) - settings.kd * (x[vi] - vbar)
+                while next_ctrl <= tau + tol:
+                    next_ctrl += ctrl_period
+                controls += 1
+                if settings.clip_torques:
+                    sat = np.abs(u) > limits
+                    saturated += int(np.count_nonzero(sat))
+                    u = np.clip(u, -limits, limits)
+        else:
+            if tau >= next_ctrl - tol:
+                j = plan.index(s * tau)
+                u = plan.U[j] - plan.K[j] @ (x - plan.X[j])
+                while next_ctrl <= tau + tol:
+                    next_ctrl += ctrl_period
+                controls += 1
+                if settings.clip_torques:
+                    saturated += int(np.count_nonzero(np.abs(u) > limits))
+                    u = np.clip(u, -limits, limits)
+        U[k] = u
+        try:
+            X[k + 1] = truth.step(x, u)
+        except SimulationError as e:
+            raise SimulationError(f"real system, t={tau:.3f} s: {e}") from None
+        if truth.layout.quaternions:
+            X[k + 1] = truth.layout.normalize(X[k + 1])
+        if progress is not None and k % 100 == 0:
+            progress(k, n)
+    if settings.policy == "ilqr" or not ref_t:
+        # The exported reference is the PD+ one in any case (what a robot would be sent).
+        ref_t = list(np.arange(0.0, T_play + tol, settings.update_period))
+        for tr in ref_t:
+            xr = plan.state(s * tr)
+            ref_q.append(xr[qi])
+            ref_v.append(vscale * xr[vi])
+            ref_u.append(plan.input(s * tr))
+
+    t = np.arange(n + 1) * dt
+    X_plan = np.array([plan.state(s * tk) for tk in t])
+    reference = Reference(np.array(ref_t), np.array(ref_q).reshape(len(ref_t), -1),
+                          np.array(ref_v).reshape(len(ref_t), -1),
+                          np.array(ref_u).reshape(len(ref_t), -1))
+    result = PlaybackResult(
+        settings=settings, planner_contact=task.config.plant.contact_approximation,
+        truth_contact=truth.task.plant.contact_approximation,
+        planner_time_step=task.config.plant.time_step, t=t, X=X, U=U, X_plan=X_plan,
+        reference=reference, joints=joint_names, joint_units=units, actuators=act_names,
+        q_indices=qi, v_indices=vi, obj=obj, metrics={}, wall_seconds=0.0,
+    )
+    result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls,
+                              plan.X[-1])
+    result.wall_seconds = time.perf_counter() - wall0
+    result.metrics["wall_seconds"] = result.wall_seconds
+    return result
+
+
+def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """Rotation angle (rad) between quaternions (wxyz). [..., 4] -> [...]."""
+    e = quat_mul(quat_conj(qb), qa)
+    return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
+
+
+def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls,
+             x_plan_final) -> dict:
+    o = r.obj
+    c = list(o.coords)
+    actual, planned = r.X[:, c], r.X_plan[:, c]
+    err = np.linalg.norm(actual - planned, axis=1)
+    kmax = int(np.argmax(err))
+    planned_final, actual_final = x_plan_final[c], r.X[-1, c]
+    planned_disp = planned_final - r.X[0, c]
+    actual_disp = actual_final - r.X[0, c]
+    pd2 = float(planned_disp @ planned_disp)
+    obj = {
+        "name": o.name,
+        "kind": o.kind,
+        "unit": o.unit,
+        "initial": r.X[0, c],
+        "planned_final": planned_final,
+        "actual_final": actual_final,
+        "final_error": actual_final - planned_final,
+        "final_gap": float(np.linalg.norm(actual_final - planned_final)),
+        "max_deviation": float(err[kmax]),
+        "max_deviation_time_s": float(r.t[kmax]),
+        "planned_displacement": float(np.sqrt(pd2)),
+        "actual_displacement": float(np.linalg.norm(actual_disp)),
+        # Fraction of the planned displacement achieved along its direction.
+        "progress_ratio": float(actual_disp @ planned_disp / pd2) if pd2 > 1e-12 else None,
+    }
+    if o.orientation:
+        oc = list(o.orientation)
+        ang = _angle_between(r.X[:, oc], r.X_plan[:, oc])
+        obj["final_orientation_error_deg"] = float(
+            np.degrees(_angle_between(r.X[-1, oc], x_plan_final[oc])))
+        obj["max_orientation_deviation_deg"] = float(np.degrees(ang.max()))
+    q_err = r.X[:, qi] - r.X_plan[:, qi]
+    v_err = r.X[:, vi] - vscale * r.X_plan[:, vi]
+    joints = {
+        name: {
+            "unit": unit,
+            "rms_error": float(np.sqrt(np.mean(q_err[:, i] ** 2))),
+            "max_abs_error": float(np.max(np.abs(q_err[:, i]))),
+            "rms_velocity_error": float(np.sqrt(np.mean(v_err[:, i] ** 2))),
+            "final_error": float(q_err[-1, i]),
+        }
+        for i, (name, unit) in enumerate(zip(r.joints, r.joint_units))
+    }
+    torques = {
+        name: {"max_abs": float(np.max(np.abs(r.U[:, i]))) if len(r.U) else 0.0,
+               "effort_limit": float(limits[i]) if np.isfinite(limits[i]) else None}
+        for i, name in enumerate(r.actuators)
+    }
+    st = r.settings
+    return {
+        "policy": st.policy,
+        "settings": asdict(st),
+        "truth": {"time_step": st.truth_time_step, "contact_approximation": r.truth_contact,
+                  "overrides": list(st.truth_overrides)},
+        "planner": {"time_step": r.planner_time_step,
+                    "contact_approximation": r.planner_contact},
+        "plan_duration_s": float(r.t[-1] * st.speed),
+        "playback_duration_s": float(r.t[-1]),
+        "truth_steps": int(len(r.U)),
+        "control_updates": int(controls),
+        "reference_updates": int(len(r.reference.t)),
+        "object": obj,
+        "joint_tracking": joints,
+        "joint_rms_error_max": max((j["rms_error"] for j in joints.values()), default=0.0),
+        "torques": torques,
+        "saturated_fraction": float(saturated / max(1, controls * max(1, len(r.actuators)))),
+    }
+
+
+# ------------------------------------------------------------------------------------------
+# Outputs
+# ------------------------------------------------------------------------------------------
+
+
+def write_reference_csv(r: PlaybackResult, path: Path) -> None:
+    """time, q̄_J, v̄_J, ū at the update rate; units in the column names (docs/playback.md)."""
+    def vunit(u):
+        return "m_per_s" if u == "m" else "rad_per_s"
+
+    header = ["time_s"]
+    header += [f"q_{j}_{u}" for j, u in zip(r.joints, r.joint_units)]
+    header += [f"v_{j}_{vunit(u)}" for j, u in zip(r.joints, r.joint_units)]
+    header += [f"u_{a}_{'N' if u == 'm' else 'Nm'}" for a, u in zip(r.actuators, r.joint_units)]
+    ref = r.reference
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for i in range(len(ref.t)):
+            w.writerow([f"{ref.t[i]:.6f}"] + [f"{v:.9g}" for v in
+                                               np.r_[ref.q[i], ref.v[i], ref.u[i]]])
+
+
+def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = list(r.obj.coords)
+    labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
+    if len(c) != len(labels):
+        labels = [f"{r.obj.name}[{i}]" for i in range(len(c))]
+    rows = len(c) + 1
+    fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
+    for i, ax in enumerate(axes[:-1]):
+        ax.plot(r.t, r.X_plan[:, c[i]], "--", color="0.4", label="planned (time-stretched)")
+        ax.plot(r.t, r.X[:, c[i]], color="C0", label="actual")
+        ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, loc="best")
+    ax = axes[-1]
+    m = r.metrics
+    qi = r.q_indices
+    for i, name in enumerate(r.joints):
+        ax.plot(r.t, r.X[:, qi[i]] - r.X_plan[:, qi[i]], lw=1, label=name)
+    ax.set_ylabel("joint error\n(actual − plan)")
+    ax.set_xlabel("playback time [s]")
+    ax.grid(alpha=0.3)
+    if 1 < len(r.joints) <= 12:
+        ax.legend(fontsize=6, ncol=4, loc="best")
+    ob = m["object"]
+    fig.suptitle(f"{title}: {m['policy']} at speed {r.settings.speed:g}, truth "
+                 f"{r.truth_contact} dt={r.settings.truth_time_step:g}\nfinal gap "
+                 f"{ob['final_gap']:.3g} {r.obj.unit}, max deviation "
+                 f"{ob['max_deviation']:.3g} {r.obj.unit}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_replay(task, r: PlaybackResult, path: Path, fps: float = 30.0,
+                 gap: float = 0.5) -> None:
+    """Meshcat HTML: the actual motion first, then (after ``gap`` s) the plan at the same
+    playback speed."""
+    from .plant import build_diagram
+    from .replay import camera_for, meshcat_instance
+
+    meshcat = meshcat_instance()
+    meshcat.Delete()
+    meshcat.DeleteRecording()
+    scene = build_diagram(task.config, meshcat=meshcat)
+    diagram, plant = scene.diagram, scene.plant
+    context = diagram.CreateDefaultContext()
+    plant_context = plant.GetMyMutableContextFromRoot(context)
+    diagram.get_input_port(scene.actuation_port).FixValue(
+        context, np.zeros(plant.num_actuated_dofs()))
+    meshcat.SetCameraPose(*camera_for(task))
+    vis = scene.visualizers[0]
+    vis.StartRecording(False)
+    T = float(r.t[-1])
+    frames = max(2, int(T * fps) + 1)
+    for offset, X in ((0.0, r.X), (T + gap, r.X_plan)):
+        for tf in np.linspace(0.0, T, frames):
+            k = int(np.clip(np.searchsorted(r.t, tf), 0, len(r.t) - 1))
+            context.SetTime(offset + float(tf))
+            plant.SetPositionsAndVelocities(plant_context, X[k])
+            diagram.ForcedPublish(context)
+    vis.StopRecording()
+    vis.PublishRecording()
+    path.write_text(meshcat.StaticHtml())
+
+
+def write_outputs(task, r: PlaybackResult, out: str | Path, replay: bool = True,
+                  run_dir: str | Path | None = None) -> dict:
+    """playback.json, playback.png, reference.csv, playback.npz and (optionally)
+    playback.html in ``out``. Returns the JSON dict."""
+    from .report import write_json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
+    write_json(out / "playback.json", data)
+    write_reference_csv(r, out / "reference.csv")
+    np.savez_compressed(out / "playback.npz", t=r.t, X=r.X, U=r.U, X_plan=r.X_plan,
+                        ref_t=r.reference.t, ref_q=r.reference.q, ref_v=r.reference.v,
+                        ref_u=r.reference.u)
+    plot_playback(r, out / "playback.png", task.name)
+    if replay:
+        write_replay(task, r, out / "playback.html")
+    return data
+
+
+# ------------------------------------------------------------------------------------------
+# CLI
+# ------------------------------------------------------------------------------------------
+
+
+def cmd_playback(args) -> int:
+    task, sol, _ = load_run(args.dir)
+    speed = args.speed if args.speed is not None else (0.5 if args.policy == "pd" else 1.0)
+    settings = PlaybackSettings(
+        speed=speed, kp=args.kp, kd=args.kd, rate=args.rate, update_period=args.update_period,
+        policy=args.policy, truth_time_step=args.truth_time_step,
+        truth_contact=args.truth_contact, truth_overrides=list(args.truth_set or []),
+        clip_torques=not args.no_clip,
+        scale_velocity_reference=not args.no_velocity_scaling, object=args.object,
+    )
+    settings.validate()
+    out = Path(args.out or Path(args.dir) / f"playback-{args.policy}")
+    con = cli.console
+    truth_contact = settings.truth_contact or TRUTH_CONTACT[
+        task.config.plant.contact_approximation]
+    con.print(f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {speed:g}, "
+              f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
+              f"(plan dt={task.config.plant.time_step:g} "
+              f"contact={task.config.plant.contact_approximation}) -> {out}")
+    r = playback(task, sol, settings)
+    data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
+    ob = data["object"]
+    unit = ob["unit"]
+    con.print(f"{data['truth_steps']} truth steps in {r.wall_seconds:.2f} s; object "
+              f"{ob['name']}: final gap {ob['final_gap']:.4g} {unit}, max deviation "
+              f"{ob['max_deviation']:.4g} {unit}, progress ratio "
+              f"{_fmt(ob['progress_ratio'])}")
+    con.print(f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
+              f"saturated commands {100 * data['saturated_fraction']:.1f}%")
+    con.print(f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
+              + ("" if args.no_replay else ", playback.html"))
+    return 0
+
+
+def _fmt(v) -> str:
+    return "n/a" if v is None else f"{v:.3g}"
+
+
+@cli.register("playback", "execute a solved trajectory open loop (PD+, paper §V) on a finer "
+              "'real' simulation and compare planned vs actual")
+def setup(p) -> None:
+    p.add_argument("dir", help="output directory of `hydroilqr solve` (summary.json, "
+                   "solution.npz)")
+    p.add_argument("--speed", type=float, default=None,
+                   help="playback speed (plan time per playback second); default 0.5 for pd, "
+                   "1 for ilqr")
+    p.add_argument("--kp", type=float, default=500.0, help="PD+ stiffness (default 500)")
+    p.add_argument("--kd", type=float, default=5.0, help="PD+ damping (default 5)")
+    p.add_argument("--rate", type=float, default=1000.0, help="PD+ control rate, Hz")
+    p.add_argument("--update-period", type=float, default=0.02,
+                   help="seconds between reference updates (default 0.02)")
+    p.add_argument("--policy", choices=POLICIES, default="pd",
+                   help="pd: PD+ on the joints (eq. 11); ilqr: u = ū − K(x − x̄) (eq. 8)")
+    p.add_argument("--truth-time-step", type=float, default=0.001,
+                   help="time step of the 'real' simulation (default 0.001)")
+    p.add_argument("--truth-contact", choices=APPROXIMATIONS, default=None,
+                   help="contact approximation of the 'real' simulation (default: one "
+                   "different from the planner's: sap->similar, others->sap)")
+    p.add_argument("--truth-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a task key of the 'real' system only, e.g. "
+                   "ball.friction=0.3 (repeatable)")
+    p.add_argument("--object", help="state block compared planned vs actual (default: the "
+                   "floating body, else the first unactuated joint)")
+    p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
+    p.add_argument("--no-velocity-scaling", action="store_true",
+                   help="use the plan's v̄_J unscaled (default scales it by the speed)")
+    p.add_argument("--no-replay", action="store_true", help="skip playback.html")
+    p.add_argument("--out", help="output directory (default DIR/playback-POLICY)")
+    p.set_defaults(func=cmd_playback)
