@@ -400,9 +400,42 @@ def playback(task, sol: Solution, settings: PlaybackSettings | None = None,
     )
     result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls,
                               plan.X[-1])
+    if settings.policy == "pd":
+        result.metrics.update(_pd_check(truth, plan.X[0], joint_names, settings))
     result.wall_seconds = time.perf_counter() - wall0
     result.metrics["wall_seconds"] = result.wall_seconds
     return result
+
+
+def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
+    """Discrete-time stability of the explicit damping term: with control period h and a
+    joint's own inertia M_ii (others held), Kd·h/M_ii ≥ 2 makes the velocity error grow
+    each control step (chatter, torques pinned at the limits); stiffness adds to it
+    (the criterion (Kd·h + Kp·h²)/M_ii < 2 used here is approximate)."""
+    plant = truth.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositionsAndVelocities(ctx, x0)
+    M = plant.CalcMassMatrix(ctx)
+    h = 1.0 / st.rate
+    per = {}
+    warnings = []
+    for name, j in _joint_velocity_indices(plant, joints).items():
+        m = float(M[j, j])
+        ratio = (st.kd * h + st.kp * h * h) / m if m > 0 else math.inf
+        per[name] = {"inertia": m, "damping_per_step": ratio}
+        if ratio >= 2.0:
+            warnings.append(
+                f"{name}: (Kd·h + Kp·h²)/M = {ratio:.2f} ≥ 2 at {st.rate:g} Hz (inertia {m:.3g}): "
+                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate")
+    return {"pd_loop": per, "warnings": warnings}
+
+
+def _joint_velocity_indices(plant, joints) -> dict:
+    out = {}
+    for a in (plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()):
+        if a.joint().name() in joints:
+            out[a.joint().name()] = a.joint().velocity_start()
+    return out
 
 
 def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -629,6 +662,8 @@ def cmd_playback(args) -> int:
               f"{_fmt(ob['progress_ratio'])}")
     con.print(f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
               f"saturated commands {100 * data['saturated_fraction']:.1f}%")
+    for w in data.get("warnings", []):
+        con.print(f"[yellow]warning:[/yellow] {w}")
     con.print(f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
               + ("" if args.no_replay else ", playback.html"))
     return 0
