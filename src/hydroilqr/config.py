@@ -25,6 +25,7 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       Qf: {pole_angle: 200}
       nominal: {pole_angle: 3.14159}
       nominal_rate: {}            # x_nom(t) = nominal + rate * t (per block)
+      running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
     solver: {max_iterations: 100, derivatives: central}
     receding_horizon: null        # {window_steps, shift_steps, resolves}
     metrics: [default]
@@ -117,6 +118,9 @@ class CostConfig:
     Qf: dict[str, Any] = field(default_factory=dict)
     nominal: dict[str, Any] = field(default_factory=dict)
     nominal_rate: dict[str, Any] = field(default_factory=dict)
+    # Multiply the running weights Q and R by the time step (as the paper's public code does:
+    # running cost dt·(x̃ᵀQx̃ + uᵀRu), terminal cost x̃ᵀQ_f x̃ unscaled).
+    running_cost_dt: bool = False
 
 
 @dataclass

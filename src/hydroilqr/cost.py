@@ -83,6 +83,8 @@ class QuadraticCost:
             if vals.size != len(b.coords):
                 raise ConfigError(f"cost.nominal_rate.{name}: expected {len(b.coords)} values")
             rate[list(b.coords)] = vals
+        if cfg.running_cost_dt:
+            q, r = q * dt, r * dt
         terms = {}
         for section in ("Q", "Qf"):
             for name in getattr(cfg, section):
