@@ -1,0 +1,675 @@
+"""``hydroilqr sweep``: a parameter study, one independent iLQR solve per point on Dask.
+
+    hydroilqr sweep cartpole-wall --param tip.hydroelastic_modulus \\
+        --values logspace:1e3:1e9:13 --out runs/sweep
+
+Each point is a task on a Dask distributed cluster (an embedded ``LocalCluster`` with one
+single-threaded worker process per core by default, or ``--scheduler ADDRESS``). Workers get
+only strings and numbers (task name/file, overrides) and build their own Drake objects.
+
+Output directory:
+
+    points/<id>.json   one finished point (written atomically; its presence = done)
+    points/<id>.npz    the point's trajectory X, U, t (+ tip/pin/cart positions for cart-poles)
+    sweep.csv/json     the table, rebuilt from points/ after every finished point
+    sweep.png          metric(s) against the parameter (paper Fig. 7 for cartpole-wall)
+    snapshots.png      configurations of maximum overlap (tasks with the cartpole_wall metric)
+    computed.log       one line per point computed by a run (resume leaves finished ones alone)
+
+Rerunning the same command in the same directory computes only the points without a file.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .cli import add_task_args, console, register
+from .config import ConfigError, parse_override, task_file
+
+POINT_COLUMNS = ("final_cost", "max_overlap_m", "tunnelled", "iterations", "converged",
+                 "wall_seconds", "status", "error")
+EXTRA_COLUMNS = ("initial_cost", "reason", "solve_seconds", "final_angle_error_rad",
+                 "min_signed_distance_m", "wall_contact_steps", "worker")
+EVENT_TOPIC = "hydroilqr-sweep"
+
+
+# ------------------------------------------------------------------------------------------
+# Values and points
+# ------------------------------------------------------------------------------------------
+
+
+def _number(text: str, what: str) -> float | int:
+    import yaml
+
+    t = text.strip()
+    try:
+        v = int(t)
+    except ValueError:
+        try:
+            v = float(t)
+        except ValueError:
+            v = yaml.safe_load(t) if t else None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ConfigError(f"{what}: {text!r} is not a finite number")
+    return v
+
+
+def parse_values(spec: str) -> list[float | int]:
+    """``1,2,3`` | ``logspace:A:B:N`` (A..B inclusive, log spaced) | ``linspace:A:B:N``."""
+    spec = spec.strip()
+    kind = spec.split(":", 1)[0].lower()
+    if kind in ("logspace", "linspace"):
+        parts = spec.split(":")
+        if len(parts) != 4:
+            raise ConfigError(f"--values {spec!r}: expected {kind}:START:STOP:COUNT")
+        a, b = (float(_number(p, f"--values {spec!r}")) for p in parts[1:3])
+        n = _number(parts[3], f"--values {spec!r}")
+        if not isinstance(n, int) or n < 1:
+            raise ConfigError(f"--values {spec!r}: COUNT must be a positive integer")
+        if kind == "logspace":
+            if a <= 0 or b <= 0:
+                raise ConfigError(f"--values {spec!r}: logspace needs positive START and STOP")
+            vals = np.logspace(math.log10(a), math.log10(b), n)
+            # Exact decades where they fall (1e3, not 999.9999999999998).
+            return [float(f"{v:.12g}") for v in vals]
+        return [float(f"{v:.12g}") for v in np.linspace(a, b, n)]
+    vals = [_number(p, f"--values {spec!r}") for p in spec.split(",") if p.strip()]
+    if not vals:
+        raise ConfigError(f"--values {spec!r}: no values")
+    if len(set(vals)) != len(vals):
+        raise ConfigError(f"--values {spec!r}: repeated values")
+    return vals
+
+
+def grid(params: list[tuple[str, list]]) -> list[dict[str, Any]]:
+    """All combinations, the first parameter varying slowest."""
+    points: list[dict[str, Any]] = [{}]
+    for key, vals in params:
+        points = [{**p, key: v} for p in points for v in vals]
+    return points
+
+
+def point_id(values: dict[str, Any]) -> str:
+    """Stable file name for a point: readable prefix + hash of the exact values."""
+    canon = json.dumps({k: repr(v) for k, v in values.items()}, sort_keys=True)
+    digest = hashlib.sha1(canon.encode()).hexdigest()[:10]
+    label = "_".join(f"{k.split('.')[-1][:12]}{v:.4g}" for k, v in values.items())
+    label = "".join(c if c.isalnum() or c in "._-+" else "-" for c in label)
+    return f"{label}_{digest}"
+
+
+# ------------------------------------------------------------------------------------------
+# The worker side: one point = one independent solve (plain data in, plain data out)
+# ------------------------------------------------------------------------------------------
+
+
+def _scalar(v) -> bool:
+    return isinstance(v, (bool, int, float, str, np.floating, np.integer, np.bool_))
+
+
+def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-step world positions of the tip, its pin and the cart, and the tip radius."""
+    from .metrics import geometry_ids
+
+    dyn = task.dynamics
+    plant = dyn.plant
+    a_name = task.config.metric_params.get("contact_pair", ["tip", "wall"])[0]
+    gid = geometry_ids(dyn, a_name)[0]
+    body = plant.GetBodyByName(dyn.geometry_names()[gid][1])
+    joint = next((plant.get_joint(j) for j in plant.GetJointIndices()
+                  if plant.get_joint(j).child_body().index() == body.index()), None)
+    inspector = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context).inspector()
+    shape = inspector.GetShape(gid)
+    radius = float(shape.radius()) if hasattr(shape, "radius") else 0.05
+    tip, pin, cart = [], [], []
+    return_pin = joint is not None
+    for x in X:
+        plant.SetPositionsAndVelocities(dyn.plant_context, x)
+        tip.append(body.EvalPoseInWorld(dyn.plant_context).translation())
+        if return_pin:
+            pin.append(joint.frame_on_child().CalcPoseInWorld(dyn.plant_context).translation())
+            cart.append(joint.parent_body().EvalPoseInWorld(dyn.plant_context).translation())
+    out = {"tip_xyz": np.array(tip), "tip_radius": np.array(radius)}
+    if return_pin:
+        out["pin_xyz"] = np.array(pin)
+        out["cart_xyz"] = np.array(cart)
+    return out
+
+
+def solve_point(task_name: str, config_file: str | None, smoke: bool,
+                overrides: dict[str, Any], values: dict[str, Any], pid: str) -> dict:
+    """Runs on a worker. Never raises: a failure comes back as status "failed" + reason."""
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"id": pid, **{f"param:{k}": v for k, v in values.items()}}
+    try:
+        from distributed import get_worker
+
+        worker = get_worker()
+        row["worker"] = worker.name
+        worker.log_event(EVENT_TOPIC, {"id": pid, "state": "running"})
+    except Exception:  # noqa: BLE001 - also runs outside Dask (tests, debugging)
+        row["worker"] = f"pid{os.getpid()}"
+    arrays: dict[str, np.ndarray] = {}
+    try:
+        from . import api
+        from . import metrics as metrics_mod
+        from .task import Task
+
+        task = Task.load(task_name, {**overrides, **values}, config_file, smoke)
+        task.validate()
+        ts = time.perf_counter()
+        sol = api.solve(task)
+        row["solve_seconds"] = time.perf_counter() - ts
+        cost = sol.final_cost
+        row.update(status="ok" if math.isfinite(cost) else "failed",
+                   error="" if math.isfinite(cost) else "final cost is not finite",
+                   final_cost=cost, initial_cost=float(sol.costs[0]),
+                   iterations=sol.iterations, converged=bool(sol.converged), reason=sol.reason)
+        arrays = {"X": sol.X, "U": sol.U, "t": sol.t, "costs": np.asarray(sol.costs)}
+        m = metrics_mod.compute(task, sol)
+        row.update({k: v for k, v in m.items() if _scalar(v)})
+        if "cartpole_wall" in task.config.metrics:
+            arrays.update(_cartpole_geometry(task, sol.X))
+            from .metrics import geometry_ids, signed_distance
+
+            p = task.config.metric_params
+            a_name, b_name = p.get("contact_pair", ["tip", "wall"])
+            ia, ib = geometry_ids(task.dynamics, a_name), geometry_ids(task.dynamics, b_name)
+            arrays["signed_distance"] = np.array(
+                [signed_distance(task.dynamics, x, ia, ib) for x in sol.X])
+    except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
+        if isinstance(e, (KeyboardInterrupt, SystemExit)):
+            raise
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        row.update(status="failed", error=f"{type(e).__name__}: {msg}"[:500])
+    row["wall_seconds"] = time.perf_counter() - t0
+    from .report import json_safe
+
+    return {"row": json_safe(row), "arrays": arrays}
+
+
+# ------------------------------------------------------------------------------------------
+# Files
+# ------------------------------------------------------------------------------------------
+
+
+def _atomic_bytes(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _atomic_text(path: Path, text: str) -> None:
+    _atomic_bytes(path, text.encode())
+
+
+def save_point(points_dir: Path, result: dict) -> None:
+    """npz first, then the json (the json's presence marks the point done)."""
+    row = result["row"]
+    pid = row["id"]
+    if result.get("arrays"):
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **result["arrays"])
+        _atomic_bytes(points_dir / f"{pid}.npz", buf.getvalue())
+    _atomic_text(points_dir / f"{pid}.json", json.dumps(row, indent=1))
+
+
+def load_point(points_dir: Path, pid: str) -> dict | None:
+    p = points_dir / f"{pid}.json"
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        return None  # missing, or a torn file from before atomic writes: recompute
+
+
+def columns(param_keys: list[str], rows: list[dict]) -> list[str]:
+    cols = list(param_keys) + list(POINT_COLUMNS)
+    have = set().union(*(r.keys() for r in rows)) if rows else set()
+    cols += [c for c in EXTRA_COLUMNS if c in have]
+    return cols
+
+
+def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
+    out = []
+    for r in rows:
+        d = {k: r.get(f"param:{k}") for k in param_keys}
+        d.update({k: v for k, v in r.items() if not k.startswith("param:") and k != "id"})
+        d["id"] = r["id"]
+        out.append(d)
+    return out
+
+
+def write_tables(out: Path, spec: dict, param_keys: list[str], rows: list[dict],
+                 pending: int) -> None:
+    from .report import json_safe
+
+    trs = table_rows(param_keys, rows)
+    cols = columns(param_keys, rows)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols + ["id"], extrasaction="ignore")
+    w.writeheader()
+    for r in trs:
+        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols + ["id"]})
+    _atomic_text(out / "sweep.csv", buf.getvalue())
+    failed = sum(r.get("status") != "ok" for r in rows)
+    doc = {**spec, "summary": {"points": len(rows) + pending, "done": len(rows) - failed,
+                               "failed": failed, "missing": pending},
+           "columns": cols, "points": trs}
+    _atomic_text(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
+
+
+# ------------------------------------------------------------------------------------------
+# Plots
+# ------------------------------------------------------------------------------------------
+
+
+def _log_axis(vals: list) -> bool:
+    v = [float(x) for x in vals if x is not None]
+    return bool(v) and min(v) > 0 and max(v) / min(v) >= 100
+
+
+def plot_sweep(path: Path, task_name: str, param_keys: list[str], rows: list[dict],
+               grid_values: list[list]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    key = param_keys[0]
+    other = param_keys[1] if len(param_keys) > 1 else None
+    has_overlap = any(r.get("max_overlap_m") is not None for r in rows)
+    panels = (["max_overlap_m"] if has_overlap else []) + ["final_cost"]
+    labels = {"max_overlap_m": "max overlap [m]", "final_cost": "optimal cost"}
+    fig, axes = plt.subplots(len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4),
+                             sharex=True, squeeze=False)
+    series = [(None, rows)] if other is None else [
+        (v, [r for r in rows if r.get(f"param:{other}") == v]) for v in grid_values[1]]
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, metric in zip(axes[:, 0], panels):
+        for j, (ov, rs) in enumerate(series):
+            ok = sorted((r for r in rs if r.get("status") == "ok"),
+                        key=lambda r: r[f"param:{key}"])
+            xs = [r[f"param:{key}"] for r in ok]
+            ys = [r.get(metric) for r in ok]
+            c = colors[j % len(colors)]
+            lab = None if ov is None else f"{other} = {ov:.4g}"
+            ax.plot(xs, [np.nan if y is None else y for y in ys], "o-", color=c, ms=5, label=lab)
+            tun = [(x, y) for x, y, r in zip(xs, ys, ok) if r.get("tunnelled") and y is not None]
+            if tun:
+                ax.plot(*zip(*tun), "x", color="red", ms=11, mew=2.5,
+                        label="tunnelled" if j == 0 else None)
+            nconv = [(x, y) for x, y, r in zip(xs, ys, ok)
+                     if not r.get("converged") and y is not None]
+            if nconv:
+                ax.plot(*zip(*nconv), "o", mfc="none", mec="k", ms=10,
+                        label="not converged" if j == 0 else None)
+            bad = [r[f"param:{key}"] for r in rs if r.get("status") != "ok"]
+            for i, x in enumerate(bad):
+                ax.axvline(x, color="gray", ls=":", lw=1.2,
+                           label="failed" if (i == 0 and j == 0) else None)
+        ax.set_ylabel(labels.get(metric, metric))
+        if metric == "final_cost":
+            costs = [r.get("final_cost") for r in rows if r.get("status") == "ok"]
+            costs = [c for c in costs if c is not None and c > 0]
+            if costs and max(costs) / min(costs) > 20:
+                ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    ax = axes[-1, 0]
+    if _log_axis(grid_values[0]):
+        ax.set_xscale("log")
+    ax.set_xlabel(key + (" [Pa]" if key.endswith("hydroelastic_modulus") else ""))
+    axes[0, 0].set_title(f"{task_name}: sweep of {key}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _representative(rows: list[dict], key: str, n: int = 4) -> list[dict]:
+    ok = sorted((r for r in rows if r.get("status") == "ok"), key=lambda r: r[f"param:{key}"])
+    if len(ok) <= n:
+        return ok
+    idx = sorted({int(round(i)) for i in np.linspace(0, len(ok) - 1, n)})
+    return [ok[i] for i in idx]
+
+
+def plot_snapshots(path: Path, points_dir: Path, task_cfg, param_keys: list[str],
+                   rows: list[dict]) -> bool:
+    """Pole + wall in the x-z plane at the step of maximum overlap, a few points side by side."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle, Rectangle
+
+    key = param_keys[0]
+    chosen = []
+    for r in _representative(rows, key):
+        try:
+            with np.load(points_dir / f"{r['id']}.npz") as d:
+                if "tip_xyz" not in d or "pin_xyz" not in d:
+                    continue
+                chosen.append((r, {k: d[k] for k in d.files}))
+        except (OSError, ValueError):
+            continue
+    if not chosen:
+        return False
+    fig, axes = plt.subplots(1, len(chosen), figsize=(3.1 * len(chosen), 3.6), squeeze=False)
+    walls = [o for o in task_cfg.scene if o.shape == "box"]
+    # Common limits: every tip path and cart, plus a margin.
+    xs = np.concatenate([np.r_[d["tip_xyz"][:, 0], d["cart_xyz"][:, 0]] for _, d in chosen])
+    zs = np.concatenate([np.r_[d["tip_xyz"][:, 2], d["cart_xyz"][:, 2]] for _, d in chosen])
+    xlim = (float(xs.min()) - 0.2, float(xs.max()) + 0.2)
+    ylim = (float(zs.min()) - 0.15, float(zs.max()) + 0.15)
+    for ax, (r, d) in zip(axes[0], chosen):
+        k = int(np.argmin(d["signed_distance"])) if "signed_distance" in d else 0
+        tip, pin, cart = d["tip_xyz"], d["pin_xyz"], d["cart_xyz"]
+        rad = float(d["tip_radius"])
+        for o in walls:
+            color = o.color[:3] if len(o.color) >= 3 else (0.5, 0.5, 0.5)
+            ax.add_patch(Rectangle((o.xyz[0] - o.size[0] / 2, o.xyz[2] - o.size[2] / 2),
+                                   o.size[0], o.size[2], color=color, alpha=0.7, lw=0))
+        ax.plot(tip[:, 0], tip[:, 2], "-", color="0.6", lw=0.8, label="tip path")
+        ax.add_patch(Rectangle((cart[k, 0] - 0.12, cart[k, 2] - 0.06), 0.24, 0.12,
+                               color=(0.2, 0.3, 0.8)))
+        ax.plot([pin[k, 0], tip[k, 0]], [pin[k, 2], tip[k, 2]], "-", color="0.3", lw=3)
+        ax.add_patch(Circle((tip[k, 0], tip[k, 2]), rad, color=(0.9, 0.4, 0.1), alpha=0.9))
+        ax.set_aspect("equal")
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        ov = r.get("max_overlap_m") or 0.0
+        tun = " TUNNELLED" if r.get("tunnelled") else ""
+        ax.set_title(f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}\n"
+                     f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("x [m]", fontsize=8)
+    axes[0, 0].set_ylabel("z [m]", fontsize=8)
+    axes[0, 0].legend(fontsize=7, loc="upper right")
+    fig.suptitle("configuration of maximum overlap (grey: tip path over the horizon)",
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+# ------------------------------------------------------------------------------------------
+# The driver
+# ------------------------------------------------------------------------------------------
+
+
+class SweepProgress:
+    """Rich progress bar: done / running / failed (running from worker start events)."""
+
+    def __init__(self, total: int, already: int, failed: int):
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+        )
+
+        self.progress = Progress(
+            TextColumn("[bold]points"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("running {task.fields[running]}  failed {task.fields[failed]}"),
+            TimeElapsedColumn(), console=console, transient=False,
+        )
+        self.total, self.done, self.failed = total, already, failed
+        self.running: set[str] = set()
+        self.finished: set[str] = set()
+        self.id = None
+
+    def __enter__(self):
+        self.progress.__enter__()
+        self.id = self.progress.add_task("points", total=self.total, completed=self.done,
+                                         running=0, failed=self.failed)
+        return self
+
+    def __exit__(self, *exc):
+        return self.progress.__exit__(*exc)
+
+    def started(self, pid: str) -> None:
+        if pid not in self.finished:
+            self.running.add(pid)
+            self._refresh()
+
+    def finish(self, pid: str, ok: bool) -> None:
+        self.finished.add(pid)
+        self.running.discard(pid)
+        self.done += 1
+        self.failed += 0 if ok else 1
+        self._refresh()
+
+    def _refresh(self) -> None:
+        self.progress.update(self.id, completed=self.done, running=len(self.running),
+                             failed=self.failed)
+
+
+def _describe(row: dict, param_keys: list[str]) -> str:
+    vals = ", ".join(f"{k}={row.get(f'param:{k}'):.4g}" for k in param_keys)
+    if row.get("status") != "ok":
+        return f"{vals}: [red]failed[/red] ({row.get('error')})"
+    extra = ""
+    if row.get("max_overlap_m") is not None:
+        extra = f", overlap {row['max_overlap_m'] * 1000:.2f} mm"
+        if row.get("tunnelled"):
+            extra += " [red]tunnelled[/red]"
+    conv = "converged" if row.get("converged") else f"stopped ({row.get('reason')})"
+    return (f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
+            f"{row['wall_seconds']:.1f} s on {row.get('worker')}")
+
+
+def _open_client(scheduler: str | None, workers: int | None):
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="15s")
+        except (OSError, TimeoutError, ValueError) as e:
+            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+        return client, None
+    n = workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
+              sets: list[str] | None = None, config_file: str | None = None,
+              smoke: bool = False, scheduler: str | None = None, workers: int | None = None,
+              retry_failed: bool = False, plots: bool = True) -> dict:
+    """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}."""
+    from .task import Task
+
+    if not params:
+        raise ConfigError("give at least one --param KEY --values ...")
+    keys = [k for k, _ in params]
+    if len(set(keys)) != len(keys):
+        raise ConfigError("--param: the same key twice")
+    if len(params) > 2:
+        raise ConfigError("--param: at most two parameters (a grid)")
+    path = task_file(task)
+    task_arg = task if path.parent.resolve() == (Path(__file__).parent / "tasks").resolve() \
+        else str(path.resolve())
+    cfg_arg = str(Path(config_file).resolve()) if config_file else None
+    overrides: dict[str, Any] = {}
+    for s in sets or []:
+        k, v = parse_override(s)
+        overrides[k] = v
+    # One thread per solve: the cluster already runs one worker process per core.
+    if not any(k == "solver.threads" for k in overrides):
+        overrides["solver.threads"] = 1
+    points = grid(params)
+    # Fail fast on a bad key/value: build the first and last point here.
+    for p in (points[0], points[-1]):
+        t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
+        t.validate()
+    task_cfg = t.config
+
+    out = Path(out)
+    points_dir = out / "points"
+    points_dir.mkdir(parents=True, exist_ok=True)
+    spec = {"task": task_cfg.name, "task_arg": task_arg, "config_file": cfg_arg,
+            "smoke": bool(smoke), "set": sorted(f"{k}={v}" for k, v in overrides.items()),
+            "params": [{"key": k, "values": v} for k, v in params]}
+    spec_file = out / "sweep_spec.json"
+    if spec_file.exists():
+        try:
+            old = json.loads(spec_file.read_text())
+        except ValueError:
+            old = None
+        if old is not None:
+            same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
+            new = {k: spec.get(k) for k in same}
+            old_keys = [p["key"] for p in old.get("params", [])]
+            if same != new or old_keys != keys:
+                raise ConfigError(
+                    f"{out} holds a different sweep ({old.get('task')}, "
+                    f"{', '.join(old_keys)}, set {old.get('set')}, smoke {old.get('smoke')}): "
+                    "choose another --out")
+    _atomic_text(spec_file, json.dumps(spec, indent=1))
+
+    ids = [point_id(p) for p in points]
+    rows: dict[str, dict] = {}
+    todo: list[int] = []
+    for i, pid in enumerate(ids):
+        r = load_point(points_dir, pid)
+        if r is not None and not (retry_failed and r.get("status") != "ok"):
+            rows[pid] = r
+        else:
+            todo.append(i)
+
+    def ordered() -> list[dict]:
+        return [rows[pid] for pid in ids if pid in rows]
+
+    n_failed0 = sum(r.get("status") != "ok" for r in rows.values())
+    console.print(f"[bold]sweep[/bold] {task_cfg.name}: "
+                  + " x ".join(f"{k} ({len(v)})" for k, v in params)
+                  + f" = {len(points)} points; {len(rows)} already done, {len(todo)} to compute"
+                  + f" -> {out}")
+    computed = 0
+    log = out / "computed.log"
+    if todo:
+        client, cluster = _open_client(scheduler, workers)
+        try:
+            nthreads = sum(client.nthreads().values())
+            where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
+            console.print(f"dask: {where}, {nthreads} threads")
+            from distributed import as_completed
+
+            with SweepProgress(len(points), len(rows), n_failed0) as prog:
+                def on_event(event):
+                    msg = event[1] if isinstance(event, tuple) else event
+                    if isinstance(msg, dict) and msg.get("state") == "running":
+                        prog.started(msg.get("id"))
+
+                try:
+                    client.subscribe_topic(EVENT_TOPIC, on_event)
+                except Exception:  # noqa: BLE001 - running count is cosmetic
+                    pass
+                futures = {}
+                for i in todo:
+                    f = client.submit(solve_point, task_arg, cfg_arg, bool(smoke), overrides,
+                                      points[i], ids[i], pure=False,
+                                      key=f"hydroilqr-point-{ids[i]}-{os.getpid()}-{time.time_ns()}")
+                    futures[f] = i
+                for fut in as_completed(list(futures)):
+                    i = futures[fut]
+                    try:
+                        result = fut.result()
+                    except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
+                        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+                        result = {"row": {"id": ids[i],
+                                          **{f"param:{k}": v for k, v in points[i].items()},
+                                          "status": "failed",
+                                          "error": f"{type(e).__name__}: {msg}"[:500]},
+                                  "arrays": {}}
+                    save_point(points_dir, result)
+                    row = result["row"]
+                    rows[ids[i]] = row
+                    computed += 1
+                    with open(log, "a") as fh:
+                        fh.write(f"{ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
+                    prog.finish(ids[i], row.get("status") == "ok")
+                    prog.progress.console.print(_describe(row, keys))
+                    write_tables(out, spec, keys, ordered(), len(points) - len(rows))
+                try:
+                    client.unsubscribe_topic(EVENT_TOPIC)
+                except Exception:  # noqa: BLE001
+                    pass
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    all_rows = ordered()
+    write_tables(out, spec, keys, all_rows, len(points) - len(all_rows))
+    wrote = ["sweep.csv", "sweep.json"]
+    if plots and all_rows:
+        grid_values = [v for _, v in params]
+        plot_sweep(out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
+        wrote.append("sweep.png")
+        if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
+                out / "snapshots.png", points_dir, task_cfg, keys, all_rows):
+            wrote.append("snapshots.png")
+    failed = sum(r.get("status") != "ok" for r in all_rows)
+    console.print(f"{len(all_rows)} points ({computed} computed now, "
+                  f"{len(all_rows) - computed} from earlier runs), {failed} failed; "
+                  f"wrote {', '.join(wrote)} in {out}")
+    return {"rows": all_rows, "computed": computed, "skipped": len(all_rows) - computed,
+            "failed": failed}
+
+
+# ------------------------------------------------------------------------------------------
+# CLI
+# ------------------------------------------------------------------------------------------
+
+
+def cmd_sweep(args) -> int:
+    task = getattr(args, "task_file", None) or args.task
+    if not task:
+        raise ConfigError("no task given (try `hydroilqr tasks`)")
+    keys, specs = args.param or [], args.values or []
+    if len(keys) != len(specs):
+        raise ConfigError("give one --values after each --param")
+    params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("--workers: must be at least 1")
+    res = run_sweep(task, params, args.out, sets=args.set, config_file=args.config,
+                    smoke=args.smoke, scheduler=args.scheduler, workers=args.workers,
+                    retry_failed=args.retry_failed)
+    return 0 if res["rows"] else 1
+
+
+@register("sweep", "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)")
+def setup(p) -> None:
+    add_task_args(p)
+    p.add_argument("--param", action="append", metavar="KEY",
+                   help="numeric task key to sweep, e.g. tip.hydroelastic_modulus "
+                        "(twice for a grid)")
+    p.add_argument("--values", action="append", metavar="SPEC",
+                   help="V1,V2,... or logspace:A:B:N or linspace:A:B:N (one per --param)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local "
+                        "cluster, one single-threaded worker process per core)")
+    p.add_argument("--workers", type=int, help="worker processes of the local cluster")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="on resume, also recompute points recorded as failed")
+    p.add_argument("--out", required=True, help="output directory (resumable)")
+    p.set_defaults(func=cmd_sweep)
