@@ -144,17 +144,19 @@ def cartpole_wall(task, sol) -> dict:
         any(involves(pr, a_name) and involves(pr, b_name) for pr in contact_pairs(dyn, x))
         for x in sol.X[1:]
     )
-    # Tunnelling: the tip's centre ended up beyond the wall's far face at some step.
+    # Tunnelling: the tip's centre ended up beyond the wall's far face at some step. The far
+    # face is the one away from the side of the wall the tip starts on (axis-aligned wall).
     tunnelled = False
     wall = next((o for o in task.config.scene if o.name == b_name and o.shape == "box"), None)
     if wall is not None:
-        far_face = wall.xyz[0] - 0.5 * wall.size[0]
         body = dyn.plant.GetBodyByName(dyn.geometry_names()[ids_a[0]][1])
         xs = []
         for x in sol.X:
             dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
             xs.append(body.EvalPoseInWorld(dyn.plant_context).translation()[0])
-        tunnelled = bool(np.min(xs) < far_face)
+        side = 1.0 if xs[0] >= wall.xyz[0] else -1.0
+        far_face = wall.xyz[0] - side * 0.5 * wall.size[0]
+        tunnelled = bool(np.min(side * (np.array(xs) - far_face)) < 0.0)
     return {
         "final_angle_error_rad": float(abs(sol.X[-1, angle.coords[0]] - target)),
         "max_overlap_m": float(max(0.0, -np.min(dist))),
