@@ -131,6 +131,54 @@ def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
     return out
 
 
+def hydroelastic_kind(props) -> str:
+    """"compliant", "rigid" or "none" for a geometry's ProximityProperties (or None).
+
+    Drake's compliance type is not readable from Python; it is inferred: a hydroelastic
+    modulus means compliant, any other hydroelastic property means rigid.
+    """
+    if props is None or not props.HasGroup("hydroelastic"):
+        return "none"
+    if props.HasProperty("hydroelastic", "hydroelastic_modulus"):
+        return "compliant"
+    return "rigid"
+
+
+def check_contact_pairs(task: TaskConfig, plant, scene_graph) -> None:
+    """Rejects collision pairs Drake cannot give a hydroelastic contact surface, naming them:
+    a compliant half space against another compliant geometry (always: under the fallback model
+    Drake would silently use point contact), and with ``contact_model: hydroelastic`` also
+    rigid-rigid pairs and pairs where a geometry has no hydroelastic properties."""
+    inspector = scene_graph.model_inspector()
+    names = collision_geometries(plant, scene_graph)
+    scene_index = {(o.name or f"scene_{i}"): i for i, o in enumerate(task.scene)}
+
+    def label(gid) -> str:
+        name, body = names.get(gid, ("?", "?"))
+        if body == "world" and name in scene_index:
+            return f"scene[{scene_index[name]}] ({name})"
+        return f"geometry {name} (body {body})"
+
+    strict = task.plant.contact_model == "hydroelastic"
+    for a, b in inspector.GetCollisionCandidates():
+        ka = hydroelastic_kind(inspector.GetProximityProperties(a))
+        kb = hydroelastic_kind(inspector.GetProximityProperties(b))
+        half = [g for g in (a, b) if isinstance(inspector.GetShape(g), HalfSpace)]
+        if ka == kb == "compliant" and half:
+            other = b if half[0] == a else a
+            raise ConfigError(
+                f"{label(half[0])}: a compliant half space cannot touch the compliant "
+                f"{label(other)} (Drake has no hydroelastic contact between them); make one "
+                "of them rigid, or use a compliant box instead of the half space"
+            )
+        if strict and (ka == kb == "rigid" or "none" in (ka, kb)):
+            why = "both rigid" if ka == kb == "rigid" else "one has no hydroelastic properties"
+            raise ConfigError(
+                f"plant.contact_model: hydroelastic cannot handle the pair {label(a)} / "
+                f"{label(b)} ({why}); use hydroelastic_with_fallback or set its compliance"
+            )
+
+
 # ------------------------------------------------------------------------------------------
 # Building
 # ------------------------------------------------------------------------------------------
@@ -217,6 +265,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
 
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     plant.Finalize()
+    check_contact_pairs(task, plant, scene_graph)
     if plant.num_actuated_dofs() == 0:
         raise ConfigError("models: the model has no actuated joints")
     port = builder.ExportInput(plant.get_actuation_input_port(), "actuation")
