@@ -1,0 +1,206 @@
+"""Metrics and plots of the Mini Cheetah gait-discovery tasks (paper §IV-A).
+
+``metrics: [default, cheetah]`` in a task file adds (``t`` is time from the start):
+
+* ``target_velocity_mps``: the nominal forward base velocity (from ``cost.nominal``);
+* ``mean_forward_velocity_mps``: mean forward (world x) base velocity over the last second
+  (the whole run if it is shorter); ``velocity_error_fraction``: |mean − target| / target;
+* ``min_body_height_m``: lowest base (body frame origin) height for t ≥ 0.2 s;
+* ``body_ground_contact_steps``: states with t ≥ 0.2 s where the body's collision box touches
+  the ground (Drake contact results of the replayed states);
+* ``duty_factor``: per foot, the fraction of states with t ≥ 0.2 s in which the foot touches the
+  ground;
+* ``diagonal_pair_overlap`` / ``lateral_pair_overlap``: fraction of those states in which both
+  feet of a diagonal pair (FL+HR, FR+HL) / of a same-side pair (FL+HL, FR+HR) touch together,
+  averaged over the two pairs (a trot has diagonal > lateral);
+* ``foot_touchdowns``: per foot, how many times it goes from air to ground (t ≥ 0.2 s);
+* ``max_foot_faces`` / ``mean_foot_faces``: contact polygons of one foot on the ground (most,
+  and mean over the states where it touches);
+* ``iterations_per_resolve`` (mean) and ``resolve_seconds`` (mean) for receding-horizon runs.
+
+``metric_params`` (all optional): ``body`` (floating body, default ``body``), ``body_collision``
+(default ``body_collision``), ``ground`` (default ``ground``), ``feet`` (collision names, default
+``{FL,FR,HL,HR}_foot_collision``), ``settle_time`` (default 0.2 s), ``window`` (default 1.0 s).
+
+Plots: ``velocity.png`` (forward base velocity against the target, paper Fig. 4) and
+``gait.png`` (foot contact diagram: a bar wherever a foot touches the ground).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import report
+from .config import ConfigError
+from .metrics import contact_pairs, metric
+
+FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
+DIAGONAL = ((0, 3), (1, 2))  # FL+HR, FR+HL
+LATERAL = ((0, 2), (1, 3))  # FL+HL, FR+HR
+
+_cache: dict = {}
+
+
+def _params(task) -> dict:
+    p = task.config.metric_params
+    feet = list(p.get("feet", FEET))
+    if len(feet) != 4:
+        raise ConfigError("metric_params.feet: expected four collision names (FL, FR, HL, HR)")
+    return {
+        "body": p.get("body", "body"),
+        "body_collision": p.get("body_collision", "body_collision"),
+        "ground": p.get("ground", "ground"),
+        "feet": feet,
+        "settle_time": float(p.get("settle_time", 0.2)),
+        "window": float(p.get("window", 1.0)),
+    }
+
+
+def _blocks(task, body: str):
+    layout = task.dynamics.layout
+    try:
+        return layout.primitives[f"{body}.position"], layout.primitives[f"{body}.velocity"]
+    except KeyError:
+        raise ConfigError(f"metric_params.body: no floating body named {body!r}") from None
+
+
+def forward_velocity(task, sol) -> tuple[np.ndarray, np.ndarray]:
+    """(actual, target) forward base velocity at every state: two arrays [T]."""
+    _, vel = _blocks(task, _params(task)["body"])
+    i = vel.coords[0]
+    X = np.asarray(sol.X)
+    target = task.cost.nominal(np.asarray(sol.t))[:, i]
+    return X[:, i], target
+
+
+def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Contact state of every replayed state.
+
+    Returns feet: [T, 4] bool (FL, FR, HL, HR on the ground), faces: [T, 4] int (contact
+    polygons per foot), body: [T] bool (body box on the ground).
+    """
+    key = (id(task), id(sol.X), np.asarray(sol.X).shape)
+    if _cache.get("key") == key:
+        return _cache["value"]
+    p = _params(task)
+    names = {n for n, _ in task.dynamics.geometry_names().values()}
+    for n in p["feet"] + [p["body_collision"], p["ground"]]:
+        if n not in names:
+            raise ConfigError(f"metric_params: no collision geometry named {n!r}")
+    X = np.asarray(sol.X)
+    T = X.shape[0]
+    feet = np.zeros((T, 4), bool)
+    faces = np.zeros((T, 4), int)
+    body = np.zeros(T, bool)
+    for k, x in enumerate(X):
+        for ga, _ba, gb, _bb, n in contact_pairs(task.dynamics, x):
+            if p["ground"] not in (ga, gb):
+                continue
+            other = gb if ga == p["ground"] else ga
+            if other in p["feet"]:
+                j = p["feet"].index(other)
+                feet[k, j] = True
+                faces[k, j] += n
+            elif other == p["body_collision"]:
+                body[k] = True
+    _cache["key"], _cache["value"] = key, (feet, faces, body)
+    return feet, faces, body
+
+
+@metric("cheetah")
+def cheetah_metrics(task, sol) -> dict:
+    p = _params(task)
+    pos, _ = _blocks(task, p["body"])
+    t = np.asarray(sol.t) - float(np.asarray(sol.t)[0])
+    X = np.asarray(sol.X)
+    vx, target = forward_velocity(task, sol)
+    last = t >= t[-1] - p["window"] - 1e-9
+    settled = t >= p["settle_time"] - 1e-9
+    if not settled.any():
+        settled = np.ones_like(settled)
+    feet, faces, body = contacts(task, sol)
+    f = feet[settled]
+    n = max(1, f.shape[0])
+    v_target = float(target[-1])
+    v_mean = float(np.mean(vx[last]))
+    touchdowns = np.sum(f[1:] & ~f[:-1], axis=0) if f.shape[0] > 1 else np.zeros(4, int)
+    in_contact = faces[feet]
+    labels = [name.split("_")[0] for name in p["feet"]]
+    out = {
+        "target_velocity_mps": v_target,
+        "mean_forward_velocity_mps": v_mean,
+        "velocity_error_fraction": (abs(v_mean - v_target) / abs(v_target)
+                                    if v_target else abs(v_mean)),
+        "min_body_height_m": float(np.min(X[settled, pos.coords[2]])),
+        "body_ground_contact_steps": int(np.sum(body[settled])),
+        "duty_factor": {lab: float(np.sum(f[:, j]) / n) for j, lab in enumerate(labels)},
+        "diagonal_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n
+                                                for a, b in DIAGONAL])),
+        "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n
+                                               for a, b in LATERAL])),
+        "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
+        "max_foot_faces": int(np.max(faces)) if faces.size else 0,
+        "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
+    }
+    resolves = (sol.extra or {}).get("resolves") or []
+    if resolves:
+        out["iterations_per_resolve"] = float(np.mean([r["iterations"] for r in resolves]))
+        out["resolve_seconds"] = float(np.mean([r["seconds"] for r in resolves]))
+    return out
+
+
+@report.plot("cheetah")
+def plot_cheetah(task, sol, out: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(sol.t)
+    vx, target = forward_velocity(task, sol)
+    fig, ax = plt.subplots(figsize=(5.5, 3.2))
+    ax.plot(t, vx, color="C0", label="actual")
+    ax.plot(t, target, "--", color="C0", lw=1, label="desired")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("forward base velocity [m/s]")
+    ax.set_title(f"{task.name}: forward base velocity")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(Path(out) / "velocity.png", dpi=120)
+    plt.close(fig)
+
+    feet, _, body = contacts(task, sol)
+    labels = [name.split("_")[0] for name in _params(task)["feet"]]
+    dt = float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+    fig, ax = plt.subplots(figsize=(6.5, 2.4))
+    colors = ("C0", "C1", "C1", "C0")  # diagonal pairs share a colour
+    for j in range(4):
+        ax.broken_barh(_runs(t, feet[:, j], dt), (3 - j - 0.35, 0.7), color=colors[j])
+    if body.any():
+        ax.broken_barh(_runs(t, body, dt), (-1.35, 0.7), color="C3")
+        labels = labels + ["body"]
+    ax.set_yticks([3 - j for j in range(len(labels))], labels)
+    ax.set_ylim(-1.6 if body.any() else -0.6, 3.6)
+    ax.set_xlim(t[0], t[-1])
+    ax.set_xlabel("time [s]")
+    ax.set_title(f"{task.name}: ground contact (diagonal pairs same colour)")
+    ax.grid(True, axis="x", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(Path(out) / "gait.png", dpi=120)
+    plt.close(fig)
+
+
+def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]:
+    """(start, width) of every run of True in ``on``."""
+    runs = []
+    k = 0
+    while k < len(on):
+        if on[k]:
+            j = k
+            while j + 1 < len(on) and on[j + 1]:
+                j += 1
+            runs.append((float(t[k]), float(t[j] - t[k] + dt)))
+            k = j + 1
+        else:
+            k += 1
+    return runs

@@ -1,0 +1,118 @@
+"""Mini Cheetah gait discovery (paper §IV-A): task setup and smoke-sized receding-horizon solves."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hydroilqr import Task
+from hydroilqr.api import solve
+from hydroilqr.config import list_tasks
+from hydroilqr.metrics import compute
+from hydroilqr.receding import CHECKPOINT
+
+TASKS = ["cheetah-trot-0.5", "cheetah-trot-1.0"]
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def smoke_run(tmp_path_factory):
+    """An uninterrupted smoke run (3 resolves of a 10-step window), checkpointed."""
+    out = tmp_path_factory.mktemp("full")
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    sol = solve(task, checkpoint_dir=out)
+    return task, sol, out
+
+
+def test_tasks_listed_and_paper_setup():
+    assert set(TASKS) <= set(list_tasks())
+    assert not any(name.startswith("_") for name in list_tasks())
+    for name, v in zip(TASKS, (0.5, 1.0)):
+        task = Task.load(name)
+        cfg, dyn, cost = task.config, task.dynamics, task.cost
+        assert (dyn.nq, dyn.nv, dyn.nu) == (19, 18, 12)
+        assert dyn.dt == 0.005
+        rh = cfg.receding_horizon
+        assert (rh.window_steps, rh.shift_steps, rh.resolves) == (40, 4, 100)
+        lay = dyn.layout
+        dt = dyn.dt
+        paper_q = {"orientation": 2.0, "position": 1.0, "joints": 0.0, "angular_velocity": 0.01,
+                   "velocity": 0.01, "joint_velocities": 0.01}
+        paper_qf = {"orientation": 10.0, "position": 5.0, "joints": 0.1,
+                    "angular_velocity": 1.0, "velocity": 1.0, "joint_velocities": 0.01}
+        for block, w in paper_q.items():
+            np.testing.assert_allclose(cost.q[list(lay.block(block).tangent)], w * dt)
+            np.testing.assert_allclose(cost.qf[list(lay.block(block).tangent)],
+                                       paper_qf[block])
+        np.testing.assert_allclose(cost.r, 0.01 * dt)
+        # Nominal: level body moving forward at v, standing joints, velocity [v, 0, 0].
+        x1 = cost.nominal(np.array([1.0]))[0]
+        pos, vel = lay.block("position"), lay.block("velocity")
+        np.testing.assert_allclose(x1[list(pos.coords)], [v, 0.0, 0.29166])
+        np.testing.assert_allclose(x1[list(vel.coords)], [v, 0.0, 0.0])
+        np.testing.assert_allclose(x1[list(lay.block("orientation").coords)], [1, 0, 0, 0])
+        np.testing.assert_allclose(task.x0[list(lay.block("joints").coords)],
+                                   [0, -0.8, 1.6] * 4)
+        U = task.initial_guess(5)
+        assert U.shape == (5, 12) and np.all(np.abs(U) <= dyn.effort_limits)
+
+
+def test_standing_contacts():
+    task = Task.load("cheetah-trot-0.5")
+    surfaces = task.dynamics.contact_surfaces(task.x0)
+    feet = {a for a, b, n in surfaces if "foot" in a and b == "ground" and n > 0}
+    assert feet == {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision",
+                    "HR_foot_collision"}
+    assert not any("body" in a for a, _, _ in surfaces)
+
+
+def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
+    from hydroilqr import report
+
+    task, sol, _ = smoke_run
+    rh = task.config.receding_horizon
+    n = rh.resolves * rh.shift_steps
+    assert sol.X.shape == (n + 1, 37) and sol.U.shape == (n, 12)
+    assert sol.K.shape == (n, 12, 37) and sol.t.shape == (n + 1,)
+    assert np.all(np.isfinite(sol.X))
+    res = sol.extra["resolves"]
+    assert len(res) == rh.resolves and all(r["iterations"] >= 1 for r in res)
+    # The first window's iterations never increase the cost, and the first one decreases it.
+    first = sol.costs[: res[0]["iterations"] + 1]
+    assert first[1] < first[0] and np.all(np.diff(first) <= 0)
+    m = compute(task, sol)
+    assert set(m["duty_factor"]) == {"FL", "FR", "HL", "HR"}
+    for key in ("mean_forward_velocity_mps", "min_body_height_m", "diagonal_pair_overlap",
+                "lateral_pair_overlap", "iterations_per_resolve"):
+        assert np.isfinite(m[key])
+    assert m["target_velocity_mps"] == 1.0 and m["body_ground_contact_steps"] == 0
+    assert m["max_foot_faces"] > 0
+    summary = report.write_outputs(task, sol, tmp_path, replay=False)
+    assert (tmp_path / "velocity.png").exists() and (tmp_path / "gait.png").exists()
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    assert saved["metrics"]["duty_factor"] == summary["metrics"]["duty_factor"]
+    assert len(saved["extra"]["resolves"]) == rh.resolves
+
+
+def test_resume_equals_uninterrupted(smoke_run, tmp_path):
+    _, full, full_dir = smoke_run
+    assert (full_dir / CHECKPOINT).exists()
+
+    def stop_after_two(done, total, sol):
+        if done == 2:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path,
+              on_resolve=stop_after_two)
+    # A fresh process would rebuild the task; so does this.
+    resumed = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
+    np.testing.assert_array_equal(resumed.X, full.X)
+    np.testing.assert_array_equal(resumed.U, full.U)
+    np.testing.assert_array_equal(resumed.K, full.K)
+    np.testing.assert_array_equal(resumed.costs, full.costs)
+    assert [r["iterations"] for r in resumed.extra["resolves"]] == [
+        r["iterations"] for r in full.extra["resolves"]]
