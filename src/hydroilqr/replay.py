@@ -56,12 +56,14 @@ def write_replay(task, trajectories, t: np.ndarray, path: str | Path,
     vis.StartRecording(False)
     T = t[-1] - t[0] if len(t) > 1 else 1.0
     frames = max(2, int(T * fps) + 1)
-    for X in trajectories:
+    offset = 0.0
+    for X in trajectories:  # shown one after another, with a short pause between
         for tf in np.linspace(t[0], t[-1], frames):
             k = int(np.clip(np.searchsorted(t, tf), 0, len(t) - 1))
-            context.SetTime(float(tf))
+            context.SetTime(float(tf - t[0] + offset))
             plant.SetPositionsAndVelocities(plant_context, X[k])
             diagram.ForcedPublish(context)
+        offset += T + 0.5
     vis.StopRecording()
     vis.PublishRecording()
     html = meshcat.StaticHtml()
