@@ -222,11 +222,19 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                 if child is None:
                     child = plant.GetFrameByName(w.child)
             except Exception:
+                bad = "parent" if w.parent != "world" and not plant.HasFrameNamed(
+                    w.parent) else "child"
+                frames = sorted({plant.get_frame(f).name() for inst in instances
+                                 for f in plant.GetFrameIndices(inst)})
                 raise ConfigError(
-                    f"models[{i}].weld: unknown frame {w.parent!r} or {w.child!r}"
+                    f"models[{i}].weld.{bad}: unknown frame {getattr(w, bad)!r} "
+                    f"(frames of the model: {', '.join(frames)})"
                 ) from None
             X = RigidTransform(RollPitchYaw(w.rpy), np.asarray(w.xyz, dtype=float))
-            plant.WeldFrames(parent, child, X)
+            try:
+                plant.WeldFrames(parent, child, X)
+            except Exception as e:
+                raise ConfigError(f"models[{i}].weld: {str(e).strip().splitlines()[0]}") from None
 
     # Static scene geometry.
     world = plant.world_body()

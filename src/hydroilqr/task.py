@@ -68,6 +68,13 @@ class Task:
         """Builds everything that can fail on bad input, before any solve starts."""
         _ = self.dynamics, self.cost, self.x0
         self.initial_guess(self.steps)
+        from . import metrics as metrics_mod
+
+        metrics_mod.load_plugins()
+        for name in self.config.metrics:
+            if name not in metrics_mod.METRICS:
+                raise ConfigError(f"metrics: unknown metric {name!r} "
+                                  f"(known: {', '.join(metrics_mod.METRICS)})")
 
     def initial_guess(self, N: int, x: np.ndarray | None = None) -> np.ndarray:
         """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file."""
