@@ -1,0 +1,172 @@
+"""Every bad key gives a one-line error naming it, before any solve starts (issue 9).
+
+Each case writes a task file next to nothing but itself (the model is Drake's acrobot or
+pendulum, shipped in the drake wheel), runs ``hydroilqr solve`` on it and checks: non-zero exit,
+exactly one line on stderr, no traceback, the offending key in the message, nothing printed on
+stdout (so the solve never started). All cases run in-process through ``cli.main``; a subset
+also runs as real subprocesses of the installed ``hydroilqr`` script.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from hydroilqr import cli
+
+ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
+PENDULUM = "package://drake/examples/pendulum/Pendulum.urdf"
+HYDROILQR = Path(sys.executable).parent / "hydroilqr"
+
+BASE = {
+    "name": "val",
+    "models": [{"file": ACROBOT}],
+    "plant": {"time_step": 0.02},
+    "num_steps": 5,
+    "blocks": {"angles": ["shoulder", "elbow"]},
+    "initial_state": {"angles": [0.1, 0.0]},
+    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 10.0},
+             "nominal": {"angles": [3.14, 0.0]}},
+    "solver": {"max_iterations": 1},
+}
+
+
+def edit(**changes):
+    """BASE with dotted-key changes ('cost.Q.angles': -1); value None deletes the key."""
+    data = copy.deepcopy(BASE)
+    for dotted, value in changes.items():
+        *path, last = dotted.split("__")
+        node = data
+        for p in path:
+            node = node.setdefault(p, {})
+        if value is None:
+            node.pop(last, None)
+        else:
+            node[last] = value
+    return data
+
+
+# (case id, task dict or raw YAML text, text the one-line message must contain)
+CASES = [
+    ("unknown-top-level-key", edit(horizn=2.0), "horizn: unknown key"),
+    ("unknown-block-in-Q", edit(cost__Q={"angels": 1.0}), "cost.Q.angels"),
+    ("wrong-length-weights", edit(cost__Q={"angles": [1, 2, 3]}), "cost.Q.angles"),
+    ("negative-weight", edit(cost__Qf={"angles": -1.0}), "cost.Qf.angles"),
+    ("nan-weight", edit(cost__Q={"angles": float("nan")}), "cost.Q.angles"),
+    ("nan-weight-in-list", edit(cost__Q={"angles": [1.0, float("nan")]}), "cost.Q.angles"),
+    ("unknown-actuator-in-R", edit(cost__R={"shoulder": 1.0}), "cost.R.shoulder"),
+    ("wrong-length-R", edit(cost__R=[1.0, 2.0]), "cost.R"),
+    ("negative-modulus",
+     edit(geometry={"lower_link_collision": {"hydroelastic_modulus": -1e6}}),
+     "geometry.lower_link_collision.hydroelastic_modulus"),
+    ("unknown-geometry", edit(geometry={"gripper_pad": {"friction": 0.5}}),
+     "geometry.gripper_pad"),
+    ("unknown-weld-frame",
+     edit(models=[{"file": PENDULUM, "weld": {"parent": "world", "child": "no_such_link"}}],
+          blocks={}, initial_state={}, cost={"R": 0.1}),
+     "models[0].weld.child"),
+    ("missing-model-file", edit(models=[{"file": "robots/missing.urdf"}]), "models[0].file"),
+    ("missing-package-file", edit(models=[{"file": "package://drake/examples/none.urdf"}]),
+     "models[0].file"),
+    ("malformed-yaml", "models:\n  - file: [unclosed\ncost: {Q: 1\n", "line"),
+    ("compliant-halfspace-pair",
+     edit(models=[{"file": PENDULUM}], blocks={}, initial_state={}, cost={"R": 0.1},
+          scene=[{"name": "soft_floor", "shape": "halfspace", "xyz": [0, 0, 0.49],
+                  "compliance": "compliant", "hydroelastic_modulus": 1e6}],
+          geometry={"arm_com": {"hydroelastic_modulus": 1e6, "resolution_hint": 0.02}}),
+     "scene[0] (soft_floor)"),
+    ("unknown-initial-state-block", edit(initial_state={"knee": 0.3}), "initial_state.knee"),
+    ("wrong-length-initial-state", edit(initial_state={"angles": [1, 2, 3]}),
+     "initial_state.angles"),
+    ("unknown-group-member", edit(blocks={"angles": ["shoulder", "wrist"]}), "blocks.angles"),
+    ("bad-contact-approximation", edit(plant={"contact_approximation": "magic"}),
+     "plant.contact_approximation"),
+    ("negative-time-step", edit(plant={"time_step": -0.01}), "plant.time_step"),
+    ("string-for-number", edit(horizon="long"), "horizon"),
+    ("bad-initial-guess", edit(initial_guess="warm.npz"), "initial_guess"),
+    ("unknown-metric", edit(metrics=["default", "speed"]), "metrics"),
+    ("unknown-solver-key", edit(solver={"max_iter": 3}), "solver.max_iter"),
+]
+
+
+def write_case(tmp_path: Path, spec) -> Path:
+    path = tmp_path / "task.yaml"
+    path.write_text(spec if isinstance(spec, str) else yaml.safe_dump(spec))
+    return path
+
+
+def assert_one_line(rc: int, out: str, err: str, needle: str) -> None:
+    assert rc != 0
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("hydroilqr: error: "), lines[0]
+    assert needle in lines[0], lines[0]
+    assert out.strip() == "", f"the solve started: {out}"
+
+
+@pytest.mark.parametrize("case,spec,needle", CASES, ids=[c[0] for c in CASES])
+def test_bad_key_in_process(tmp_path, capsys, case, spec, needle):
+    path = write_case(tmp_path, spec)
+    rc = cli.main(["solve", "--task-file", str(path), "--out", str(tmp_path / "out"),
+                   "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)
+    assert not (tmp_path / "out" / "solution.npz").exists()
+
+
+def test_unknown_task_name(capsys):
+    rc = cli.main(["solve", "no-such-task", "--out", "/nonexistent/never"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "unknown task 'no-such-task'")
+    assert "cartpole-wall" in cap.err  # lists the built-in tasks
+
+
+def test_bad_override_names_key(tmp_path, capsys):
+    path = write_case(tmp_path, BASE)
+    rc = cli.main(["solve", "--task-file", str(path), "--set", "solver.derivatives=magic",
+                   "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "solver.derivatives")
+
+
+SUBPROCESS_CASES = ["unknown-top-level-key", "nan-weight",
+                    "malformed-yaml", "compliant-halfspace-pair"]
+
+
+def test_bad_keys_as_subprocesses(tmp_path):
+    """The real script: exit code, exactly one stderr line, no traceback (2 at a time)."""
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    env.pop("HYDROILQR_DEBUG", None)
+    specs = {c[0]: (c[1], c[2]) for c in CASES}
+    jobs = []
+    for name in SUBPROCESS_CASES + ["unknown-task"]:
+        d = tmp_path / name
+        d.mkdir()
+        if name == "unknown-task":
+            argv = ["solve", "no-such-task"]
+            needle = "unknown task"
+        else:
+            spec, needle = specs[name]
+            argv = ["solve", "--task-file", str(write_case(d, spec))]
+        jobs.append((name, needle, [str(HYDROILQR), *argv, "--out", str(d / "out")], d))
+    running = []
+    results = []
+    while jobs or running:
+        while jobs and len(running) < 2:
+            name, needle, cmd, d = jobs.pop(0)
+            p = subprocess.Popen(cmd, cwd=d, env=env, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True)
+            running.append((name, needle, p))
+        name, needle, p = running.pop(0)
+        out, err = p.communicate(timeout=120)
+        results.append((name, needle, p.returncode, out, err))
+    for name, needle, rc, out, err in results:
+        assert rc == 2, (name, rc, err)
+        assert_one_line(rc, out, err, needle)
