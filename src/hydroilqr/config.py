@@ -8,6 +8,7 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     models:                       # required: one or more SDFormat/URDF files
       - file: robot.sdf           # relative to the YAML file; package:// allowed
         weld: {parent: world, child: base_link, xyz: [0, 0, 0.1], rpy: [0, 0, 0]}
+        # welds: [{child: finger1_base, ...}, ...]   # several welds of one model
     package_map: {my_pkg: ./my_pkg}
     scene:                        # static geometry welded to the world
       - {name: ground, shape: box, size: [25, 25, 1], xyz: [0, 0, -0.5],
@@ -72,6 +73,7 @@ class WeldConfig:
 class ModelConfig:
     file: str = ""
     weld: WeldConfig | None = None
+    welds: list[WeldConfig] = field(default_factory=list)  # more welds (e.g. several bases)
 
 
 @dataclass

@@ -210,8 +210,9 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         except Exception as e:
             msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise ConfigError(f"models[{i}].file: could not parse {m.file}: {msg}") from None
-        if m.weld is not None:
-            w = m.weld
+        welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
+        welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
+        for wkey, w in welds:
             try:
                 parent = (plant.world_frame() if w.parent == "world"
                           else plant.GetFrameByName(w.parent))
@@ -227,14 +228,14 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                 frames = sorted({plant.get_frame(f).name() for inst in instances
                                  for f in plant.GetFrameIndices(inst)})
                 raise ConfigError(
-                    f"models[{i}].weld.{bad}: unknown frame {getattr(w, bad)!r} "
+                    f"{wkey}.{bad}: unknown frame {getattr(w, bad)!r} "
                     f"(frames of the model: {', '.join(frames)})"
                 ) from None
             X = RigidTransform(RollPitchYaw(w.rpy), np.asarray(w.xyz, dtype=float))
             try:
                 plant.WeldFrames(parent, child, X)
             except Exception as e:
-                raise ConfigError(f"models[{i}].weld: {str(e).strip().splitlines()[0]}") from None
+                raise ConfigError(f"{wkey}: {str(e).strip().splitlines()[0]}") from None
 
     # Static scene geometry.
     world = plant.world_body()
