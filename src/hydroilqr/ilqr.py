@@ -55,37 +55,40 @@ def backward_pass(A: np.ndarray, B: np.ndarray, quad: Quadratization, mu: float
     Vx = quad.lx[N].copy()
     Vxx = quad.lxx[N].copy()
     d1 = d2 = 0.0
-    eye = np.eye(nu)
+    eye = mu * np.eye(nu)
+    lx, lu, lxx, luu = quad.lx, quad.lu, quad.lxx, quad.luu
+    cholesky, solve = np.linalg.cholesky, np.linalg.solve
     for k in range(N - 1, -1, -1):
         Ak, Bk = A[k], B[k]
-        VxxA = Vxx @ Ak
-        VxxB = Vxx @ Bk
-        Qx = quad.lx[k] + Ak.T @ Vx
-        Qu = quad.lu[k] + Bk.T @ Vx
-        Qxx = quad.lxx[k] + Ak.T @ VxxA
-        Quu = quad.luu[k] + Bk.T @ VxxB + mu * eye
-        Qux = Bk.T @ VxxA
+        AtV = Ak.T @ Vxx
+        BtV = Bk.T @ Vxx
+        Qx = lx[k] + Ak.T @ Vx
+        Qu = lu[k] + Bk.T @ Vx
+        Qxx = lxx[k] + AtV @ Ak
+        Quu = luu[k] + BtV @ Bk + eye
+        Qux = BtV @ Ak
         Quu = 0.5 * (Quu + Quu.T)
         try:
-            L = np.linalg.cholesky(Quu)
+            cholesky(Quu)  # positive-definiteness test
         except np.linalg.LinAlgError:
             return BackwardPassResult(K, kappa, (d1, d2), ok=False)
-        sol = _chol_solve(L, np.column_stack([Qu, Qux]))
+        # A plain LAPACK solve: scipy's solve_triangular goes through OpenBLAS trsm, which
+        # spawns threads even for 1x1 systems and took ~13 ms per call on a loaded 2-core
+        # machine (the whole backward pass then dominated an iteration).
+        rhs = np.empty((nu, nx + 1))
+        rhs[:, 0] = Qu
+        rhs[:, 1:] = Qux
+        sol = solve(Quu, rhs)
         kap, Kk = sol[:, 0], sol[:, 1:]
         kappa[k], K[k] = kap, Kk
-        Vx = Qx - Kk.T @ Qu - Qux.T @ kap + Kk.T @ (Quu @ kap)
-        Vxx = Qxx - Kk.T @ Qux - Qux.T @ Kk + Kk.T @ Quu @ Kk
+        QuuK = Quu @ Kk
+        Vx = Qx - Kk.T @ Qu - Qux.T @ kap + QuuK.T @ kap
+        KtQux = Kk.T @ Qux
+        Vxx = Qxx - KtQux - KtQux.T + Kk.T @ QuuK
         Vxx = 0.5 * (Vxx + Vxx.T)
         d1 += kap @ Qu
-        d2 += kap @ Quu @ kap
+        d2 += kap @ (Quu @ kap)
     return BackwardPassResult(K, kappa, (float(d1), float(d2)))
-
-
-def _chol_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
-    import scipy.linalg as sla
-
-    y = sla.solve_triangular(L, b, lower=True, check_finite=False)
-    return sla.solve_triangular(L.T, y, lower=False, check_finite=False)
 
 
 def expected_decrease(dV: tuple[float, float], eps: float) -> float:
