@@ -92,8 +92,8 @@ def cmd_solve(args) -> int:
     if args.threads is not None:
         extra.append(f"solver.threads={args.threads}")
     resume_dir = args.resume
-    out = Path(args.out or resume_dir or f"runs/{Path(args.task or args.task_file).stem}")
     task = load_task_from_args(args, extra)
+    out = Path(args.out or resume_dir or f"runs/{task.name}")
     out.mkdir(parents=True, exist_ok=True)
     cfg = task.config
     dyn = task.dynamics
@@ -157,8 +157,15 @@ def cmd_check(args) -> int:
 COMMANDS = {}
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line (``hydroilqr: error: ...``), like every other error."""
+
+    def error(self, message):
+        self.exit(2, f"hydroilqr: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hydroilqr",
         description="Contact-implicit trajectory optimization: iLQR over Drake's hydroelastic "
                     "contact.",
