@@ -181,6 +181,7 @@ def solve(
         accepted = False
         eps = 0.0
         expected = 0.0
+        expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
         while True:
             t = time.perf_counter()
             bp = backward_pass(A, B, quad, mu)
