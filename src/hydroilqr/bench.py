@@ -1,0 +1,388 @@
+"""``hydroilqr bench``: the paper's method against the project's fastest configuration.
+
+For each task, both configurations start from the same initial guess and run the same number
+of iLQR iterations *in the same process, alternating* (a block of iterations of one, then of
+the other), so that load from other processes hits both alike:
+
+(a) the paper's method: TAMSI contact, AutoDiffXd derivatives, one time step after another;
+(b) the fast configuration (``FAST``, or ``--fast KEY=VALUE`` overrides).
+
+The two solves run in two Python threads that hand a baton to each other from the solver's
+per-iteration callback; only the holder of the baton computes, and iteration times are taken
+inside the solver (the wait is outside them). Receding-horizon tasks are benchmarked on their
+first window (``window_steps``).
+
+Outputs in ``--out``: ``bench.json`` (per task: per-iteration median and p10/p90, phase shares,
+speed-up a/b, final costs and their relative difference, contact polygons, derivative accuracy
+against AutoDiff, FD thread scaling) and ``iterations.png`` (box plots, paper Fig. 8).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .cli import console, register
+from .config import ConfigError
+from .solution import PHASES
+
+PAPER = [
+    "plant.contact_approximation=tamsi",
+    "solver.derivatives=autodiff",
+    "solver.derivative_interval=1",
+]
+# The fastest configuration measured on this machine (docs/performance.md).
+FAST = [
+    "plant.contact_approximation=sap",
+    "solver.derivatives=autodiff",
+    "solver.derivative_interval=1",
+]
+
+
+# ------------------------------------------------------------------------------------------
+# Alternating runner
+# ------------------------------------------------------------------------------------------
+
+
+class _Baton:
+    """Two runners take turns; a finished runner never blocks the other."""
+
+    def __init__(self):
+        self.cond = threading.Condition()
+        self.turn = 0
+        self.done = [False, False]
+
+    def wait(self, i: int) -> None:
+        with self.cond:
+            self.cond.wait_for(lambda: self.turn == i or self.done[1 - i])
+
+    def give(self, i: int) -> None:
+        with self.cond:
+            self.turn = 1 - i
+            self.cond.notify_all()
+
+    def finish(self, i: int) -> None:
+        with self.cond:
+            self.done[i] = True
+            self.turn = 1 - i
+            self.cond.notify_all()
+
+
+def run_alternating(tasks, U0, iterations: int, block: int = 1) -> list:
+    """Solves ``tasks[0]`` and ``tasks[1]`` from U0 for ``iterations`` iterations each,
+    alternating blocks of ``block`` iterations. Returns [Solution or Exception, ...]."""
+    from .ilqr import solve
+
+    baton = _Baton()
+    results: list = [None, None]
+
+    def runner(i: int) -> None:
+        task = tasks[i]
+        count = [0]
+
+        def cb(info) -> None:
+            count[0] += 1
+            if count[0] % block == 0:
+                baton.give(i)
+                baton.wait(i)
+
+        try:
+            baton.wait(i)
+            results[i] = solve(task.problem(), U0.copy(), task.config.solver, [cb],
+                               max_iterations=iterations, final_gains=False)
+        except Exception as e:  # noqa: BLE001 - reported per task
+            results[i] = e
+        finally:
+            baton.finish(i)
+
+    threads = [threading.Thread(target=runner, args=(i,), daemon=True) for i in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return results
+
+
+# ------------------------------------------------------------------------------------------
+# Contact polygons and derivative accuracy
+# ------------------------------------------------------------------------------------------
+
+
+def _kind(props) -> str:
+    if props is None or not props.HasGroup("hydroelastic"):
+        return "none"
+    if props.HasProperty("hydroelastic", "hydroelastic_modulus"):
+        return "compliant"
+    return "rigid"
+
+
+def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
+    """(contact polygons at x, class): class is "free", "compliant-rigid" (AutoDiff exact)
+    or "compliant-compliant"/"point" (AutoDiff approximate, see drake-notes.md)."""
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+    dyn._input.FixValue(dyn.context, np.zeros(dyn.nu))
+    res = dyn.plant.get_contact_results_output_port().Eval(dyn.plant_context)
+    inspector = dyn.scene_graph.model_inspector()
+    faces, cls = 0, "free"
+    for i in range(res.num_hydroelastic_contacts()):
+        s = res.hydroelastic_contact_info(i).contact_surface()
+        faces += s.num_faces()
+        kinds = {_kind(inspector.GetProximityProperties(g)) for g in (s.id_M(), s.id_N())}
+        if kinds == {"compliant"}:
+            cls = "compliant-compliant"
+        elif cls == "free":
+            cls = "compliant-rigid"
+    if res.num_point_pair_contacts():
+        faces += res.num_point_pair_contacts()
+        cls = "point"
+    return faces, cls
+
+
+def polygons(dyn, X: np.ndarray) -> dict:
+    states = [contact_state(dyn, x) for x in X]
+    faces = [f for f, _ in states]
+    return {"max_faces": int(max(faces, default=0)), "mean_faces": float(np.mean(faces)),
+            "contact_steps": int(sum(f > 0 for f in faces))}
+
+
+def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
+    """Max relative error of forward/central/interval-k derivatives against AutoDiff along
+    (X, U), per contact class (error at step k: max|J − J_AD| / max|J_AD|, J = [A B])."""
+    from .derivatives import linearize
+
+    dyn = task.dynamics
+    s = task.config.solver
+    N = U.shape[0]
+    classes = [contact_state(dyn, x)[1] for x in X[:N]]
+
+    def jac(method, interval=1):
+        t = time.perf_counter()
+        A, B = linearize(dyn, X, U, method, s.fd_epsilon, threads, interval)
+        return np.concatenate([A, B], axis=2), time.perf_counter() - t
+
+    ref, t_ad = jac("autodiff")
+    scale = np.maximum(np.abs(ref).reshape(N, -1).max(axis=1), 1e-12)
+    out: dict = {"reference": "autodiff", "contact_classes": {
+        c: int(classes.count(c)) for c in sorted(set(classes))}, "seconds": {"autodiff": t_ad}}
+    modes = [("forward", "forward", 1), ("central", "central", 1)]
+    modes += [(f"interval-{k} ({s.derivatives})", s.derivatives, k) for k in intervals]
+    for label, method, k in modes:
+        J, sec = jac(method, k)
+        err = np.abs(J - ref).reshape(N, -1).max(axis=1) / scale
+        out["seconds"][label] = sec
+        out[label] = {c: float(max((e for e, cc in zip(err, classes) if cc == c), default=0.0))
+                      for c in sorted(set(classes))}
+        out[label]["all"] = float(err.max())
+    return out
+
+
+def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
+    """Seconds of the batched FD derivative phase with 1 and ``threads`` threads (alternated,
+    median of ``repeats``)."""
+    from .derivatives import linearize, num_threads
+
+    dyn = task.dynamics
+    s = task.config.solver
+    method = s.derivatives if s.derivatives != "autodiff" else "forward"
+    counts = sorted({1, num_threads(threads)})
+    times: dict[int, list[float]] = {n: [] for n in counts}
+    for _ in range(repeats):
+        for n in counts:
+            t = time.perf_counter()
+            linearize(dyn, X, U, method, s.fd_epsilon, n, 1)
+            times[n].append(time.perf_counter() - t)
+    med = {n: float(np.median(v)) for n, v in times.items()}
+    return {"method": method, "seconds": {str(n): v for n, v in med.items()},
+            "speedup": {str(n): med[1] / v for n, v in med.items()}}
+
+
+# ------------------------------------------------------------------------------------------
+# One task
+# ------------------------------------------------------------------------------------------
+
+
+def _stats(sol) -> dict:
+    it = np.asarray(sol.iteration_seconds, float)
+    total = float(it.sum()) or 1.0
+    return {
+        "iterations": int(it.size),
+        "iteration_seconds": [float(v) for v in it],
+        "median_s": float(np.median(it)) if it.size else float("nan"),
+        "p10_s": float(np.percentile(it, 10)) if it.size else float("nan"),
+        "p90_s": float(np.percentile(it, 90)) if it.size else float("nan"),
+        "total_s": float(it.sum()),
+        "phase_share": {p: float(np.sum(sol.phase_seconds[p])) / total for p in PHASES},
+        "phase_median_s": {p: float(np.median(sol.phase_seconds[p])) if it.size else 0.0
+                           for p in PHASES},
+        "initial_cost": float(sol.costs[0]),
+        "final_cost": sol.final_cost,
+        "reason": sol.reason,
+    }
+
+
+def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
+               sets: list[str] | None = None, fast: list[str] | None = None,
+               block: int = 1, accuracy: bool = True) -> dict:
+    from .task import Task
+
+    sets = list(sets or [])
+    th = [f"solver.threads={threads}"]
+    cfgs = {"paper": PAPER + th, "fast": FAST + th + list(fast or [])}
+    tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
+    for t in tasks:
+        t.validate()
+    N = tasks[0].steps
+    # One initial guess for both (a 'hold' guess depends on the contact solver: take (a)'s).
+    U0 = tasks[0].initial_guess(N)
+    console.print(f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
+                  f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating")
+    t0 = time.perf_counter()
+    res = run_alternating(tasks, U0, iterations, block)
+    wall = time.perf_counter() - t0
+    out: dict = {"task": name, "steps": int(N), "nx": int(tasks[0].dynamics.nx),
+                 "nu": int(tasks[0].dynamics.nu),
+                 "receding_window": tasks[0].config.receding_horizon is not None,
+                 "wall_s": wall, "load_average": list(os.getloadavg()), "configs": cfgs}
+    X0 = tasks[1].dynamics.rollout(tasks[1].x0, U0)
+    out["initial_polygons"] = polygons(tasks[1].dynamics, X0)
+    for key, task, r in zip(("paper", "fast"), tasks, res):
+        if isinstance(r, Exception):
+            out[key] = {"error": f"{type(r).__name__}: {str(r).strip().splitlines()[0]}"}
+            continue
+        out[key] = _stats(r)
+        out[key]["polygons"] = polygons(task.dynamics, r.X)
+    if all("median_s" in out[k] for k in ("paper", "fast")):
+        a, b = out["paper"], out["fast"]
+        out["speedup_median"] = a["median_s"] / b["median_s"]
+        out["speedup_total"] = a["total_s"] / b["total_s"]
+        out["cost_rel_diff"] = (b["final_cost"] - a["final_cost"]) / max(abs(a["final_cost"]),
+                                                                         1e-12)
+        if accuracy:
+            sol_b = res[1]
+            out["accuracy"] = derivative_accuracy(tasks[1], sol_b.X, sol_b.U, threads)
+            out["threads"] = thread_scaling(tasks[1], sol_b.X, sol_b.U, threads)
+    return out
+
+
+# ------------------------------------------------------------------------------------------
+# Output
+# ------------------------------------------------------------------------------------------
+
+
+def print_table(rows: list[dict]) -> None:
+    head = (f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
+            f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
+            f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9}")
+    console.print("iLQR iteration time: (a) paper method vs (b) fast configuration")
+    console.print(head, style="bold", soft_wrap=True)
+    for r in rows:
+        a, b = r.get("paper", {}), r.get("fast", {})
+        if "median_s" not in a or "median_s" not in b:
+            console.print(f"{r['task']:<18} {r['steps']:>4} {a.get('error', 'ok')} | "
+                          f"{b.get('error', 'ok')}", soft_wrap=True)
+            continue
+        ra = f"{a['median_s']:.4f} ({a['p10_s']:.4f}-{a['p90_s']:.4f})"
+        rb = f"{b['median_s']:.4f} ({b['p10_s']:.4f}-{b['p90_s']:.4f})"
+        da = f"{a['phase_share']['derivatives']:.0%}/{b['phase_share']['derivatives']:.0%}"
+        fa = f"{a['polygons']['max_faces']}/{b['polygons']['max_faces']}"
+        console.print(
+            f"{r['task']:<18} {r['steps']:>4} {ra:>26} {rb:>26} {r['speedup_median']:>5.1f}x "
+            f"{da:>9} {a['final_cost']:>10.5g} {b['final_cost']:>10.5g} "
+            f"{r['cost_rel_diff']:>+7.2%} {fa:>9}", soft_wrap=True)
+    for r in rows:
+        acc = r.get("accuracy")
+        if acc:
+            parts = [f"{k}: " + ", ".join(f"{c} {v:.1e}" for c, v in acc[k].items())
+                     for k in acc if k not in ("reference", "contact_classes", "seconds")]
+            console.print(f"{r['task']} derivative error vs AutoDiff ({acc['contact_classes']}"
+                          f"): " + "; ".join(parts), soft_wrap=True)
+        th = r.get("threads")
+        if th:
+            console.print(f"{r['task']} {th['method']} FD derivative phase: " + ", ".join(
+                f"{n} thread(s) {s:.3f} s ({th['speedup'][n]:.2f}x)"
+                for n, s in th["seconds"].items()), soft_wrap=True)
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if "iteration_seconds" in r.get("paper", {})
+            and "iteration_seconds" in r.get("fast", {})]
+    fig, ax = plt.subplots(figsize=(max(4.0, 2.2 * len(rows) + 1), 4))
+    data, pos, labels, colors = [], [], [], []
+    for i, r in enumerate(rows):
+        for j, key in enumerate(("paper", "fast")):
+            data.append(r[key]["iteration_seconds"])
+            pos.append(3 * i + j)
+            colors.append(("tab:red", "tab:blue")[j])
+        labels.append((3 * i + 0.5, r["task"]))
+    if data:
+        bp = ax.boxplot(data, positions=pos, widths=0.8, patch_artist=True)
+        for patch, c in zip(bp["boxes"], colors):
+            patch.set_facecolor(c)
+            patch.set_alpha(0.5)
+        ax.set_xticks([p for p, _ in labels], [n for _, n in labels])
+        ax.set_yscale("log")
+    ax.set_ylabel("iteration time (s)")
+    ax.set_title("iLQR iteration times: red = paper (TAMSI, serial AutoDiff), blue = fast")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_bench(names: list[str], out: str | Path, iterations: int = 10, threads: int = 0,
+              smoke: bool = False, sets=None, fast=None, block: int = 1,
+              accuracy: bool = True) -> dict:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in names:
+        rows.append(bench_task(name, iterations, threads, smoke, sets, fast, block, accuracy))
+        _write(out, rows, iterations, threads)
+    print_table(rows)
+    return _write(out, rows, iterations, threads)
+
+
+def _write(out: Path, rows, iterations, threads) -> dict:
+    from .derivatives import num_threads
+
+    doc = {"iterations": iterations, "threads": num_threads(threads),
+           "cpu_count": os.cpu_count(), "load_average_end": list(os.getloadavg()),
+           "paper": PAPER, "fast": FAST, "tasks": {r["task"]: r for r in rows}}
+    (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    plot(rows, out / "iterations.png")
+    return doc
+
+
+def cmd_bench(args) -> int:
+    if args.iterations < 1:
+        raise ConfigError("--iterations: must be at least 1")
+    run_bench(args.task, args.out, args.iterations, args.threads, args.smoke, args.set,
+              args.fast, args.block, not args.no_accuracy)
+    console.print(f"wrote {args.out}/bench.json, iterations.png")
+    return 0
+
+
+@register("bench", "iteration times: the paper's method vs the fastest configuration")
+def setup(p) -> None:
+    p.add_argument("task", nargs="+", help="built-in task names or task YAML files")
+    p.add_argument("--iterations", type=int, default=10, help="iLQR iterations per method")
+    p.add_argument("--threads", type=int, default=0, help="threads for batched FD (0 = all)")
+    p.add_argument("--block", type=int, default=1, help="iterations per alternation block")
+    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a task key for both methods (repeatable)")
+    p.add_argument("--fast", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a task key of the fast configuration only (repeatable)")
+    p.add_argument("--no-accuracy", action="store_true",
+                   help="skip the derivative-accuracy and thread-scaling sections")
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=cmd_bench)
