@@ -1,0 +1,98 @@
+"""`hydroilqr sweep`: value parsing, a 3-point sweep on the embedded Dask cluster, resume."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from hydroilqr.cli import main
+from hydroilqr.config import ConfigError
+from hydroilqr.sweep import grid, parse_values, point_id, run_sweep
+
+# Tiny cart-pole-wall solves: 30 steps, 3 iterations (contact happens within 0.3 s).
+SMALL = ["num_steps=30", "solver.max_iterations=3"]
+KEY = "tip.hydroelastic_modulus"
+
+
+def test_parse_values():
+    assert parse_values("logspace:1e3:1e9:13")[:3] == [1000.0, 3162.27766017, 10000.0]
+    assert parse_values("logspace:1e3:1e9:13")[-1] == 1e9
+    assert parse_values("linspace:0:1:3") == [0.0, 0.5, 1.0]
+    assert parse_values("1, 2.5,3e4") == [1, 2.5, 30000.0]
+    for bad in ("logspace:0:1:3", "logspace:1:2", "a,b", "linspace:0:1:0", "1,1"):
+        with pytest.raises(ConfigError):
+            parse_values(bad)
+    g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
+    assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
+    assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})
+
+
+def _rows(out: Path) -> list[dict]:
+    with open(out / "sweep.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def _log(out: Path) -> list[str]:
+    return [ln.split("\t")[0] for ln in (out / "computed.log").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    """One 3-point sweep through the CLI; the middle point is invalid (negative modulus)."""
+    out = tmp_path_factory.mktemp("sweep")
+    argv = ["sweep", "cartpole-wall", "--smoke", "--param", KEY, "--values", "1e3,-5,1e6",
+            "--workers", "2", "--out", str(out)]
+    for s in SMALL:
+        argv += ["--set", s]
+    assert main(argv) == 0
+    return out, argv
+
+
+def test_three_point_sweep(swept):
+    out, _ = swept
+    rows = _rows(out)
+    assert [float(r[KEY]) for r in rows] == [1000.0, -5.0, 1e6]
+    for col in ("final_cost", "max_overlap_m", "tunnelled", "iterations", "converged",
+                "wall_seconds", "status", "error"):
+        assert col in rows[0]
+    ok = [r for r in rows if r["status"] == "ok"]
+    assert len(ok) == 2
+    for r in ok:
+        assert float(r["final_cost"]) > 0 and float(r["max_overlap_m"]) >= 0
+        assert int(r["iterations"]) <= 3 and float(r["wall_seconds"]) > 0
+    bad = rows[1]
+    assert bad["status"] == "failed" and "must be positive" in bad["error"]
+    doc = json.loads((out / "sweep.json").read_text())
+    assert doc["summary"] == {"points": 3, "done": 2, "failed": 1, "missing": 0}
+    assert len(list((out / "points").glob("*.json"))) == 3
+    assert len(list((out / "points").glob("*.npz"))) == 2  # trajectories of the solved ones
+    for f in ("sweep.png", "snapshots.png"):
+        assert (out / f).stat().st_size > 10_000
+    assert sorted(_log(out)) == sorted(r["id"] for r in rows)
+
+
+def test_resume_computes_only_missing(swept):
+    out, argv = swept
+    before = {r["id"]: r for r in _rows(out)}
+    victim = next(i for i, r in before.items() if r["status"] == "ok")
+    (out / "points" / f"{victim}.json").unlink()  # as if killed before it finished
+    (out / "points" / f".{victim}.json.123.tmp").write_text("{torn")  # a torn temp file
+    n_log = len(_log(out))
+    assert main(argv) == 0
+    new = _log(out)[n_log:]
+    assert new == [victim]  # only the missing point was computed; the failed one is kept
+    after = {r["id"]: r for r in _rows(out)}
+    assert after.keys() == before.keys()
+    for i, r in after.items():
+        assert r["status"] == before[i]["status"]
+        if r["status"] == "ok":  # deterministic solves: same table
+            assert float(r["final_cost"]) == pytest.approx(float(before[i]["final_cost"]))
+    # Nothing missing: no cluster is started and nothing is computed.
+    res = run_sweep("cartpole-wall", [(KEY, [1e3, -5, 1e6])], out, sets=SMALL, smoke=True)
+    assert res["computed"] == 0 and res["skipped"] == 3 and res["failed"] == 1
+    # A different sweep in the same directory is refused.
+    with pytest.raises(ConfigError):
+        run_sweep("cartpole-wall", [(KEY, [1e3])], out, sets=["num_steps=20"], smoke=True)
