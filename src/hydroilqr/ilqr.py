@@ -171,7 +171,8 @@ def solve(
             ph["rollout"] = rollout_time
         t = time.perf_counter()
         try:
-            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval)
+            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
+                             rollout=True)
         except SimulationError as e:
             reason = f"derivatives failed: {e}"
             break
@@ -249,7 +250,8 @@ def solve(
         # the previous one).
         t = time.perf_counter()
         try:
-            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval)
+            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
+                             rollout=True)
             bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
             if bp.ok:
                 K, kappa = bp.K, bp.kappa
