@@ -40,7 +40,7 @@ from .config import ConfigError, parse_override, task_file
 POINT_COLUMNS = ("final_cost", "max_overlap_m", "tunnelled", "iterations", "converged",
                  "wall_seconds", "status", "error")
 EXTRA_COLUMNS = ("initial_cost", "reason", "solve_seconds", "final_angle_error_rad",
-                 "min_signed_distance_m", "wall_contact_steps", "worker")
+                 "min_signed_distance_m", "wall_contact_steps", "worker", "code")
 EVENT_TOPIC = "hydroilqr-sweep"
 
 
@@ -218,6 +218,22 @@ def _atomic_bytes(path: Path, data: bytes) -> None:
 
 def _atomic_text(path: Path, text: str) -> None:
     _atomic_bytes(path, text.encode())
+
+
+def code_version() -> str:
+    """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
+    a resumed sweep may mix points computed by different code."""
+    import subprocess
+
+    here = Path(__file__).parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, text=True,
+                              capture_output=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=here, text=True,
+                               capture_output=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return head + ("-dirty" if head and dirty else "")
 
 
 def save_point(points_dir: Path, result: dict) -> None:
@@ -570,6 +586,7 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                   + f" -> {out}")
     computed = 0
     log = out / "computed.log"
+    code = code_version()
     if todo:
         client, cluster = _open_client(scheduler, workers)
         try:
@@ -605,6 +622,7 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                                           "status": "failed",
                                           "error": f"{type(e).__name__}: {msg}"[:500]},
                                   "arrays": {}}
+                    result["row"]["code"] = code
                     save_point(points_dir, result)
                     row = result["row"]
                     rows[ids[i]] = row
@@ -633,6 +651,10 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                 out / "snapshots.png", points_dir, task_cfg, keys, all_rows):
             wrote.append("snapshots.png")
     failed = sum(r.get("status") != "ok" for r in all_rows)
+    versions = {r.get("code") for r in all_rows if r.get("code")}
+    if len(versions) > 1:
+        console.print(f"[yellow]note:[/yellow] the points were computed by {len(versions)} code "
+                      f"versions ({', '.join(sorted(versions))}); see the code column")
     console.print(f"{len(all_rows)} points ({computed} computed now, "
                   f"{len(all_rows) - computed} from earlier runs), {failed} failed; "
                   f"wrote {', '.join(wrote)} in {out}")
