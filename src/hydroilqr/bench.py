@@ -36,10 +36,11 @@ PAPER = [
     "solver.derivatives=autodiff",
     "solver.derivative_interval=1",
 ]
-# The fastest configuration measured on this machine (docs/performance.md).
+# The fastest configuration measured on this machine (docs/performance.md): SAP, and the
+# cheaper of AutoDiff and batched forward differences, chosen per task by a short probe
+# (``probe_derivatives``; ``--fast solver.derivatives=...`` skips the probe).
 FAST = [
     "plant.contact_approximation=sap",
-    "solver.derivatives=autodiff",
     "solver.derivative_interval=1",
 ]
 
@@ -151,8 +152,9 @@ def polygons(dyn, X: np.ndarray) -> dict:
 
 
 def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
-    """Max relative error of forward/central/interval-k derivatives against AutoDiff along
-    (X, U), per contact class (error at step k: max|J − J_AD| / max|J_AD|, J = [A B])."""
+    """Relative error of forward/central/interval-k derivatives against AutoDiff along (X, U),
+    max and median over the steps of each contact class (error at step k:
+    max|J − J_AD| / max|J_AD|, J = [A B])."""
     from .derivatives import linearize
 
     dyn = task.dynamics
@@ -175,9 +177,11 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
         J, sec = jac(method, k)
         err = np.abs(J - ref).reshape(N, -1).max(axis=1) / scale
         out["seconds"][label] = sec
-        out[label] = {c: float(max((e for e, cc in zip(err, classes) if cc == c), default=0.0))
-                      for c in sorted(set(classes))}
-        out[label]["all"] = float(err.max())
+        by = {c: np.array([e for e, cc in zip(err, classes) if cc == c])
+              for c in sorted(set(classes))}
+        by["all"] = err
+        out[label] = {"max": {c: float(v.max()) for c, v in by.items()},
+                      "median": {c: float(np.median(v)) for c, v in by.items()}}
     return out
 
 
@@ -199,6 +203,25 @@ def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
     med = {n: float(np.median(v)) for n, v in times.items()}
     return {"method": method, "seconds": {str(n): v for n, v in med.items()},
             "speedup": {str(n): med[1] / v for n, v in med.items()}}
+
+
+def probe_derivatives(task, U0, threads: int, steps: int = 6, repeats: int = 2) -> dict:
+    """Times AutoDiff and batched forward differences on the first ``steps`` steps of the
+    initial rollout (alternating, best of ``repeats``). Returns seconds per step and the
+    faster method."""
+    from .derivatives import linearize
+
+    dyn = task.dynamics
+    n = min(steps, U0.shape[0])
+    X = dyn.rollout(task.x0, U0[:n])
+    dyn.autodiff()  # one-time conversion, not part of the per-step cost
+    best = {"autodiff": np.inf, "forward": np.inf}
+    for _ in range(repeats):
+        for m in best:
+            t = time.perf_counter()
+            linearize(dyn, X, U0[:n], m, task.config.solver.fd_epsilon, threads, 1, rollout=True)
+            best[m] = min(best[m], (time.perf_counter() - t) / n)
+    return {"seconds_per_step": best, "choice": min(best, key=best.get)}
 
 
 # ------------------------------------------------------------------------------------------
@@ -232,13 +255,19 @@ def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
 
     sets = list(sets or [])
     th = [f"solver.threads={threads}"]
-    cfgs = {"paper": PAPER + th, "fast": FAST + th + list(fast or [])}
+    fast = list(fast or [])
+    cfgs = {"paper": PAPER + th, "fast": FAST + th + fast}
     tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
     for t in tasks:
         t.validate()
     N = tasks[0].steps
     # One initial guess for both (a 'hold' guess depends on the contact solver: take (a)'s).
     U0 = tasks[0].initial_guess(N)
+    probe = None
+    if not any(f.startswith("solver.derivatives=") for f in fast):
+        probe = probe_derivatives(tasks[1], U0, threads)
+        tasks[1].config.solver.derivatives = probe["choice"]
+        cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
     console.print(f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
                   f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating")
     t0 = time.perf_counter()
@@ -247,7 +276,8 @@ def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
     out: dict = {"task": name, "steps": int(N), "nx": int(tasks[0].dynamics.nx),
                  "nu": int(tasks[0].dynamics.nu),
                  "receding_window": tasks[0].config.receding_horizon is not None,
-                 "wall_s": wall, "load_average": list(os.getloadavg()), "configs": cfgs}
+                 "wall_s": wall, "load_average": list(os.getloadavg()), "configs": cfgs,
+                 "derivative_probe": probe}
     X0 = tasks[1].dynamics.rollout(tasks[1].x0, U0)
     out["initial_polygons"] = polygons(tasks[1].dynamics, X0)
     for key, task, r in zip(("paper", "fast"), tasks, res):
@@ -297,7 +327,8 @@ def print_table(rows: list[dict]) -> None:
     for r in rows:
         acc = r.get("accuracy")
         if acc:
-            parts = [f"{k}: " + ", ".join(f"{c} {v:.1e}" for c, v in acc[k].items())
+            parts = [f"{k}: " + ", ".join(f"{c} {v:.1e} (median {acc[k]['median'][c]:.0e})"
+                                          for c, v in acc[k]["max"].items())
                      for k in acc if k not in ("reference", "contact_classes", "seconds")]
             console.print(f"{r['task']} derivative error vs AutoDiff ({acc['contact_classes']}"
                           f"): " + "; ".join(parts), soft_wrap=True)
