@@ -507,7 +507,10 @@ def _open_client(scheduler: str | None, workers: int | None):
         return client, None
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+                           dashboard_address=None, silence_logs=logging.ERROR,
+                           # The scheduler's HTTP routes still bind a port: any free one, so
+                           # parallel sweeps do not warn about 8787 being taken.
+                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     return Client(cluster), cluster
 
 
