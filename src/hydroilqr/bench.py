@@ -169,19 +169,21 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
     N = U.shape[0]
     classes = [contact_state(dyn, x)[1] for x in X[:N]]
 
-    def jac(method, interval=1):
+    def jac(method, interval=1, adaptive=False):
         t = time.perf_counter()
-        A, B = linearize(dyn, X, U, method, s.fd_epsilon, threads, interval)
+        A, B = linearize(dyn, X, U, method, s.fd_epsilon, threads, interval, rollout=True,
+                         adaptive=adaptive)
         return np.concatenate([A, B], axis=2), time.perf_counter() - t
 
     ref, t_ad = jac("autodiff")
     scale = np.maximum(np.abs(ref).reshape(N, -1).max(axis=1), 1e-12)
     out: dict = {"reference": "autodiff", "contact_classes": {
         c: int(classes.count(c)) for c in sorted(set(classes))}, "seconds": {"autodiff": t_ad}}
-    modes = [("forward", "forward", 1), ("central", "central", 1)]
-    modes += [(f"interval-{k} ({s.derivatives})", s.derivatives, k) for k in intervals]
-    for label, method, k in modes:
-        J, sec = jac(method, k)
+    modes = [("forward", "forward", 1, False), ("central", "central", 1, False)]
+    modes += [(f"interval-{k} ({s.derivatives})", s.derivatives, k, False) for k in intervals]
+    modes += [(f"adaptive-{k} ({s.derivatives})", s.derivatives, k, True) for k in intervals]
+    for label, method, k, adaptive in modes:
+        J, sec = jac(method, k, adaptive)
         err = np.abs(J - ref).reshape(N, -1).max(axis=1) / scale
         out["seconds"][label] = sec
         by = {c: np.array([e for e, cc in zip(err, classes) if cc == c])
@@ -238,7 +240,9 @@ def probe_derivatives(task, U0, threads: int, steps: int = 6, repeats: int = 2) 
 
 def _stats(sol) -> dict:
     it = np.asarray(sol.iteration_seconds, float)
-    total = float(it.sum()) or 1.0
+    # Shares of the summed phases (the solver counts the initial rollout as a phase of the
+    # first iteration but not in its iteration time).
+    total = float(sum(np.sum(sol.phase_seconds[p]) for p in PHASES)) or 1.0
     return {
         "iterations": int(it.size),
         "iteration_seconds": [float(v) for v in it],

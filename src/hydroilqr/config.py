@@ -141,6 +141,9 @@ class SolverConfig:
     regularization_max: float = 1e10
     regularization_factor: float = 10.0
     derivative_interval: int = 1  # >1: exact derivatives every k steps, interpolated between
+    # With derivative_interval > 1: also exact at both sides of every change of the set of
+    # touching geometry pairs (contact made or broken), interpolated only within a contact mode.
+    derivative_adaptive: bool = False
 
 
 @dataclass

@@ -52,6 +52,7 @@ def linearize(
     threads: int = 0,
     interval: int = 1,
     rollout: bool = False,
+    adaptive: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Partials along a trajectory. X: [N+1, nx] (only X[:N] used), U: [N, nu].
 
@@ -59,13 +60,19 @@ def linearize(
     exactly, as in the solver): forward differences then reuse X[k+1] instead of evaluating
     f(X[k], U[k]) again (one evaluation per step fewer).
 
+    ``adaptive=True`` (with ``interval > 1``) adds keypoints on both sides of every step where
+    the set of touching geometry pairs changes, so interpolation never spans a contact event.
+
     Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails.
     """
     method = DerivativeMethod(method)
     N = U.shape[0]
     rollout = rollout and X.shape[0] == N + 1
     if interval > 1 and N > 2:
-        keys = sorted(set(range(0, N, interval)) | {N - 1})
+        keys = set(range(0, N, interval)) | {N - 1}
+        if adaptive:
+            keys |= contact_events(dyn, X[:N])
+        keys = sorted(keys)
         nxt = X[np.asarray(keys) + 1] if rollout else None
         Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt)
         return _interpolate(keys, Ak, Bk, N)
@@ -78,6 +85,33 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
         return _autodiff(dyn, X[:N], U)
     return _finite_differences(dyn, X[:N], U, central=method is DerivativeMethod.CENTRAL,
                                eps=eps, threads=threads, next_states=next_states)
+
+
+def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
+    """The set of touching geometry pairs at x (a geometry query, no contact solve)."""
+    from pydrake.geometry import HydroelasticContactRepresentation as Rep
+
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+    query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
+    rep = (Rep.kPolygon if dyn.task.plant.contact_surface_representation == "polygon"
+           else Rep.kTriangle)
+    if dyn.task.plant.contact_model == "hydroelastic":
+        surfaces, points = query.ComputeContactSurfaces(rep), []
+    else:
+        surfaces, points = query.ComputeContactSurfacesWithFallback(rep)
+    pairs = {frozenset((s.id_M(), s.id_N())) for s in surfaces}
+    pairs |= {frozenset((p.id_A, p.id_B)) for p in points}
+    return frozenset(pairs)
+
+
+def contact_events(dyn: Dynamics, X: np.ndarray) -> set[int]:
+    """Steps k and k+1 wherever the touching pairs differ between X[k] and X[k+1]."""
+    sig = [contact_signature(dyn, x) for x in X]
+    out: set[int] = set()
+    for k in range(len(sig) - 1):
+        if sig[k] != sig[k + 1]:
+            out |= {k, k + 1}
+    return out
 
 
 def _interpolate(keys, Ak, Bk, N):

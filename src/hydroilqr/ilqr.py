@@ -172,7 +172,7 @@ def solve(
         t = time.perf_counter()
         try:
             A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
-                             rollout=True)
+                             rollout=True, adaptive=s.derivative_adaptive)
         except SimulationError as e:
             reason = f"derivatives failed: {e}"
             break
@@ -251,7 +251,7 @@ def solve(
         t = time.perf_counter()
         try:
             A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
-                             rollout=True)
+                             rollout=True, adaptive=s.derivative_adaptive)
             bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
             if bp.ok:
                 K, kappa = bp.K, bp.kappa
