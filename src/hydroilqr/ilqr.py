@@ -35,6 +35,9 @@ from .derivatives import DerivativeMethod, linearize
 from .plant import Dynamics, SimulationError
 from .solution import PHASES, Solution
 
+# Iterations over which small progress from shortened steps counts as convergence.
+STALL_WINDOW = 5
+
 
 @dataclass
 class BackwardPassResult:
@@ -46,8 +49,9 @@ class BackwardPassResult:
     ok: bool = True
 
 
-def backward_pass(A: np.ndarray, B: np.ndarray, quad: Quadratization, mu: float
-                  ) -> BackwardPassResult:
+def backward_pass(
+    A: np.ndarray, B: np.ndarray, quad: Quadratization, mu: float
+) -> BackwardPassResult:
     """A: [N, nx, nx], B: [N, nx, nu], quad: cost derivatives, mu: regularization ≥ 0."""
     N, nx, nu = B.shape
     K = np.zeros((N, nu, nx))
@@ -171,8 +175,17 @@ def solve(
             ph["rollout"] = rollout_time
         t = time.perf_counter()
         try:
-            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
-                             rollout=True, adaptive=s.derivative_adaptive)
+            A, B = linearize(
+                dyn,
+                X,
+                U,
+                method,
+                s.fd_epsilon,
+                s.threads,
+                s.derivative_interval,
+                rollout=True,
+                adaptive=s.derivative_adaptive,
+            )
         except SimulationError as e:
             reason = f"derivatives failed: {e}"
             break
@@ -228,8 +241,9 @@ def solve(
         costs.append(J)
         eps_hist.append(eps if accepted else 0.0)
         mu_hist.append(mu)
-        info = IterationInfo(it + 1, J, eps if accepted else 0.0, mu, seconds, ph,
-                             expected, accepted)
+        info = IterationInfo(
+            it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted
+        )
         for cb in callbacks:
             cb(info)
         if not accepted:
@@ -239,10 +253,18 @@ def solve(
                 reason = "line_search_failed"
                 # A local minimum at the resolution the dynamics allow: report honestly.
             break
-        # Small progress from a shortened step is not convergence: the model may just be
-        # poorly approximated there. Only a full step with little change counts.
+        # Small progress from one shortened step is not convergence (the local model may just
+        # be poor there), so a short step counts only when the last few iterations together
+        # made little progress: the solver has stalled in a local minimum.
         if rel < s.relative_cost_tolerance and eps >= 1.0:
             reason, converged = "relative_cost_change", True
+            break
+        w = STALL_WINDOW
+        if (
+            len(costs) > w
+            and (costs[-w - 1] - J) / max(abs(J), 1e-12) < w * s.relative_cost_tolerance
+        ):
+            reason, converged = "stalled", True
             break
 
     if final_gains and iter_seconds and accepted:
@@ -250,8 +272,17 @@ def solve(
         # the previous one).
         t = time.perf_counter()
         try:
-            A, B = linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
-                             rollout=True, adaptive=s.derivative_adaptive)
+            A, B = linearize(
+                dyn,
+                X,
+                U,
+                method,
+                s.fd_epsilon,
+                s.threads,
+                s.derivative_interval,
+                rollout=True,
+                adaptive=s.derivative_adaptive,
+            )
             bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
             if bp.ok:
                 K, kappa = bp.K, bp.kappa
@@ -259,7 +290,10 @@ def solve(
             pass
         phases["derivatives"][-1] += time.perf_counter() - t
     return Solution(
-        X=X, U=U, K=K, kappa=kappa,
+        X=X,
+        U=U,
+        K=K,
+        kappa=kappa,
         t=cost.times(N, t0),
         costs=np.array(costs),
         iteration_seconds=iter_seconds,
