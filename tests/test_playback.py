@@ -15,7 +15,8 @@ from hydroilqr.task import Task
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    task = Task.load("cartpole-wall", ["num_steps=50", "solver.max_iterations=8"], smoke=True)
+    task = Task.load("cartpole-wall", ["num_steps=50", "solver.max_iterations=8",
+                                       "cost.running_cost_dt=false"], smoke=True)
     sol = solve(task)
     out = tmp_path_factory.mktemp("cp")
     report.write_outputs(task, sol, out, replay=False)
