@@ -162,6 +162,10 @@ class MPCConfig:
     horizon: float = 0.3  # s
     iterations_per_update: int = 1
     duration: float = 2.0  # s
+    # Per-update batches are small: one thread avoids waking a second one every update
+    # (measured: 13 ms of wake-up per batched call on a busy 2-core machine).
+    threads: int = 1
+    derivatives: str = ""  # empty: the task's solver.derivatives
 
 
 @dataclass

@@ -65,6 +65,8 @@ class MPCSettings:
     iterations_per_update: int = 1
     realtime: bool = False
     pushes: list[Push] = field(default_factory=list)
+    threads: int = 1
+    derivatives: str = ""  # empty: the task's own
 
 
 @dataclass
@@ -214,6 +216,9 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     N = max(2, int(round(settings.horizon / dt)))
     period_steps = max(1, int(round(1.0 / (settings.rate * dt))))
     total = int(round(settings.duration / dt))
+    task.config.solver.threads = settings.threads
+    if settings.derivatives:
+        task.config.solver.derivatives = settings.derivatives
     ctrl = Controller(task, N, settings.iterations_per_update)
     truth = Truth(task)
     for p in settings.pushes:  # fail early on an unknown body
@@ -266,9 +271,10 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
             iters.append(plan.iterations)
             upd_t.append(0.0)
             first = False
-        # Run to the next update time.
-        n_next = (k // period_steps + 1) * period_steps - k
-        advance(max(1, n_next), plan, t_plan)
+        # Run to the next update time (one period after this update began; in real-time
+        # mode the latency already simulated counts towards it).
+        k_update = int(round(t_now / dt))
+        advance(max(0, k_update + period_steps - k), plan, t_plan)
         if on_update is not None:
             on_update(k, total)
     wall = time.perf_counter() - wall0
@@ -347,7 +353,8 @@ def _setup(p):
     )
     p.add_argument("--push", action="append", default=[], metavar="TIME:BODY:FX,FY,FZ")
     p.add_argument("--push-duration", type=float, default=0.1)
-    p.add_argument("--threads", type=int)
+    p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
+    p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
     p.add_argument("--out", required=True)
     p.add_argument("--no-replay", action="store_true")
     p.set_defaults(func=cmd_mpc)
@@ -357,8 +364,7 @@ def cmd_mpc(args) -> int:
     from . import metrics, report
     from .cli import console, load_task_from_args
 
-    extra = [f"solver.threads={args.threads}"] if args.threads is not None else []
-    task = load_task_from_args(args, extra)
+    task = load_task_from_args(args)
     m = task.config.mpc
     settings = MPCSettings(
         duration=args.duration if args.duration is not None else m.duration,
@@ -371,6 +377,8 @@ def cmd_mpc(args) -> int:
         ),
         realtime=args.realtime,
         pushes=[Push.parse(s, args.push_duration) for s in args.push],
+        threads=args.threads if args.threads is not None else m.threads,
+        derivatives=args.derivatives or m.derivatives,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
