@@ -37,13 +37,35 @@ def test_paper_cost_and_targets():
     up = Task.load("kinova-up")
     assert up.config.steps == 50 and up.config.plant.time_step == 0.01
     pos = up.dynamics.layout.block("ball_position")
-    np.testing.assert_allclose(up.cost.qf[list(pos.tangent)], [0, 0, 100])
+    # Terminal ball weight 1000 (paper 100) with the paper code's dt-scaled running cost.
+    np.testing.assert_allclose(up.cost.qf[list(pos.tangent)], [0, 0, 1000])
+    assert up.config.cost.running_cost_dt
     z0, zn = up.x0[pos.coords[2]], up.cost.x_nom[pos.coords[2]]
     assert zn - z0 == pytest.approx(0.2)
     fwd = Task.load("kinova-forward")
     d = fwd.cost.x_nom[list(pos.coords)] - fwd.x0[list(pos.coords)]
     np.testing.assert_allclose(d, [0.2, 0, 0], atol=1e-12)
-    assert fwd.cost.r == pytest.approx(np.full(7, 0.01))
+    assert fwd.config.cost.R == 0.01  # R = 0.01 I, times dt in the running cost
+    assert fwd.cost.r == pytest.approx(np.full(7, 0.01 * 0.01))
+
+
+def test_up_start_touches_ball_with_several_links():
+    """The lifting start posture puts base, forearm and both wrist links within 1.5 mm."""
+    from hydroilqr.plant import collision_geometries
+
+    up = Task.load("kinova-up")
+    dyn = up.dynamics
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, up.x0)
+    sg = dyn.scene_graph
+    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(dyn.context))
+    names = collision_geometries(dyn.plant, sg)
+    near = set()
+    for p in query.ComputeSignedDistancePairwiseClosestPoints(0.0015):
+        bodies = {names[p.id_A][1], names[p.id_B][1]}
+        if "ball" in bodies:
+            near |= bodies - {"ball", "world"}
+    assert {"base_link", "forearm_link", "spherical_wrist_1_link",
+            "spherical_wrist_2_link"} <= near
 
 
 @pytest.mark.parametrize("name", TASKS)
