@@ -32,3 +32,28 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     assert acc["central"]["max"]["free"] < 1e-4
     assert acc["central"]["max"].get("compliant-rigid", 0.0) < 1e-4
     assert set(r["threads"]["seconds"]) >= {"1"}
+
+
+def test_fast_derivative_paths_match_exact_ones():
+    """Forward FD reusing the rollout is bitwise the plain one; adaptive keypoints are exact and
+    include both sides of every contact event."""
+    import numpy as np
+
+    from hydroilqr import Task
+    from hydroilqr.derivatives import contact_events, linearize
+
+    task = Task.load("cartpole-wall", ["horizon=0.6"])
+    dyn = task.dynamics
+    N = task.steps
+    U = np.zeros((N, dyn.nu))
+    X = dyn.rollout(task.x0, U)  # the pole falls onto the wall
+    events = contact_events(dyn, X[:N])
+    assert events, "the falling pole should touch the wall"
+    A1, B1 = linearize(dyn, X, U, "forward")
+    A2, B2 = linearize(dyn, X, U, "forward", rollout=True)
+    np.testing.assert_array_equal(A1, A2)
+    np.testing.assert_array_equal(B1, B2)
+    Ai, Bi = linearize(dyn, X, U, "forward", interval=4, rollout=True, adaptive=True)
+    for k in sorted(events | set(range(0, N, 4)) | {N - 1}):
+        np.testing.assert_array_equal(Ai[k], A1[k])
+        np.testing.assert_array_equal(Bi[k], B1[k])
