@@ -229,8 +229,11 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     X, U = [x], []
     upd_t, solve_s, iters = [], [], []
     failures = 0
-    # The first plan is computed before the clock starts (as a robot would before moving).
+    # The first plan is solved to convergence before the clock starts (as a robot plans before
+    # it moves); later updates run at most K iterations each.
+    ctrl.iterations = task.config.solver.max_iterations
     plan, ok = ctrl.update(x, 0.0)
+    ctrl.iterations = settings.iterations_per_update
     if plan is None:
         raise SimulationError("mpc: the first plan failed")
     k = 0
