@@ -53,6 +53,11 @@ def backward_pass(
     A: np.ndarray, B: np.ndarray, quad: Quadratization, mu: float
 ) -> BackwardPassResult:
     """A: [N, nx, nx], B: [N, nx, nu], quad: cost derivatives, mu: regularization ≥ 0."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _backward_pass(A, B, quad, mu)
+
+
+def _backward_pass(A, B, quad, mu) -> BackwardPassResult:
     N, nx, nu = B.shape
     K = np.zeros((N, nu, nx))
     kappa = np.zeros((N, nu))
@@ -72,6 +77,10 @@ def backward_pass(
         Quu = luu[k] + BtV @ Bk + eye
         Qux = BtV @ Ak
         Quu = 0.5 * (Quu + Quu.T)
+        if not (np.isfinite(Quu).all() and np.isfinite(Qux).all() and np.isfinite(Qu).all()):
+            # Overflowed cost-to-go (very stiff partials): treat like an indefinite Q_uu so
+            # the caller raises the regularization instead of propagating NaN.
+            return BackwardPassResult(K, kappa, (d1, d2), ok=False)
         try:
             cholesky(Quu)  # positive-definiteness test
         except np.linalg.LinAlgError:
@@ -216,7 +225,8 @@ def solve(
                 expected = expected_decrease(bp.dV, eps)
                 try:
                     Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
-                    Jn = cost.total(Xn, Un, t0)
+                    with np.errstate(over="ignore", invalid="ignore"):
+                        Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
                 except SimulationError:
                     Jn = np.inf
                 if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
