@@ -67,6 +67,7 @@ class MPCSettings:
     pushes: list[Push] = field(default_factory=list)
     threads: int = 1
     derivatives: str = ""  # empty: the task's own
+    feedback_scale: float = 1.0  # scales K in u = ū − K(x − x̄); 0 = feedforward only
 
 
 @dataclass
@@ -85,6 +86,7 @@ class MPCResult:
     failures: int
     wall_seconds: float
     settings: MPCSettings
+    failure: str = ""  # set when the simulated plant failed (the run stops there)
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -108,6 +110,8 @@ class MPCResult:
             "controller_realtime_factor": period / float(np.mean(s)) if np.mean(s) > 0 else None,
             "realtime_factor": sim / self.wall_seconds if self.wall_seconds > 0 else None,
             "wall_seconds": self.wall_seconds,
+            "simulation_failure": self.failure or None,
+            "feedback_scale": self.settings.feedback_scale,
             "solver_failures": self.failures,
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
@@ -162,6 +166,8 @@ class Controller:
                 final_gains=False,
             )
         except SimulationError:
+            return self.plan, False
+        if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
             return self.plan, False
         self.U = sol.U.copy()
         self.t_plan = t
@@ -246,7 +252,9 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
                 return
             # Index into the plan by the time elapsed since its state was measured.
             i = min(max(k - int(round(t_plan / dt)), 0), plan.U.shape[0] - 1)
-            u = plan.U[i] - plan.K[i] @ (x - plan.X[i])
+            u = plan.U[i] - settings.feedback_scale * (plan.K[i] @ (x - plan.X[i]))
+            if not np.all(np.isfinite(u)):
+                raise SimulationError("the controller produced a non-finite input")
             x, u = truth.step(x, u, k * dt, settings.pushes)
             X.append(x)
             U.append(u)
@@ -254,6 +262,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
 
     t_plan = 0.0
     first = True
+    failure = ""
     while k < total:
         t_now = k * dt
         if not first:
@@ -266,7 +275,11 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
             upd_t.append(t_now)
             if settings.realtime:
                 # The old policy keeps running while the controller thinks.
-                advance(int(math.ceil(w / dt)), plan, t_plan)
+                try:
+                    advance(int(math.ceil(w / dt)), plan, t_plan)
+                except SimulationError as e:
+                    failure = f"t = {k * dt:.3f} s: {e}"
+                    break
             if ok:
                 plan, t_plan = new_plan, t_now
         else:
@@ -277,7 +290,11 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         # Run to the next update time (one period after this update began; in real-time
         # mode the latency already simulated counts towards it).
         k_update = int(round(t_now / dt))
-        advance(max(0, k_update + period_steps - k), plan, t_plan)
+        try:
+            advance(max(0, k_update + period_steps - k), plan, t_plan)
+        except SimulationError as e:
+            failure = f"t = {k * dt:.3f} s: {e}"
+            break
         if on_update is not None:
             on_update(k, total)
     wall = time.perf_counter() - wall0
@@ -292,6 +309,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         failures,
         wall,
         settings,
+        failure,
     )
 
 
@@ -358,6 +376,12 @@ def _setup(p):
     p.add_argument("--push-duration", type=float, default=0.1)
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
+    p.add_argument(
+        "--feedback-scale",
+        type=float,
+        default=1.0,
+        help="scale of the iLQR feedback gains between updates (0: feedforward)",
+    )
     p.add_argument("--out", required=True)
     p.add_argument("--no-replay", action="store_true")
     p.set_defaults(func=cmd_mpc)
@@ -382,6 +406,7 @@ def cmd_mpc(args) -> int:
         pushes=[Push.parse(s, args.push_duration) for s in args.push],
         threads=args.threads if args.threads is not None else m.threads,
         derivatives=args.derivatives or m.derivatives,
+        feedback_scale=args.feedback_scale,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -397,7 +422,10 @@ def cmd_mpc(args) -> int:
         res = run_mpc(task, settings, lambda k, n: prog.update(bar, completed=k / n))
     stats = res.stats()
     sol = res.as_solution()
-    task_metrics = metrics.compute(task, sol)
+    try:
+        task_metrics = metrics.compute(task, sol)
+    except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
+        task_metrics = {"error": str(e).strip().splitlines()[0]}
     data = {"task": task.name, **stats, "metrics": task_metrics}
     report.write_json(out / "mpc.json", data)
     np.savez_compressed(
@@ -428,6 +456,10 @@ def cmd_mpc(args) -> int:
         )
     )
     console.print(f"wrote {out}/mpc.json, mpc.png" + ("" if args.no_replay else ", mpc.html"))
+    if res.failure:
+        raise SimulationError(
+            f"the controlled plant failed at {res.failure} (results up to then are in {out})"
+        )
     return 0
 
 
