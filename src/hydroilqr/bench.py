@@ -128,16 +128,9 @@ def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
     """(contact polygons at x, class): class is "free", "compliant-rigid" (AutoDiff exact)
     or "compliant-compliant"/"point" (AutoDiff approximate, see drake-notes.md). A geometry
     query only: no contact solve, so it works for any state and contact solver."""
-    from pydrake.geometry import HydroelasticContactRepresentation as Rep
+    from .derivatives import contact_query
 
-    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
-    query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
-    rep = (Rep.kPolygon if dyn.task.plant.contact_surface_representation == "polygon"
-           else Rep.kTriangle)
-    if dyn.task.plant.contact_model == "hydroelastic":
-        surfaces, points = query.ComputeContactSurfaces(rep), []
-    else:
-        surfaces, points = query.ComputeContactSurfacesWithFallback(rep)
+    surfaces, points = contact_query(dyn, x)
     inspector = dyn.scene_graph.model_inspector()
     faces, cls = 0, "free"
     for s in surfaces:

@@ -87,8 +87,9 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
                                eps=eps, threads=threads, next_states=next_states)
 
 
-def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
-    """The set of touching geometry pairs at x (a geometry query, no contact solve)."""
+def contact_query(dyn: Dynamics, x: np.ndarray) -> tuple[list, list]:
+    """(hydroelastic contact surfaces, point pairs) at x: a geometry query, no contact solve,
+    so it works for any state and contact solver."""
     from pydrake.geometry import HydroelasticContactRepresentation as Rep
 
     dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
@@ -96,9 +97,13 @@ def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
     rep = (Rep.kPolygon if dyn.task.plant.contact_surface_representation == "polygon"
            else Rep.kTriangle)
     if dyn.task.plant.contact_model == "hydroelastic":
-        surfaces, points = query.ComputeContactSurfaces(rep), []
-    else:
-        surfaces, points = query.ComputeContactSurfacesWithFallback(rep)
+        return query.ComputeContactSurfaces(rep), []
+    return query.ComputeContactSurfacesWithFallback(rep)
+
+
+def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
+    """The set of touching geometry pairs at x (a geometry query, no contact solve)."""
+    surfaces, points = contact_query(dyn, x)
     pairs = {frozenset((s.id_M(), s.id_N())) for s in surfaces}
     pairs |= {frozenset((p.id_A, p.id_B)) for p in points}
     return frozenset(pairs)

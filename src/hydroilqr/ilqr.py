@@ -177,6 +177,10 @@ def solve(
     eps_hist, mu_hist = [], []
     accepted = False
 
+    def partials(X, U):
+        return linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
+                         rollout=True, adaptive=s.derivative_adaptive)
+
     for it in range(max_it):
         t_it = time.perf_counter()
         ph = dict.fromkeys(PHASES, 0.0)
@@ -184,17 +188,7 @@ def solve(
             ph["rollout"] = rollout_time
         t = time.perf_counter()
         try:
-            A, B = linearize(
-                dyn,
-                X,
-                U,
-                method,
-                s.fd_epsilon,
-                s.threads,
-                s.derivative_interval,
-                rollout=True,
-                adaptive=s.derivative_adaptive,
-            )
+            A, B = partials(X, U)
         except SimulationError as e:
             reason = f"derivatives failed: {e}"
             break
@@ -282,17 +276,7 @@ def solve(
         # the previous one).
         t = time.perf_counter()
         try:
-            A, B = linearize(
-                dyn,
-                X,
-                U,
-                method,
-                s.fd_epsilon,
-                s.threads,
-                s.derivative_interval,
-                rollout=True,
-                adaptive=s.derivative_adaptive,
-            )
+            A, B = partials(X, U)
             bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
             if bp.ok:
                 K, kappa = bp.K, bp.kappa

@@ -576,36 +576,12 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def write_replay(task, r: PlaybackResult, path: Path, fps: float = 30.0,
-                 gap: float = 0.5) -> None:
-    """Meshcat HTML: the actual motion first, then (after ``gap`` s) the plan at the same
+def write_replay(task, r: PlaybackResult, path: Path) -> None:
+    """Meshcat HTML: the actual motion first, then (after a short pause) the plan at the same
     playback speed."""
-    from .plant import build_diagram
-    from .replay import camera_for, meshcat_instance
+    from . import replay
 
-    meshcat = meshcat_instance()
-    meshcat.Delete()
-    meshcat.DeleteRecording()
-    scene = build_diagram(task.config, meshcat=meshcat)
-    diagram, plant = scene.diagram, scene.plant
-    context = diagram.CreateDefaultContext()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    diagram.get_input_port(scene.actuation_port).FixValue(
-        context, np.zeros(plant.num_actuated_dofs()))
-    meshcat.SetCameraPose(*camera_for(task))
-    vis = scene.visualizers[0]
-    vis.StartRecording(False)
-    T = float(r.t[-1])
-    frames = max(2, int(T * fps) + 1)
-    for offset, X in ((0.0, r.X), (T + gap, r.X_plan)):
-        for tf in np.linspace(0.0, T, frames):
-            k = int(np.clip(np.searchsorted(r.t, tf), 0, len(r.t) - 1))
-            context.SetTime(offset + float(tf))
-            plant.SetPositionsAndVelocities(plant_context, X[k])
-            diagram.ForcedPublish(context)
-    vis.StopRecording()
-    vis.PublishRecording()
-    path.write_text(meshcat.StaticHtml())
+    replay.write_replay(task, [r.X, r.X_plan], r.t, path)
 
 
 def write_outputs(task, r: PlaybackResult, out: str | Path, replay: bool = True,
