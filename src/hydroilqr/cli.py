@@ -216,8 +216,13 @@ def _load_plugins() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    import logging
+
     from .plant import SimulationError
 
+    # Drake's INFO lines (e.g. "Meshcat listening ...") are noise for a command-line user;
+    # warnings and errors still show.
+    logging.getLogger("drake").setLevel(logging.WARNING)
     _load_plugins()
     parser = build_parser()
     args = parser.parse_args(argv)

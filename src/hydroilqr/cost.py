@@ -67,7 +67,8 @@ class QuadraticCost:
             if vals.size == 1:
                 vals = np.full(nu, vals[0])
             if vals.size != nu:
-                raise ConfigError(f"cost.R: expected 1 or {nu} values, got {vals.size}")
+                want = "1 value" if nu == 1 else f"1 or {nu} values (one per actuator)"
+                raise ConfigError(f"cost.R: expected {want}, got {vals.size}")
             r = vals
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ConfigError("cost.R: weights must be finite and non-negative")

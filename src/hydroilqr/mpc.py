@@ -455,7 +455,9 @@ def cmd_mpc(args) -> int:
             f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in shown.items()
         )
     )
-    console.print(f"wrote {out}/mpc.json, mpc.png" + ("" if args.no_replay else ", mpc.html"))
+    console.print(
+        f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
+    )
     if res.failure:
         raise SimulationError(
             f"the controlled plant failed at {res.failure} (results up to then are in {out})"

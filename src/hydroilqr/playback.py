@@ -640,6 +640,10 @@ def cmd_playback(args) -> int:
               f"saturated commands {100 * data['saturated_fraction']:.1f}%")
     for w in data.get("warnings", []):
         con.print(f"[yellow]warning:[/yellow] {w}")
+    if (settings.policy == "pd" and ob["kind"] == "joint" and unit == "rad"
+            and ob["final_gap"] > 0.5):
+        con.print("[yellow]note:[/yellow] PD+ has no feedback on unactuated joints, so an "
+                  "underactuated system like the cart-pole falls; try --policy ilqr")
     con.print(f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
               + ("" if args.no_replay else ", playback.html"))
     return 0
