@@ -231,3 +231,15 @@ def test_cli_solve_writes_outputs(tmp_path):
     for f in ("solution.npz", "convergence.png", "replay.html"):
         assert (out / f).stat().st_size > 0
     assert "<html" in (out / "replay.html").read_text()[:2000].lower()
+
+
+def test_autodiff_in_worker_processes_equals_serial():
+    task = Task.load("cartpole-wall", ["solver.autodiff_workers=2"])
+    dyn = task.dynamics
+    U = np.linspace(-3, 3, 12)[:, None]
+    X = dyn.rollout(np.array([-0.05, 3.5, 0.0, 0.0]), U)
+    A_par, B_par = linearize(dyn, X, U, "autodiff")
+    task.config.solver.autodiff_workers = 1
+    A_ser, B_ser = linearize(dyn, X, U, "autodiff")
+    np.testing.assert_array_equal(A_par, A_ser)
+    np.testing.assert_array_equal(B_par, B_ser)

@@ -35,6 +35,7 @@ PAPER = [
     "plant.contact_approximation=tamsi",
     "solver.derivatives=autodiff",
     "solver.derivative_interval=1",
+    "solver.autodiff_workers=1",  # serial, one step after another
 ]
 # The fastest configuration measured on this machine (docs/performance.md): SAP; the cheaper
 # of AutoDiff and batched forward differences, chosen per task by a short probe

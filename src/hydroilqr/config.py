@@ -144,6 +144,9 @@ class SolverConfig:
     # With derivative_interval > 1: also exact at both sides of every change of the set of
     # touching geometry pairs (contact made or broken), interpolated only within a contact mode.
     derivative_adaptive: bool = False
+    # AutoDiff in this many processes (the time steps split between them; each worker process
+    # holds its own plant). 1 = serial in this process, as in the paper; 0 = one per core.
+    autodiff_workers: int = 1
 
 
 @dataclass
@@ -496,6 +499,8 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("solver.max_iterations: must be >= 0")
     if cfg.solver.fd_epsilon <= 0:
         raise ConfigError("solver.fd_epsilon: must be positive")
+    if cfg.solver.autodiff_workers < 0:
+        raise ConfigError("solver.autodiff_workers: must be >= 0 (0 = one per core)")
     if cfg.solver.derivative_interval < 1:
         raise ConfigError("solver.derivative_interval: must be >= 1")
     for name, p in cfg.geometry.items():

@@ -82,6 +82,12 @@ def linearize(
 def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
     N = U.shape[0]
     if method is DerivativeMethod.AUTODIFF:
+        workers = dyn.task.solver.autodiff_workers or (os.cpu_count() or 1)
+        if workers > 1 and N >= 2 * workers and getattr(dyn, "_ad_pool", None) is not False:
+            try:
+                return _autodiff_parallel(dyn, X[:N], U, workers)
+            except _PoolUnavailable:
+                dyn._ad_pool = False  # e.g. inside a daemonic worker: stay serial from now on
         return _autodiff(dyn, X[:N], U)
     return _finite_differences(dyn, X[:N], U, central=method is DerivativeMethod.CENTRAL,
                                eps=eps, threads=threads, next_states=next_states)
@@ -209,3 +215,63 @@ def _batch_step(dyn: Dynamics, Z: np.ndarray, threads: int) -> np.ndarray:
 def batch_step(dyn: Dynamics, X: np.ndarray, U: np.ndarray, threads: int = 0) -> np.ndarray:
     """One step from many states at once. X: [M, nx], U: [M, nu] -> [M, nx]."""
     return _batch_step(dyn, np.concatenate([X, U], axis=1), threads)
+
+
+# ------------------------------------------------------------------------------------------
+# AutoDiff split over worker processes (pydrake holds the GIL, so threads do not help)
+# ------------------------------------------------------------------------------------------
+
+_WORKER_DYN = None
+
+
+def _worker_init(config: dict, base_dir: str) -> None:
+    global _WORKER_DYN
+    from .config import task_from_dict
+
+    _WORKER_DYN = Dynamics(task_from_dict(config, base_dir))
+
+
+def _worker_autodiff(X: np.ndarray, U: np.ndarray):
+    return _autodiff(_WORKER_DYN, X, U)
+
+
+def _autodiff_pool(dyn: Dynamics, workers: int):
+    """A process pool of ``workers - 1`` processes (this process takes a share too), built
+    once per Dynamics and shut down at exit."""
+    pool = getattr(dyn, "_ad_pool", None)
+    if pool is None:
+        import atexit
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(
+            max_workers=workers - 1, mp_context=multiprocessing.get_context("spawn"),
+            initializer=_worker_init, initargs=(dyn.task.to_dict(), dyn.task.base_dir),
+        )
+        atexit.register(pool.shutdown, wait=False, cancel_futures=True)
+        dyn._ad_pool = pool
+    return pool
+
+
+class _PoolUnavailable(RuntimeError):
+    pass
+
+
+def _autodiff_parallel(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
+    """Same result as ``_autodiff``: the steps are split into ``workers`` contiguous chunks."""
+    chunks = np.array_split(np.arange(U.shape[0]), workers)
+    try:
+        pool = _autodiff_pool(dyn, workers)
+        futures = [pool.submit(_worker_autodiff, X[c], U[c]) for c in chunks[1:]]
+    except Exception as e:  # no child processes allowed here (daemonic process, limits)
+        raise _PoolUnavailable(str(e)) from None
+    A0, B0 = _autodiff(dyn, X[chunks[0]], U[chunks[0]])
+    parts = [(A0, B0)]
+    for f in futures:
+        try:
+            parts.append(f.result())
+        except SimulationError:
+            raise
+        except Exception as e:  # a worker died: report as a failed derivative step
+            raise SimulationError(f"autodiff worker failed: {e}") from None
+    return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
