@@ -16,7 +16,9 @@ from rich.console import Console
 
 from .config import ConfigError
 
-console = Console(stderr=False, highlight=False)
+# Piped or logged output gets a wide console, so names that users copy into task files
+# (block, joint and geometry names in tables) are not cut to fit 80 columns.
+console = Console(stderr=False, highlight=False, width=None if sys.stdout.isatty() else 160)
 
 
 # ------------------------------------------------------------------------------------------
