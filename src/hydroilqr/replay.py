@@ -37,7 +37,7 @@ def camera_for(task):
 
 
 def write_replay(task, trajectories, t: np.ndarray, path: str | Path,
-                 fps: float = 30.0, key_surfaces: int = 0) -> Path:
+                 fps: float = 30.0) -> Path:
     """trajectories: X [T, nx] or a list of them (drawn in turn). t: [T] seconds."""
     if isinstance(trajectories, np.ndarray):
         trajectories = [trajectories]
