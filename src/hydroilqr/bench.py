@@ -129,9 +129,7 @@ def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
     """(contact polygons at x, class): class is "free", "compliant-rigid" (AutoDiff exact)
     or "compliant-compliant"/"point" (AutoDiff approximate, see drake-notes.md). A geometry
     query only: no contact solve, so it works for any state and contact solver."""
-    from .derivatives import contact_query
-
-    surfaces, points = contact_query(dyn, x)
+    surfaces, points = dyn.contact_query(x)
     inspector = dyn.scene_graph.model_inspector()
     faces, cls = 0, "free"
     for s in surfaces:

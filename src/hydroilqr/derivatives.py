@@ -93,23 +93,9 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
                                eps=eps, threads=threads, next_states=next_states)
 
 
-def contact_query(dyn: Dynamics, x: np.ndarray) -> tuple[list, list]:
-    """(hydroelastic contact surfaces, point pairs) at x: a geometry query, no contact solve,
-    so it works for any state and contact solver."""
-    from pydrake.geometry import HydroelasticContactRepresentation as Rep
-
-    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
-    query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
-    rep = (Rep.kPolygon if dyn.task.plant.contact_surface_representation == "polygon"
-           else Rep.kTriangle)
-    if dyn.task.plant.contact_model == "hydroelastic":
-        return query.ComputeContactSurfaces(rep), []
-    return query.ComputeContactSurfacesWithFallback(rep)
-
-
 def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
     """The set of touching geometry pairs at x (a geometry query, no contact solve)."""
-    surfaces, points = contact_query(dyn, x)
+    surfaces, points = dyn.contact_query(x)
     pairs = {frozenset((s.id_M(), s.id_N())) for s in surfaces}
     pairs |= {frozenset((p.id_A, p.id_B)) for p in points}
     return frozenset(pairs)

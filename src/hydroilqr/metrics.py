@@ -77,22 +77,8 @@ def signed_distance(dyn, x: np.ndarray, ids_a: list, ids_b: list) -> float:
 
 
 def contact_pairs(dyn, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:
-    """Hydroelastic/point contacts at x: (geom A, body A, geom B, body B, faces)."""
-    names = dyn.geometry_names()
-    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
-    dyn._input.FixValue(dyn.context, np.zeros(dyn.nu))
-    results = dyn.plant.get_contact_results_output_port().Eval(dyn.plant_context)
-    out = []
-    for i in range(results.num_hydroelastic_contacts()):
-        s = results.hydroelastic_contact_info(i).contact_surface()
-        a, b = names.get(s.id_M(), ("?", "?")), names.get(s.id_N(), ("?", "?"))
-        n = s.num_faces()
-        out.append((a[0], a[1], b[0], b[1], n))
-    for i in range(results.num_point_pair_contacts()):
-        pp = results.point_pair_contact_info(i).point_pair()
-        a, b = names.get(pp.id_A, ("?", "?")), names.get(pp.id_B, ("?", "?"))
-        out.append((a[0], a[1], b[0], b[1], 1))
-    return out
+    """Touching pairs at x: (geom A, body A, geom B, body B, polygons); see plant.Dynamics."""
+    return dyn.contact_pairs(x)
 
 
 def involves(pair, name: str) -> bool:

@@ -423,26 +423,41 @@ class Dynamics:
         return np.array(lim)
 
     def geometry_names(self) -> dict:
-        return collision_geometries(self.plant, self.scene_graph)
+        if not hasattr(self, "_geometry_names"):
+            self._geometry_names = collision_geometries(self.plant, self.scene_graph)
+        return self._geometry_names
 
-    def contact_surfaces(self, x: np.ndarray) -> list:
-        """Hydroelastic contact info at x: list of (geometry A name, B name, num faces)."""
+    def contact_query(self, x: np.ndarray) -> tuple[list, list]:
+        """(hydroelastic contact surfaces, point pairs) at x: a geometry query, no contact
+        solve, so it is cheap and works for any state and contact solver."""
+        from pydrake.geometry import HydroelasticContactRepresentation as Rep
+
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
-        self._input.FixValue(self.context, np.zeros(self.nu))
-        results = self.plant.get_contact_results_output_port().Eval(self.plant_context)
-        inspector = self.scene_graph.model_inspector()
+        query = self.plant.get_geometry_query_input_port().Eval(self.plant_context)
+        rep = (Rep.kPolygon if self.task.plant.contact_surface_representation == "polygon"
+               else Rep.kTriangle)
+        if self.task.plant.contact_model == "hydroelastic":
+            return query.ComputeContactSurfaces(rep), []
+        return query.ComputeContactSurfacesWithFallback(rep)
+
+    def contact_pairs(self, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:
+        """Touching pairs at x: (geometry A, body A, geometry B, body B, polygons); point
+        contacts have 0 polygons."""
+        names = self.geometry_names()
+        surfaces, points = self.contact_query(x)
+        unknown = ("?", "?")
         out = []
-        for i in range(results.num_hydroelastic_contacts()):
-            s = results.hydroelastic_contact_info(i).contact_surface()
-            a = inspector.GetName(s.id_M()).split("::")[-1]
-            b = inspector.GetName(s.id_N()).split("::")[-1]
-            n = s.num_faces()
-            out.append((a, b, n))
-        for i in range(results.num_point_pair_contacts()):
-            pp = results.point_pair_contact_info(i).point_pair()
-            out.append((inspector.GetName(pp.id_A).split("::")[-1],
-                        inspector.GetName(pp.id_B).split("::")[-1], 0))
+        for s in surfaces:
+            a, b = names.get(s.id_M(), unknown), names.get(s.id_N(), unknown)
+            out.append((a[0], a[1], b[0], b[1], s.num_faces()))
+        for pp in points:
+            a, b = names.get(pp.id_A, unknown), names.get(pp.id_B, unknown)
+            out.append((a[0], a[1], b[0], b[1], 0))
         return out
+
+    def contact_surfaces(self, x: np.ndarray) -> list[tuple[str, str, int]]:
+        """Touching pairs at x: (geometry A name, geometry B name, polygons)."""
+        return [(ga, gb, n) for ga, _, gb, _, n in self.contact_pairs(x)]
 
 
 __all__ = ["Dynamics", "Scene", "SimulationError", "build_diagram", "SceneGraph"]
