@@ -7,8 +7,19 @@ from hydroilqr.cli import main
 
 def test_bench_smoke_writes_json_and_plot(tmp_path):
     out = tmp_path / "bench"
-    rc = main(["bench", "cartpole-wall", "--smoke", "--iterations", "2", "--fast",
-               "solver.derivatives=forward", "--out", str(out)])
+    rc = main(
+        [
+            "bench",
+            "cartpole-wall",
+            "--smoke",
+            "--iterations",
+            "2",
+            "--fast",
+            "solver.derivatives=forward",
+            "--out",
+            str(out),
+        ]
+    )
     assert rc == 0
     doc = json.loads((out / "bench.json").read_text())
     assert (out / "iterations.png").stat().st_size > 0
@@ -21,8 +32,7 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
         m = r[method]
         assert 1 <= m["iterations"] <= 2
         assert m["p10_s"] <= m["median_s"] <= m["p90_s"]
-        assert set(m["phase_share"]) == {"rollout", "derivatives", "backward_pass",
-                                         "line_search"}
+        assert set(m["phase_share"]) == {"rollout", "derivatives", "backward_pass", "line_search"}
         assert abs(sum(m["phase_share"].values()) - 1.0) < 1e-9
         assert m["final_cost"] <= m["initial_cost"]
         assert "max_faces" in m["polygons"]

@@ -46,8 +46,11 @@ def test_gripper_brick_from_yaml_check_and_smoke_solve():
     assert kinds[("tip_sphere_collision", "finger1_tip_link")] == "compliant"
     assert kinds[("box_collision", "brick_link")] == "rigid"
     # All three fingertips touch the brick at x0, with hydroelastic polygons.
-    tips = [c for c in facts["contacts"] if {c["a"], c["b"]} ==
-            {"tip_sphere_collision", "box_collision"}]
+    tips = [
+        c
+        for c in facts["contacts"]
+        if {c["a"], c["b"]} == {"tip_sphere_collision", "box_collision"}
+    ]
     assert len(tips) == 3 and all(c["faces"] > 0 for c in tips)
     sol = solve(task)
     assert sol.final_cost < sol.costs[0]
@@ -60,8 +63,15 @@ def test_check_command_output(capsys):
     rc = cli.main(["check", str(EXAMPLES / "gripper-brick.yaml")])
     out = capsys.readouterr().out
     assert rc == 0
-    for text in ("state blocks", "actuators", "collision geometries", "candidate collision pairs",
-                 "hydroelastic polygons", "simulation: one step ok", "check passed"):
+    for text in (
+        "state blocks",
+        "actuators",
+        "collision geometries",
+        "candidate collision pairs",
+        "hydroelastic polygons",
+        "simulation: one step ok",
+        "check passed",
+    ):
         assert text in out, text
 
 
@@ -80,8 +90,11 @@ def guide_steps() -> list[tuple[str, str]]:
         if lang == "yaml" and body.startswith("# file: "):
             steps.append(("file", body))
         elif lang == "bash":
-            steps += [("cmd", ln.strip()) for ln in body.splitlines()
-                      if ln.strip().startswith("hydroilqr ")]
+            steps += [
+                ("cmd", ln.strip())
+                for ln in body.splitlines()
+                if ln.strip().startswith("hydroilqr ")
+            ]
         elif lang == "python":
             steps.append(("python", body))
     return steps

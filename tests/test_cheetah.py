@@ -39,14 +39,25 @@ def test_tasks_listed_and_paper_setup():
         assert (rh.window_steps, rh.shift_steps, rh.resolves) == (40, 4, 100)
         lay = dyn.layout
         dt = dyn.dt
-        paper_q = {"orientation": 2.0, "position": 1.0, "joints": 0.0, "angular_velocity": 0.01,
-                   "velocity": 0.01, "joint_velocities": 0.01}
-        paper_qf = {"orientation": 10.0, "position": 5.0, "joints": 0.1,
-                    "angular_velocity": 1.0, "velocity": 1.0, "joint_velocities": 0.01}
+        paper_q = {
+            "orientation": 2.0,
+            "position": 1.0,
+            "joints": 0.0,
+            "angular_velocity": 0.01,
+            "velocity": 0.01,
+            "joint_velocities": 0.01,
+        }
+        paper_qf = {
+            "orientation": 10.0,
+            "position": 5.0,
+            "joints": 0.1,
+            "angular_velocity": 1.0,
+            "velocity": 1.0,
+            "joint_velocities": 0.01,
+        }
         for block, w in paper_q.items():
             np.testing.assert_allclose(cost.q[list(lay.block(block).tangent)], w * dt)
-            np.testing.assert_allclose(cost.qf[list(lay.block(block).tangent)],
-                                       paper_qf[block])
+            np.testing.assert_allclose(cost.qf[list(lay.block(block).tangent)], paper_qf[block])
         np.testing.assert_allclose(cost.r, 0.01 * dt)
         # Nominal: level body moving forward at v, standing joints, velocity [v, 0, 0].
         x1 = cost.nominal(np.array([1.0]))[0]
@@ -54,8 +65,7 @@ def test_tasks_listed_and_paper_setup():
         np.testing.assert_allclose(x1[list(pos.coords)], [v, 0.0, 0.29166])
         np.testing.assert_allclose(x1[list(vel.coords)], [v, 0.0, 0.0])
         np.testing.assert_allclose(x1[list(lay.block("orientation").coords)], [1, 0, 0, 0])
-        np.testing.assert_allclose(task.x0[list(lay.block("joints").coords)],
-                                   [0, -0.8, 1.6] * 4)
+        np.testing.assert_allclose(task.x0[list(lay.block("joints").coords)], [0, -0.8, 1.6] * 4)
         U = task.initial_guess(5)
         assert U.shape == (5, 12) and np.all(np.abs(U) <= dyn.effort_limits)
 
@@ -64,8 +74,12 @@ def test_standing_contacts():
     task = Task.load("cheetah-trot-0.5")
     surfaces = task.dynamics.contact_surfaces(task.x0)
     feet = {a for a, b, n in surfaces if "foot" in a and b == "ground" and n > 0}
-    assert feet == {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision",
-                    "HR_foot_collision"}
+    assert feet == {
+        "FL_foot_collision",
+        "FR_foot_collision",
+        "HL_foot_collision",
+        "HR_foot_collision",
+    }
     assert not any("body" in a for a, _, _ in surfaces)
 
 
@@ -85,8 +99,13 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
     assert first[1] < first[0] and np.all(np.diff(first) <= 0)
     m = compute(task, sol)
     assert set(m["duty_factor"]) == {"FL", "FR", "HL", "HR"}
-    for key in ("mean_forward_velocity_mps", "min_body_height_m", "diagonal_pair_overlap",
-                "lateral_pair_overlap", "iterations_per_resolve"):
+    for key in (
+        "mean_forward_velocity_mps",
+        "min_body_height_m",
+        "diagonal_pair_overlap",
+        "lateral_pair_overlap",
+        "iterations_per_resolve",
+    ):
         assert np.isfinite(m[key])
     assert m["target_velocity_mps"] == 1.0 and m["body_ground_contact_steps"] == 0
     assert m["max_foot_faces"] > 0
@@ -106,8 +125,11 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
             raise _Stop
 
     with pytest.raises(_Stop):
-        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path,
-              on_resolve=stop_after_two)
+        solve(
+            Task.load("cheetah-trot-1.0", smoke=True),
+            checkpoint_dir=tmp_path,
+            on_resolve=stop_after_two,
+        )
     # A fresh process would rebuild the task; so does this.
     resumed = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
     np.testing.assert_array_equal(resumed.X, full.X)
@@ -115,4 +137,5 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     np.testing.assert_array_equal(resumed.K, full.K)
     np.testing.assert_array_equal(resumed.costs, full.costs)
     assert [r["iterations"] for r in resumed.extra["resolves"]] == [
-        r["iterations"] for r in full.extra["resolves"]]
+        r["iterations"] for r in full.extra["resolves"]
+    ]

@@ -75,21 +75,24 @@ def test_ilqr_solves_lqr_in_one_step(monkeypatch):
     A = np.array([[1.0, 0.1], [0.0, 1.0]])
     B = np.array([[0.005], [0.1]])
     dyn = LinearDynamics(A, B)
-    monkeypatch.setattr(ilqr_mod, "linearize",
-                        lambda d, X, U, *a, **k: (np.stack([A] * N), np.stack([B] * N)))
+    monkeypatch.setattr(
+        ilqr_mod, "linearize", lambda d, X, U, *a, **k: (np.stack([A] * N), np.stack([B] * N))
+    )
     layout = StateLayout(1, 1, [Block("p", (0,), (0,)), Block("p.v", (1,), (1,))], ["f"])
     cost = QuadraticCost(layout, [1.0, 0.1], [50.0, 5.0], [0.01], np.zeros(2), np.zeros(2), 0.1)
     x0 = np.array([1.0, 0.0])
-    sol = ilqr_solve(Problem(dyn, cost, x0), rng.standard_normal((N, nu)),
-                     SolverConfig(max_iterations=5, regularization_init=0.0,
-                                  regularization_min=0.0))
+    sol = ilqr_solve(
+        Problem(dyn, cost, x0),
+        rng.standard_normal((N, nu)),
+        SolverConfig(max_iterations=5, regularization_init=0.0, regularization_min=0.0),
+    )
     # Closed-form optimum: stack the LQR as a least-squares problem in U.
     Phi = np.zeros((N + 1, nx, N * nu))
     Ak = np.eye(nx)
     free = [x0]
     for k in range(1, N + 1):
         Phi[k] = A @ Phi[k - 1]
-        Phi[k][:, (k - 1) * nu:k * nu] += B[:, :]
+        Phi[k][:, (k - 1) * nu : k * nu] += B[:, :]
         Ak = A @ Ak
         free.append(Ak @ x0)
     free = np.array(free)
@@ -147,8 +150,10 @@ def test_falling_body_falls(tmp_path):
 
     task = Task.from_dict(
         {
-            "models": [{"file": str(TASKS_DIR / "../models/cartpole_wall/cartpole.sdf")},
-                       {"file": str(TASKS_DIR / "../models/kinova_gen3/ball.sdf")}],
+            "models": [
+                {"file": str(TASKS_DIR / "../models/cartpole_wall/cartpole.sdf")},
+                {"file": str(TASKS_DIR / "../models/kinova_gen3/ball.sdf")},
+            ],
             "plant": {"time_step": 0.01},
             "initial_state": {"ball.position": [2.0, 0.0, 1.0], "pole_pin": 0.3},
         }
@@ -164,18 +169,27 @@ def test_falling_body_falls(tmp_path):
 def test_quaternion_difference_jacobian():
     from hydroilqr.state import Block
 
-    layout = StateLayout(7, 6, [Block("b.orientation", (0, 1, 2, 3), (0, 1, 2), "quaternion"),
-                                Block("b.position", (4, 5, 6), (3, 4, 5)),
-                                Block("b.angular_velocity", (7, 8, 9), (6, 7, 8)),
-                                Block("b.velocity", (10, 11, 12), (9, 10, 11))], [])
+    layout = StateLayout(
+        7,
+        6,
+        [
+            Block("b.orientation", (0, 1, 2, 3), (0, 1, 2), "quaternion"),
+            Block("b.position", (4, 5, 6), (3, 4, 5)),
+            Block("b.angular_velocity", (7, 8, 9), (6, 7, 8)),
+            Block("b.velocity", (10, 11, 12), (9, 10, 11)),
+        ],
+        [],
+    )
     rng = np.random.default_rng(3)
     x = np.concatenate([rng.standard_normal(4), rng.standard_normal(3), rng.standard_normal(6)])
     x[:4] /= np.linalg.norm(x[:4])
     ref = layout.normalize(x + 0.1 * rng.standard_normal(13))
     J = layout.diff_jacobian(x[None], ref[None])[0]
     h = 1e-7
-    Jn = np.stack([(layout.diff(x + h * e, ref) - layout.diff(x - h * e, ref)) / (2 * h)
-                   for e in np.eye(13)], axis=1)
+    Jn = np.stack(
+        [(layout.diff(x + h * e, ref) - layout.diff(x - h * e, ref)) / (2 * h) for e in np.eye(13)],
+        axis=1,
+    )
     np.testing.assert_allclose(J, Jn, atol=1e-6)
     # A rotation of angle a about z gives an error of (0, 0, ~a).
     a = 0.2
@@ -207,8 +221,10 @@ def test_cartpole_smoke_solve_uses_the_wall(tmp_path):
 
 
 def test_overrides_and_shortcuts():
-    task = Task.load("cartpole-wall", ["tip.hydroelastic_modulus=3e5", "wall.friction=0.1",
-                                       "solver.max_iterations=7"])
+    task = Task.load(
+        "cartpole-wall",
+        ["tip.hydroelastic_modulus=3e5", "wall.friction=0.1", "solver.max_iterations=7"],
+    )
     assert task.config.geometry["tip"].hydroelastic_modulus == 3e5
     assert task.config.scene[0].friction == 0.1
     assert task.config.solver.max_iterations == 7
@@ -220,11 +236,31 @@ def test_cli_solve_writes_outputs(tmp_path):
     from hydroilqr.cli import main
 
     out = tmp_path / "run"
-    assert main(["solve", "cartpole-wall", "--smoke", "--set", "solver.max_iterations=2",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "solve",
+                "cartpole-wall",
+                "--smoke",
+                "--set",
+                "solver.max_iterations=2",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
-    for key in ("task", "converged", "iterations", "final_cost", "iteration_seconds",
-                "phase_seconds", "derivatives", "metrics"):
+    for key in (
+        "task",
+        "converged",
+        "iterations",
+        "final_cost",
+        "iteration_seconds",
+        "phase_seconds",
+        "derivatives",
+        "metrics",
+    ):
         assert key in summary
     for key in ("final_angle_error_rad", "max_overlap_m", "wall_contact_steps"):
         assert key in summary["metrics"]

@@ -23,14 +23,29 @@ def test_model_mass_and_joints(forward):
     mass = sum(plant.get_body(b).default_mass() for b in plant.GetBodyIndices(arm))
     assert mass == pytest.approx(9.0885, abs=0.01)  # 8 links + 0.9 kg gripper stand-in
     assert sum(plant.get_body(b).default_mass() for b in plant.GetBodyIndices(ball)) == (
-        pytest.approx(0.258))
+        pytest.approx(0.258)
+    )
     assert dyn.nu == 7 and plant.num_actuated_dofs(arm) == 7
     assert (dyn.nq, dyn.nv) == (14, 13)  # 7 joints + ball quaternion/position
-    blocks = {b: len(dyn.layout.block(b).tangent) for b in
-              ("arm_q", "ball_orientation", "ball_position", "arm_v",
-               "ball_angular_velocity", "ball_velocity")}
-    assert blocks == {"arm_q": 7, "ball_orientation": 3, "ball_position": 3, "arm_v": 7,
-                      "ball_angular_velocity": 3, "ball_velocity": 3}
+    blocks = {
+        b: len(dyn.layout.block(b).tangent)
+        for b in (
+            "arm_q",
+            "ball_orientation",
+            "ball_position",
+            "arm_v",
+            "ball_angular_velocity",
+            "ball_velocity",
+        )
+    }
+    assert blocks == {
+        "arm_q": 7,
+        "ball_orientation": 3,
+        "ball_position": 3,
+        "arm_v": 7,
+        "ball_angular_velocity": 3,
+        "ball_velocity": 3,
+    }
 
 
 def test_paper_cost_and_targets():
@@ -64,16 +79,14 @@ def test_up_start_touches_ball_with_several_links():
         bodies = {names[p.id_A][1], names[p.id_B][1]}
         if "ball" in bodies:
             near |= bodies - {"ball", "world"}
-    assert {"base_link", "forearm_link", "spherical_wrist_1_link",
-            "spherical_wrist_2_link"} <= near
+    assert {"base_link", "forearm_link", "spherical_wrist_1_link", "spherical_wrist_2_link"} <= near
 
 
 @pytest.mark.parametrize("name", TASKS)
 def test_smoke_solve_decreases_cost(name):
     task = Task.load(name, smoke=True)
     N = task.config.steps
-    sol = ilqr_solve(task.problem(), task.initial_guess(N), task.config.solver,
-                     final_gains=False)
+    sol = ilqr_solve(task.problem(), task.initial_guess(N), task.config.solver, final_gains=False)
     assert sol.costs[-1] < sol.costs[0]
     m = compute(task, sol)
     assert len(m["ball_displacement_m"]) == 3

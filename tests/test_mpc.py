@@ -11,8 +11,7 @@ from hydroilqr.mpc import MPCSettings, Push, run_mpc
 
 def test_mpc_lockstep_brings_pole_up_and_reports_timing():
     task = Task.load("cartpole-wall")
-    res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.3,
-                                    iterations_per_update=1))
+    res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.3, iterations_per_update=1))
     angle = task.dynamics.layout.block("pole_angle").coords[0]
     err = np.abs(res.X[:, angle] - np.pi)
     assert res.X.shape == (51, 4) and res.U.shape == (50, 1)
@@ -25,19 +24,56 @@ def test_mpc_lockstep_brings_pole_up_and_reports_timing():
 def test_mpc_push_moves_the_cart(tmp_path):
     task = Task.load("cartpole-wall")
     base = run_mpc(task, MPCSettings(duration=0.3, rate=50.0, horizon=0.2))
-    pushed = run_mpc(task, MPCSettings(duration=0.3, rate=50.0, horizon=0.2,
-                                       pushes=[Push(0.1, "cart", np.array([300.0, 0, 0]))]))
+    pushed = run_mpc(
+        task,
+        MPCSettings(
+            duration=0.3,
+            rate=50.0,
+            horizon=0.2,
+            pushes=[Push(0.1, "cart", np.array([300.0, 0, 0]))],
+        ),
+    )
     cart = task.dynamics.layout.block("cart_position").coords[0]
     assert pushed.X[-1, cart] > base.X[-1, cart] + 0.01
 
 
 def test_mpc_cli(tmp_path):
     out = tmp_path / "mpc"
-    assert main(["mpc", "cartpole-wall", "--duration", "0.2", "--rate", "50", "--horizon", "0.2",
-                 "--out", str(out), "--push", "0.1:cart:50,0,0"]) == 0
+    assert (
+        main(
+            [
+                "mpc",
+                "cartpole-wall",
+                "--duration",
+                "0.2",
+                "--rate",
+                "50",
+                "--horizon",
+                "0.2",
+                "--out",
+                str(out),
+                "--push",
+                "0.1:cart:50,0,0",
+            ]
+        )
+        == 0
+    )
     data = json.loads((out / "mpc.json").read_text())
     for key in ("achieved_rate_hz", "realtime_factor", "solve_seconds", "metrics"):
         assert key in data
     assert (out / "mpc.png").exists() and (out / "mpc.html").exists()
-    assert main(["mpc", "cartpole-wall", "--duration", "0.1", "--out", str(out),
-                 "--push", "0.1:nobody:1,0,0"]) == 2
+    assert (
+        main(
+            [
+                "mpc",
+                "cartpole-wall",
+                "--duration",
+                "0.1",
+                "--out",
+                str(out),
+                "--push",
+                "0.1:nobody:1,0,0",
+            ]
+        )
+        == 2
+    )

@@ -15,8 +15,11 @@ from hydroilqr.task import Task
 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
-    task = Task.load("cartpole-wall", ["num_steps=50", "solver.max_iterations=8",
-                                       "cost.running_cost_dt=false"], smoke=True)
+    task = Task.load(
+        "cartpole-wall",
+        ["num_steps=50", "solver.max_iterations=8", "cost.running_cost_dt=false"],
+        smoke=True,
+    )
     sol = solve(task)
     out = tmp_path_factory.mktemp("cp")
     report.write_outputs(task, sol, out, replay=False)
@@ -44,8 +47,12 @@ def test_pd_playback_tracks_the_joints(run_dir):
 
 def test_ilqr_policy_on_the_planner_model_reproduces_the_plan(run_dir):
     task, sol, _ = load_run(run_dir)
-    st = PlaybackSettings(policy="ilqr", speed=1.0, truth_time_step=task.config.plant.time_step,
-                          truth_contact=task.config.plant.contact_approximation)
+    st = PlaybackSettings(
+        policy="ilqr",
+        speed=1.0,
+        truth_time_step=task.config.plant.time_step,
+        truth_contact=task.config.plant.contact_approximation,
+    )
     r = playback(task, sol, st)
     np.testing.assert_allclose(r.X, sol.X, atol=1e-9)
     assert r.metrics["object"]["final_gap"] < 1e-9
@@ -55,8 +62,22 @@ def test_cli_playback_writes_outputs(run_dir, tmp_path):
     from hydroilqr.cli import main
 
     out = tmp_path / "pb"
-    assert main(["playback", str(run_dir), "--speed", "1", "--truth-time-step", "0.002",
-                 "--no-replay", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "playback",
+                str(run_dir),
+                "--speed",
+                "1",
+                "--truth-time-step",
+                "0.002",
+                "--no-replay",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     data = json.loads((out / "playback.json").read_text())
     for key in ("object", "joint_tracking", "settings", "truth", "saturated_fraction"):
         assert key in data
@@ -67,8 +88,7 @@ def test_cli_playback_writes_outputs(run_dir, tmp_path):
     assert len(rows) == 26 and float(rows[2][0]) == pytest.approx(0.02)
     # Bad input: one line, non-zero exit, no traceback.
     assert main(["playback", str(tmp_path / "nothing")]) == 2
-    assert main(["playback", str(run_dir), "--speed", "0", "--no-replay",
-                 "--out", str(out)]) == 2
+    assert main(["playback", str(run_dir), "--speed", "0", "--no-replay", "--out", str(out)]) == 2
 
 
 def test_settings_are_validated():

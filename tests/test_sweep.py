@@ -43,8 +43,19 @@ def _log(out: Path) -> list[str]:
 def swept(tmp_path_factory):
     """One 3-point sweep through the CLI; the middle point is invalid (negative modulus)."""
     out = tmp_path_factory.mktemp("sweep")
-    argv = ["sweep", "cartpole-wall", "--smoke", "--param", KEY, "--values", "1e3,-5,1e6",
-            "--workers", "2", "--out", str(out)]
+    argv = [
+        "sweep",
+        "cartpole-wall",
+        "--smoke",
+        "--param",
+        KEY,
+        "--values",
+        "1e3,-5,1e6",
+        "--workers",
+        "2",
+        "--out",
+        str(out),
+    ]
     for s in SMALL:
         argv += ["--set", s]
     assert main(argv) == 0
@@ -55,8 +66,16 @@ def test_three_point_sweep(swept):
     out, _ = swept
     rows = _rows(out)
     assert [float(r[KEY]) for r in rows] == [1000.0, -5.0, 1e6]
-    for col in ("final_cost", "max_overlap_m", "tunnelled", "iterations", "converged",
-                "wall_seconds", "status", "error"):
+    for col in (
+        "final_cost",
+        "max_overlap_m",
+        "tunnelled",
+        "iterations",
+        "converged",
+        "wall_seconds",
+        "status",
+        "error",
+    ):
         assert col in rows[0]
     ok = [r for r in rows if r["status"] == "ok"]
     assert len(ok) == 2

@@ -31,8 +31,12 @@ BASE = {
     "num_steps": 5,
     "blocks": {"angles": ["shoulder", "elbow"]},
     "initial_state": {"angles": [0.1, 0.0]},
-    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 10.0},
-             "nominal": {"angles": [3.14, 0.0]}},
+    "cost": {
+        "Q": {"angles": 1.0},
+        "R": 0.01,
+        "Qf": {"angles": 10.0},
+        "nominal": {"angles": [3.14, 0.0]},
+    },
     "solver": {"max_iterations": 1},
 }
 
@@ -62,31 +66,61 @@ CASES = [
     ("nan-weight-in-list", edit(cost__Q={"angles": [1.0, float("nan")]}), "cost.Q.angles"),
     ("unknown-actuator-in-R", edit(cost__R={"shoulder": 1.0}), "cost.R.shoulder"),
     ("wrong-length-R", edit(cost__R=[1.0, 2.0]), "cost.R"),
-    ("negative-modulus",
-     edit(geometry={"lower_link_collision": {"hydroelastic_modulus": -1e6}}),
-     "geometry.lower_link_collision.hydroelastic_modulus"),
-    ("unknown-geometry", edit(geometry={"gripper_pad": {"friction": 0.5}}),
-     "geometry.gripper_pad"),
-    ("unknown-weld-frame",
-     edit(models=[{"file": PENDULUM, "weld": {"parent": "world", "child": "no_such_link"}}],
-          blocks={}, initial_state={}, cost={"R": 0.1}),
-     "models[0].weld.child"),
+    (
+        "negative-modulus",
+        edit(geometry={"lower_link_collision": {"hydroelastic_modulus": -1e6}}),
+        "geometry.lower_link_collision.hydroelastic_modulus",
+    ),
+    ("unknown-geometry", edit(geometry={"gripper_pad": {"friction": 0.5}}), "geometry.gripper_pad"),
+    (
+        "unknown-weld-frame",
+        edit(
+            models=[{"file": PENDULUM, "weld": {"parent": "world", "child": "no_such_link"}}],
+            blocks={},
+            initial_state={},
+            cost={"R": 0.1},
+        ),
+        "models[0].weld.child",
+    ),
     ("missing-model-file", edit(models=[{"file": "robots/missing.urdf"}]), "models[0].file"),
-    ("missing-package-file", edit(models=[{"file": "package://drake/examples/none.urdf"}]),
-     "models[0].file"),
+    (
+        "missing-package-file",
+        edit(models=[{"file": "package://drake/examples/none.urdf"}]),
+        "models[0].file",
+    ),
     ("malformed-yaml", "models:\n  - file: [unclosed\ncost: {Q: 1\n", "line"),
-    ("compliant-halfspace-pair",
-     edit(models=[{"file": PENDULUM}], blocks={}, initial_state={}, cost={"R": 0.1},
-          scene=[{"name": "soft_floor", "shape": "halfspace", "xyz": [0, 0, 0.49],
-                  "compliance": "compliant", "hydroelastic_modulus": 1e6}],
-          geometry={"arm_com": {"hydroelastic_modulus": 1e6, "resolution_hint": 0.02}}),
-     "scene[0] (soft_floor)"),
+    (
+        "compliant-halfspace-pair",
+        edit(
+            models=[{"file": PENDULUM}],
+            blocks={},
+            initial_state={},
+            cost={"R": 0.1},
+            scene=[
+                {
+                    "name": "soft_floor",
+                    "shape": "halfspace",
+                    "xyz": [0, 0, 0.49],
+                    "compliance": "compliant",
+                    "hydroelastic_modulus": 1e6,
+                }
+            ],
+            geometry={"arm_com": {"hydroelastic_modulus": 1e6, "resolution_hint": 0.02}},
+        ),
+        "scene[0] (soft_floor)",
+    ),
     ("unknown-initial-state-block", edit(initial_state={"knee": 0.3}), "initial_state.knee"),
-    ("wrong-length-initial-state", edit(initial_state={"angles": [1, 2, 3]}),
-     "initial_state.angles"),
+    (
+        "wrong-length-initial-state",
+        edit(initial_state={"angles": [1, 2, 3]}),
+        "initial_state.angles",
+    ),
     ("unknown-group-member", edit(blocks={"angles": ["shoulder", "wrist"]}), "blocks.angles"),
-    ("bad-contact-approximation", edit(plant={"contact_approximation": "magic"}),
-     "plant.contact_approximation"),
+    (
+        "bad-contact-approximation",
+        edit(plant={"contact_approximation": "magic"}),
+        "plant.contact_approximation",
+    ),
     ("negative-time-step", edit(plant={"time_step": -0.01}), "plant.time_step"),
     ("string-for-number", edit(horizon="long"), "horizon"),
     ("bad-initial-guess", edit(initial_guess="warm.npz"), "initial_guess"),
@@ -114,8 +148,9 @@ def assert_one_line(rc: int, out: str, err: str, needle: str) -> None:
 @pytest.mark.parametrize("case,spec,needle", CASES, ids=[c[0] for c in CASES])
 def test_bad_key_in_process(tmp_path, capsys, case, spec, needle):
     path = write_case(tmp_path, spec)
-    rc = cli.main(["solve", "--task-file", str(path), "--out", str(tmp_path / "out"),
-                   "--no-replay"])
+    rc = cli.main(
+        ["solve", "--task-file", str(path), "--out", str(tmp_path / "out"), "--no-replay"]
+    )
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, needle)
     assert not (tmp_path / "out" / "solution.npz").exists()
@@ -130,14 +165,27 @@ def test_unknown_task_name(capsys):
 
 def test_bad_override_names_key(tmp_path, capsys):
     path = write_case(tmp_path, BASE)
-    rc = cli.main(["solve", "--task-file", str(path), "--set", "solver.derivatives=magic",
-                   "--out", str(tmp_path / "o")])
+    rc = cli.main(
+        [
+            "solve",
+            "--task-file",
+            str(path),
+            "--set",
+            "solver.derivatives=magic",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "solver.derivatives")
 
 
-SUBPROCESS_CASES = ["unknown-top-level-key", "nan-weight",
-                    "malformed-yaml", "compliant-halfspace-pair"]
+SUBPROCESS_CASES = [
+    "unknown-top-level-key",
+    "nan-weight",
+    "malformed-yaml",
+    "compliant-halfspace-pair",
+]
 
 
 def test_bad_keys_as_subprocesses(tmp_path):
@@ -161,8 +209,9 @@ def test_bad_keys_as_subprocesses(tmp_path):
     while jobs or running:
         while jobs and len(running) < 2:
             name, needle, cmd, d = jobs.pop(0)
-            p = subprocess.Popen(cmd, cwd=d, env=env, stdout=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, text=True)
+            p = subprocess.Popen(
+                cmd, cwd=d, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            )
             running.append((name, needle, p))
         name, needle, p = running.pop(0)
         out, err = p.communicate(timeout=120)

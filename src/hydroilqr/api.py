@@ -1,9 +1,9 @@
 """The Python entry point: ``solve(task) -> Solution``.
 
-    from hydroilqr import Task, solve
-    task = Task.load("cartpole-wall")
-    sol = solve(task)
-    print(sol.converged, sol.final_cost, sol.X.shape)
+from hydroilqr import Task, solve
+task = Task.load("cartpole-wall")
+sol = solve(task)
+print(sol.converged, sol.final_cost, sol.X.shape)
 """
 
 from __future__ import annotations

@@ -97,8 +97,14 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1) -> list:
 
         try:
             baton.wait(i)
-            results[i] = solve(task.problem(), U0.copy(), task.config.solver, [cb],
-                               max_iterations=iterations, final_gains=False)
+            results[i] = solve(
+                task.problem(),
+                U0.copy(),
+                task.config.solver,
+                [cb],
+                max_iterations=iterations,
+                final_gains=False,
+            )
         except Exception as e:  # noqa: BLE001 - reported per task
             results[i] = e
         finally:
@@ -148,8 +154,11 @@ def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
 def polygons(dyn, X: np.ndarray) -> dict:
     states = [contact_state(dyn, x) for x in X]
     faces = [f for f, _ in states]
-    return {"max_faces": int(max(faces, default=0)), "mean_faces": float(np.mean(faces)),
-            "contact_steps": int(sum(f > 0 for f in faces))}
+    return {
+        "max_faces": int(max(faces, default=0)),
+        "mean_faces": float(np.mean(faces)),
+        "contact_steps": int(sum(f > 0 for f in faces)),
+    }
 
 
 def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
@@ -165,14 +174,18 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
 
     def jac(method, interval=1, adaptive=False):
         t = time.perf_counter()
-        A, B = linearize(dyn, X, U, method, s.fd_epsilon, threads, interval, rollout=True,
-                         adaptive=adaptive)
+        A, B = linearize(
+            dyn, X, U, method, s.fd_epsilon, threads, interval, rollout=True, adaptive=adaptive
+        )
         return np.concatenate([A, B], axis=2), time.perf_counter() - t
 
     ref, t_ad = jac("autodiff")
     scale = np.maximum(np.abs(ref).reshape(N, -1).max(axis=1), 1e-12)
-    out: dict = {"reference": "autodiff", "contact_classes": {
-        c: int(classes.count(c)) for c in sorted(set(classes))}, "seconds": {"autodiff": t_ad}}
+    out: dict = {
+        "reference": "autodiff",
+        "contact_classes": {c: int(classes.count(c)) for c in sorted(set(classes))},
+        "seconds": {"autodiff": t_ad},
+    }
     modes = [("forward", "forward", 1, False), ("central", "central", 1, False)]
     modes += [(f"interval-{k} ({s.derivatives})", s.derivatives, k, False) for k in intervals]
     modes += [(f"adaptive-{k} ({s.derivatives})", s.derivatives, k, True) for k in intervals]
@@ -180,11 +193,14 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
         J, sec = jac(method, k, adaptive)
         err = np.abs(J - ref).reshape(N, -1).max(axis=1) / scale
         out["seconds"][label] = sec
-        by = {c: np.array([e for e, cc in zip(err, classes) if cc == c])
-              for c in sorted(set(classes))}
+        by = {
+            c: np.array([e for e, cc in zip(err, classes) if cc == c]) for c in sorted(set(classes))
+        }
         by["all"] = err
-        out[label] = {"max": {c: float(v.max()) for c, v in by.items()},
-                      "median": {c: float(np.median(v)) for c, v in by.items()}}
+        out[label] = {
+            "max": {c: float(v.max()) for c, v in by.items()},
+            "median": {c: float(np.median(v)) for c, v in by.items()},
+        }
     return out
 
 
@@ -204,8 +220,11 @@ def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
             linearize(dyn, X, U, method, s.fd_epsilon, n, 1)
             times[n].append(time.perf_counter() - t)
     med = {n: float(np.median(v)) for n, v in times.items()}
-    return {"method": method, "seconds": {str(n): v for n, v in med.items()},
-            "speedup": {str(n): med[1] / v for n, v in med.items()}}
+    return {
+        "method": method,
+        "seconds": {str(n): v for n, v in med.items()},
+        "speedup": {str(n): med[1] / v for n, v in med.items()},
+    }
 
 
 def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3) -> dict:
@@ -246,17 +265,25 @@ def _stats(sol) -> dict:
         "p90_s": float(np.percentile(it, 90)) if it.size else float("nan"),
         "total_s": float(it.sum()),
         "phase_share": {p: float(np.sum(sol.phase_seconds[p])) / total for p in PHASES},
-        "phase_median_s": {p: float(np.median(sol.phase_seconds[p])) if it.size else 0.0
-                           for p in PHASES},
+        "phase_median_s": {
+            p: float(np.median(sol.phase_seconds[p])) if it.size else 0.0 for p in PHASES
+        },
         "initial_cost": float(sol.costs[0]),
         "final_cost": sol.final_cost,
         "reason": sol.reason,
     }
 
 
-def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
-               sets: list[str] | None = None, fast: list[str] | None = None,
-               block: int = 1, accuracy: bool = True) -> dict:
+def bench_task(
+    name: str,
+    iterations: int,
+    threads: int,
+    smoke: bool = False,
+    sets: list[str] | None = None,
+    fast: list[str] | None = None,
+    block: int = 1,
+    accuracy: bool = True,
+) -> dict:
     from .task import Task
 
     sets = list(sets or [])
@@ -274,16 +301,24 @@ def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
         probe = probe_derivatives(tasks[1], U0, threads)
         tasks[1].config.solver.derivatives = probe["choice"]
         cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
-    console.print(f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
-                  f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating")
+    console.print(
+        f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
+        f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
+    )
     t0 = time.perf_counter()
     res = run_alternating(tasks, U0, iterations, block)
     wall = time.perf_counter() - t0
-    out: dict = {"task": name, "steps": int(N), "nx": int(tasks[0].dynamics.nx),
-                 "nu": int(tasks[0].dynamics.nu),
-                 "receding_window": tasks[0].config.receding_horizon is not None,
-                 "wall_s": wall, "load_average": list(os.getloadavg()), "configs": cfgs,
-                 "derivative_probe": probe}
+    out: dict = {
+        "task": name,
+        "steps": int(N),
+        "nx": int(tasks[0].dynamics.nx),
+        "nu": int(tasks[0].dynamics.nu),
+        "receding_window": tasks[0].config.receding_horizon is not None,
+        "wall_s": wall,
+        "load_average": list(os.getloadavg()),
+        "configs": cfgs,
+        "derivative_probe": probe,
+    }
     X0 = tasks[1].dynamics.rollout(tasks[1].x0, U0)
     out["initial_polygons"] = polygons(tasks[1].dynamics, X0)
     for key, task, r in zip(("paper", "fast"), tasks, res):
@@ -297,8 +332,9 @@ def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
         a, b = out["paper"], out["fast"]
         out["speedup_median"] = a["median_s"] / b["median_s"]
         out["speedup_total"] = a["total_s"] / b["total_s"]
-        out["cost_rel_diff"] = (b["final_cost"] - a["final_cost"]) / max(abs(a["final_cost"]),
-                                                                         1e-12)
+        out["cost_rel_diff"] = (b["final_cost"] - a["final_cost"]) / max(
+            abs(a["final_cost"]), 1e-12
+        )
         if accuracy:
             sol_b = res[1]
             out["accuracy"] = derivative_accuracy(tasks[1], sol_b.X, sol_b.U, threads)
@@ -312,16 +348,20 @@ def bench_task(name: str, iterations: int, threads: int, smoke: bool = False,
 
 
 def print_table(rows: list[dict]) -> None:
-    head = (f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
-            f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
-            f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9}")
+    head = (
+        f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
+        f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
+        f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9}"
+    )
     console.print("iLQR iteration time: (a) paper method vs (b) fast configuration")
     console.print(head, style="bold", soft_wrap=True)
     for r in rows:
         a, b = r.get("paper", {}), r.get("fast", {})
         if "median_s" not in a or "median_s" not in b:
-            console.print(f"{r['task']:<18} {r['steps']:>4} {a.get('error', 'ok')} | "
-                          f"{b.get('error', 'ok')}", soft_wrap=True)
+            console.print(
+                f"{r['task']:<18} {r['steps']:>4} {a.get('error', 'ok')} | {b.get('error', 'ok')}",
+                soft_wrap=True,
+            )
             continue
         ra = f"{a['median_s']:.4f} ({a['p10_s']:.4f}-{a['p90_s']:.4f})"
         rb = f"{b['median_s']:.4f} ({b['p10_s']:.4f}-{b['p90_s']:.4f})"
@@ -330,20 +370,36 @@ def print_table(rows: list[dict]) -> None:
         console.print(
             f"{r['task']:<18} {r['steps']:>4} {ra:>26} {rb:>26} {r['speedup_median']:>5.1f}x "
             f"{da:>9} {a['final_cost']:>10.5g} {b['final_cost']:>10.5g} "
-            f"{r['cost_rel_diff']:>+7.2%} {fa:>9}", soft_wrap=True)
+            f"{r['cost_rel_diff']:>+7.2%} {fa:>9}",
+            soft_wrap=True,
+        )
     for r in rows:
         acc = r.get("accuracy")
         if acc:
-            parts = [f"{k}: " + ", ".join(f"{c} {v:.1e} (median {acc[k]['median'][c]:.0e})"
-                                          for c, v in acc[k]["max"].items())
-                     for k in acc if k not in ("reference", "contact_classes", "seconds")]
-            console.print(f"{r['task']} derivative error vs AutoDiff ({acc['contact_classes']}"
-                          f"): " + "; ".join(parts), soft_wrap=True)
+            parts = [
+                f"{k}: "
+                + ", ".join(
+                    f"{c} {v:.1e} (median {acc[k]['median'][c]:.0e})"
+                    for c, v in acc[k]["max"].items()
+                )
+                for k in acc
+                if k not in ("reference", "contact_classes", "seconds")
+            ]
+            console.print(
+                f"{r['task']} derivative error vs AutoDiff ({acc['contact_classes']}"
+                f"): " + "; ".join(parts),
+                soft_wrap=True,
+            )
         th = r.get("threads")
         if th:
-            console.print(f"{r['task']} {th['method']} FD derivative phase: " + ", ".join(
-                f"{n} thread(s) {s:.3f} s ({th['speedup'][n]:.2f}x)"
-                for n, s in th["seconds"].items()), soft_wrap=True)
+            console.print(
+                f"{r['task']} {th['method']} FD derivative phase: "
+                + ", ".join(
+                    f"{n} thread(s) {s:.3f} s ({th['speedup'][n]:.2f}x)"
+                    for n, s in th["seconds"].items()
+                ),
+                soft_wrap=True,
+            )
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -352,8 +408,11 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [r for r in rows if "iteration_seconds" in r.get("paper", {})
-            and "iteration_seconds" in r.get("fast", {})]
+    rows = [
+        r
+        for r in rows
+        if "iteration_seconds" in r.get("paper", {}) and "iteration_seconds" in r.get("fast", {})
+    ]
     fig, ax = plt.subplots(figsize=(max(4.0, 2.2 * len(rows) + 1), 4))
     data, pos, labels, colors = [], [], [], []
     for i, r in enumerate(rows):
@@ -376,9 +435,17 @@ def plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
-def run_bench(names: list[str], out: str | Path, iterations: int = 10, threads: int = 0,
-              smoke: bool = False, sets=None, fast=None, block: int = 1,
-              accuracy: bool = True) -> dict:
+def run_bench(
+    names: list[str],
+    out: str | Path,
+    iterations: int = 10,
+    threads: int = 0,
+    smoke: bool = False,
+    sets=None,
+    fast=None,
+    block: int = 1,
+    accuracy: bool = True,
+) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -392,9 +459,15 @@ def run_bench(names: list[str], out: str | Path, iterations: int = 10, threads: 
 def _write(out: Path, rows, iterations, threads) -> dict:
     from .derivatives import num_threads
 
-    doc = {"iterations": iterations, "threads": num_threads(threads),
-           "cpu_count": os.cpu_count(), "load_average_end": list(os.getloadavg()),
-           "paper": PAPER, "fast": FAST, "tasks": {r["task"]: r for r in rows}}
+    doc = {
+        "iterations": iterations,
+        "threads": num_threads(threads),
+        "cpu_count": os.cpu_count(),
+        "load_average_end": list(os.getloadavg()),
+        "paper": PAPER,
+        "fast": FAST,
+        "tasks": {r["task"]: r for r in rows},
+    }
     (out / "bench.json").write_text(json.dumps(doc, indent=1))
     plot(rows, out / "iterations.png")
     return doc
@@ -403,8 +476,17 @@ def _write(out: Path, rows, iterations, threads) -> dict:
 def cmd_bench(args) -> int:
     if args.iterations < 1:
         raise ConfigError("--iterations: must be at least 1")
-    run_bench(args.task, args.out, args.iterations, args.threads, args.smoke, args.set,
-              args.fast, args.block, not args.no_accuracy)
+    run_bench(
+        args.task,
+        args.out,
+        args.iterations,
+        args.threads,
+        args.smoke,
+        args.set,
+        args.fast,
+        args.block,
+        not args.no_accuracy,
+    )
     console.print(f"wrote {args.out}/bench.json, iterations.png")
     return 0
 
@@ -416,11 +498,24 @@ def setup(p) -> None:
     p.add_argument("--threads", type=int, default=0, help="threads for batched FD (0 = all)")
     p.add_argument("--block", type=int, default=1, help="iterations per alternation block")
     p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a task key for both methods (repeatable)")
-    p.add_argument("--fast", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a task key of the fast configuration only (repeatable)")
-    p.add_argument("--no-accuracy", action="store_true",
-                   help="skip the derivative-accuracy and thread-scaling sections")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key for both methods (repeatable)",
+    )
+    p.add_argument(
+        "--fast",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key of the fast configuration only (repeatable)",
+    )
+    p.add_argument(
+        "--no-accuracy",
+        action="store_true",
+        help="skip the derivative-accuracy and thread-scaling sections",
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=cmd_bench)

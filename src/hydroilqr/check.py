@@ -58,16 +58,18 @@ def geometry_table(dyn) -> list[dict]:
             return None
 
         friction = prop("material", "coulomb_friction")
-        rows.append({
-            "id": gid,
-            "name": name,
-            "body": body,
-            "shape": type(inspector.GetShape(gid)).__name__,
-            "kind": kind,
-            "modulus": prop("hydroelastic", "hydroelastic_modulus"),
-            "resolution_hint": prop("hydroelastic", "resolution_hint"),
-            "friction": friction.static_friction() if friction is not None else None,
-        })
+        rows.append(
+            {
+                "id": gid,
+                "name": name,
+                "body": body,
+                "shape": type(inspector.GetShape(gid)).__name__,
+                "kind": kind,
+                "modulus": prop("hydroelastic", "hydroelastic_modulus"),
+                "resolution_hint": prop("hydroelastic", "resolution_hint"),
+                "friction": friction.static_friction() if friction is not None else None,
+            }
+        )
     return rows
 
 
@@ -87,13 +89,15 @@ def candidate_pairs(dyn, x: np.ndarray, geoms: list[dict]) -> list[dict]:
             dist = float(query.ComputeSignedDistancePairClosestPoints(a, b).distance)
         except RuntimeError:
             dist = None
-        rows.append({
-            "a": f"{ga['name']} ({ga['body']})",
-            "b": f"{gb['name']} ({gb['body']})",
-            "kinds": f"{ga['kind']}/{gb['kind']}",
-            "model": _pair_model(ga["kind"], gb["kind"], dyn.task.plant.contact_model),
-            "distance": dist,
-        })
+        rows.append(
+            {
+                "a": f"{ga['name']} ({ga['body']})",
+                "b": f"{gb['name']} ({gb['body']})",
+                "kinds": f"{ga['kind']}/{gb['kind']}",
+                "model": _pair_model(ga["kind"], gb["kind"], dyn.task.plant.contact_model),
+                "distance": dist,
+            }
+        )
     rows.sort(key=lambda r: (r["distance"] is None, r["distance"] or 0.0, r["a"], r["b"]))
     return rows
 
@@ -127,12 +131,21 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         b = layout.block(name)
         group = name in layout.groups
         idx = list(b.coords)
-        span = (f"{idx[0]}..{idx[-1]}" if idx == list(range(idx[0], idx[-1] + 1)) and len(idx) > 1
-                else ",".join(map(str, idx)))
+        span = (
+            f"{idx[0]}..{idx[-1]}"
+            if idx == list(range(idx[0], idx[-1] + 1)) and len(idx) > 1
+            else ",".join(map(str, idx))
+        )
         blocks.append({"name": name, "size": nc, "tangent": nt, "kind": kind, "group": group})
         vals = np.round(x0[idx], 4).tolist()
-        t.add_row(name, ("group, " if group else "") + kind, str(nc), str(nt), span,
-                  str(vals if len(vals) > 1 else vals[0]))
+        t.add_row(
+            name,
+            ("group, " if group else "") + kind,
+            str(nc),
+            str(nt),
+            span,
+            str(vals if len(vals) > 1 else vals[0]),
+        )
     console.print(t)
     out["blocks"] = blocks
 
@@ -152,22 +165,35 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     # ---------------------------------------------------------------- geometry
     geoms = geometry_table(dyn)
     t = Table(title="collision geometries (names for geometry overrides)", title_justify="left")
-    for col in ("geometry", "body", "shape", "hydroelastic", "modulus [Pa]", "hint [m]",
-                "friction"):
+    for col in (
+        "geometry",
+        "body",
+        "shape",
+        "hydroelastic",
+        "modulus [Pa]",
+        "hint [m]",
+        "friction",
+    ):
         t.add_column(col)
     for g in geoms:
-        t.add_row(g["name"], g["body"], g["shape"], g["kind"],
-                  "" if g["modulus"] is None else f"{g['modulus']:.3g}",
-                  "" if g["resolution_hint"] is None else f"{g['resolution_hint']:g}",
-                  "" if g["friction"] is None else f"{g['friction']:g}")
+        t.add_row(
+            g["name"],
+            g["body"],
+            g["shape"],
+            g["kind"],
+            "" if g["modulus"] is None else f"{g['modulus']:.3g}",
+            "" if g["resolution_hint"] is None else f"{g['resolution_hint']:g}",
+            "" if g["friction"] is None else f"{g['friction']:g}",
+        )
     console.print(t)
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
     if not geoms:
         warn("no collision geometry: the task has no contact at all")
 
     pairs = candidate_pairs(dyn, x0, geoms)
-    t = Table(title=f"candidate collision pairs ({len(pairs)}), closest first",
-              title_justify="left")
+    t = Table(
+        title=f"candidate collision pairs ({len(pairs)}), closest first", title_justify="left"
+    )
     for col in ("A", "B", "kinds", "contact model", "distance at x0 [m]"):
         t.add_column(col)
     shown = 40
@@ -181,20 +207,25 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
     if any(p["model"] != "hydroelastic" for p in pairs) and cfg.solver.derivatives == "autodiff":
-        warn("point-contact pairs under autodiff: Drake differentiates point contact only "
-             "when one shape is a sphere; prefer central differences or set compliance")
+        warn(
+            "point-contact pairs under autodiff: Drake differentiates point contact only "
+            "when one shape is a sphere; prefer central differences or set compliance"
+        )
 
     # ---------------------------------------------------------------- contact at x0
     try:
         contacts = dyn.contact_surfaces(x0)
     except RuntimeError as e:
-        raise SimulationError(f"contact query at the initial state: "
-                              f"{str(e).strip().splitlines()[0]}") from None
+        raise SimulationError(
+            f"contact query at the initial state: {str(e).strip().splitlines()[0]}"
+        ) from None
     out["contacts"] = [{"a": a, "b": b, "faces": n} for a, b, n in contacts]
     out["contact_faces"] = int(sum(n for _, _, n in contacts))
     if contacts:
-        console.print(f"[bold]contact at the initial state[/bold]: {len(contacts)} pair(s), "
-                      f"{out['contact_faces']} hydroelastic polygons")
+        console.print(
+            f"[bold]contact at the initial state[/bold]: {len(contacts)} pair(s), "
+            f"{out['contact_faces']} hydroelastic polygons"
+        )
         for a, b, n in contacts:
             console.print(f"  {a} / {b}: " + (f"{n} polygons" if n else "point contact"))
     else:
@@ -212,23 +243,36 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     except SimulationError as e:
         raise SimulationError(f"rollout of the initial guess ({cfg.initial_guess}): {e}") from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
-    speed = float(np.max(np.abs(X[:, dyn.nq:]))) if dyn.nv else 0.0
-    out.update({"one_step_ok": bool(np.all(np.isfinite(x1))), "rollout_steps": N,
-                "max_speed": speed, "step_ms": step_ms, "rollout_ms_per_step": rollout_ms})
+    speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
+    out.update(
+        {
+            "one_step_ok": bool(np.all(np.isfinite(x1))),
+            "rollout_steps": N,
+            "max_speed": speed,
+            "step_ms": step_ms,
+            "rollout_ms_per_step": rollout_ms,
+        }
+    )
     console.print(
         f"[bold]simulation[/bold]: one step ok ({step_ms:.2f} ms); {N}-step rollout of the "
         f"initial guess ({cfg.initial_guess}) ok, {rollout_ms:.2f} ms/step, "
         f"max |v| = {speed:.3g}"
     )
     if speed > BLOWUP_SPEED:
-        warn(f"the initial-guess rollout reaches |v| = {speed:.3g} (> {BLOWUP_SPEED:g}): "
-             "check masses, the time step and initial penetrations")
+        warn(
+            f"the initial-guess rollout reaches |v| = {speed:.3g} (> {BLOWUP_SPEED:g}): "
+            "check masses, the time step and initial penetrations"
+        )
     if out["contact_faces"] > 500:
-        warn(f"{out['contact_faces']} contact polygons at x0: consider a coarser "
-             "resolution_hint (the polygon count dominates the cost of derivatives)")
+        warn(
+            f"{out['contact_faces']} contact polygons at x0: consider a coarser "
+            "resolution_hint (the polygon count dominates the cost of derivatives)"
+        )
 
     for w in out["warnings"]:
         console.print(f"[yellow]warning:[/yellow] {w}")
-    console.print("[green]check passed[/green]" + (
-        f" with {len(out['warnings'])} warning(s)" if out["warnings"] else ""))
+    console.print(
+        "[green]check passed[/green]"
+        + (f" with {len(out['warnings'])} warning(s)" if out["warnings"] else "")
+    )
     return out

@@ -31,8 +31,13 @@ def add_task_args(p: argparse.ArgumentParser, positional: bool = True) -> None:
         p.add_argument("task", nargs="?", help="built-in task name or a task YAML file")
     p.add_argument("--task-file", help="a task YAML file (same as giving its path as TASK)")
     p.add_argument("--config", help="YAML file merged over the task")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a task key, e.g. solver.max_iterations=20 (repeatable)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key, e.g. solver.max_iterations=20 (repeatable)",
+    )
     p.add_argument("--smoke", action="store_true", help="shrink the task (tests, quick tries)")
 
 
@@ -57,8 +62,10 @@ class IterationTable:
 
     def __call__(self, info) -> None:
         if not self.header:
-            console.print(f"{self.prefix}[bold]{'iter':>4} {'cost':>12} {'eps':>8} {'reg':>8} "
-                          f"{'sec':>7}  rollout/deriv/backward/linesearch[/bold]")
+            console.print(
+                f"{self.prefix}[bold]{'iter':>4} {'cost':>12} {'eps':>8} {'reg':>8} "
+                f"{'sec':>7}  rollout/deriv/backward/linesearch[/bold]"
+            )
             self.header = True
         ph = info.phases
         mark = "" if info.accepted else "  (no step)"
@@ -110,15 +117,19 @@ def cmd_solve(args) -> int:
 
         ck = out / "checkpoint.npz"
         if ck.exists() and not resume_dir:
-            raise ConfigError(f"{out} holds a checkpoint: pass --resume {out} to continue it, "
-                              "or choose another --out")
+            raise ConfigError(
+                f"{out} holds a checkpoint: pass --resume {out} to continue it, "
+                "or choose another --out"
+            )
         with ResolveProgress(cfg.receding_horizon.resolves) as prog:
             sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
     else:
         sol = api.solve(task, callbacks=[IterationTable()])
     wall = time.perf_counter() - t0
-    console.print(f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
-                  f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s")
+    console.print(
+        f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
+        f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s"
+    )
     if args.view:
         from .replay import meshcat_instance
 
@@ -129,8 +140,10 @@ def cmd_solve(args) -> int:
     m = summary["metrics"]
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
     console.print("metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()))
-    console.print(f"wrote {out}/summary.json, solution.npz, convergence.png"
-                  + ("" if args.no_replay else ", replay.html"))
+    console.print(
+        f"wrote {out}/summary.json, solution.npz, convergence.png"
+        + ("" if args.no_replay else ", replay.html")
+    )
     if args.view:
         from .replay import write_replay
 
@@ -170,7 +183,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="hydroilqr",
         description="Contact-implicit trajectory optimization: iLQR over Drake's hydroelastic "
-                    "contact.",
+        "contact.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -200,9 +213,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def register(name: str, helptext: str):
     """Decorator for commands defined in other modules: fn(parser) sets args and func."""
+
     def deco(setup):
         COMMANDS[name] = (helptext, setup)
         return setup
+
     return deco
 
 
@@ -243,8 +258,11 @@ def main(argv: list[str] | None = None) -> int:
         if os.environ.get("HYDROILQR_DEBUG"):
             raise
         msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        print(f"hydroilqr: internal error: {type(e).__name__}: {msg} "
-              "(set HYDROILQR_DEBUG=1 for a traceback)", file=sys.stderr)
+        print(
+            f"hydroilqr: internal error: {type(e).__name__}: {msg} "
+            "(set HYDROILQR_DEBUG=1 for a traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -528,8 +528,14 @@ def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:
     """Default shrink for tasks without a ``smoke`` section."""
     out: dict[str, Any] = {"solver.max_iterations": 3}
     if data.get("receding_horizon"):
-        out.update({"receding_horizon.window_steps": 10, "receding_horizon.shift_steps": 2,
-                    "receding_horizon.resolves": 3, "receding_horizon.max_iterations": 2})
+        out.update(
+            {
+                "receding_horizon.window_steps": 10,
+                "receding_horizon.shift_steps": 2,
+                "receding_horizon.resolves": 3,
+                "receding_horizon.max_iterations": 2,
+            }
+        )
     else:
         out["num_steps"] = 20
     return out

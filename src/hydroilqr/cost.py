@@ -38,8 +38,17 @@ class Quadratization:
 class QuadraticCost:
     """Diagonal quadratic cost. q, qf: [2 nv] tangent weights; r: [nu]; x_nom: [nx]."""
 
-    def __init__(self, layout: StateLayout, q, qf, r, x_nom, rate, dt: float,
-                 terms: dict[str, tuple[str, tuple[int, ...]]] | None = None):
+    def __init__(
+        self,
+        layout: StateLayout,
+        q,
+        qf,
+        r,
+        x_nom,
+        rate,
+        dt: float,
+        terms: dict[str, tuple[str, tuple[int, ...]]] | None = None,
+    ):
         self.layout = layout
         self.q = np.asarray(q, float)
         self.qf = np.asarray(qf, float)
@@ -106,7 +115,8 @@ class QuadraticCost:
         R = self.layout.diff(X, self.nominal(self.times(N, t0)))  # [N+1, 2nv]
         c = np.empty(N + 1)
         c[:N] = np.einsum("ki,i,ki->k", R[:N], self.q, R[:N]) + np.einsum(
-            "ki,i,ki->k", U, self.r, U)
+            "ki,i,ki->k", U, self.r, U
+        )
         c[N] = R[N] @ (self.qf * R[N])
         return c
 

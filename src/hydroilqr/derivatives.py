@@ -76,7 +76,7 @@ def linearize(
         nxt = X[np.asarray(keys) + 1] if rollout else None
         Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt)
         return _interpolate(keys, Ak, Bk, N)
-    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, X[1:N + 1] if rollout else None)
+    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, X[1 : N + 1] if rollout else None)
 
 
 def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
@@ -89,8 +89,15 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
             except _PoolUnavailable:
                 dyn._ad_pool = False  # e.g. inside a daemonic worker: stay serial from now on
         return _autodiff(dyn, X[:N], U)
-    return _finite_differences(dyn, X[:N], U, central=method is DerivativeMethod.CENTRAL,
-                               eps=eps, threads=threads, next_states=next_states)
+    return _finite_differences(
+        dyn,
+        X[:N],
+        U,
+        central=method is DerivativeMethod.CENTRAL,
+        eps=eps,
+        threads=threads,
+        next_states=next_states,
+    )
 
 
 def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
@@ -147,8 +154,15 @@ def _autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray):
     return A, B
 
 
-def _finite_differences(dyn: Dynamics, X, U, central: bool, eps: float, threads: int,
-                        next_states: np.ndarray | None = None):
+def _finite_differences(
+    dyn: Dynamics,
+    X,
+    U,
+    central: bool,
+    eps: float,
+    threads: int,
+    next_states: np.ndarray | None = None,
+):
     N, nx, nu = U.shape[0], dyn.nx, dyn.nu
     nz = nx + nu
     Z = np.concatenate([X, U], axis=1)  # [N, nz]
@@ -170,7 +184,7 @@ def _finite_differences(dyn: Dynamics, X, U, central: bool, eps: float, threads:
     if central:
         D = (out[:, :nz] - out[:, nz:]) / (2.0 * H[:, :, None])
     else:
-        D = (out[:, :nz] - out[:, nz:nz + 1]) / H[:, :, None]
+        D = (out[:, :nz] - out[:, nz : nz + 1]) / H[:, :, None]
     # D: [N, nz, nx] with D[k, i] = ∂f/∂z_i -> transpose to [N, nx, nz]
     J = np.transpose(D, (0, 2, 1))
     return np.ascontiguousarray(J[:, :, :nx]), np.ascontiguousarray(J[:, :, nx:])
@@ -185,9 +199,13 @@ def _batch_step(dyn: Dynamics, Z: np.ndarray, threads: int) -> np.ndarray:
     times = np.zeros((1, M))
     try:
         out = BatchEvalUniquePeriodicDiscreteUpdate(
-            dyn.diagram, dyn.context, times, states, inputs,
-            num_time_steps=1, input_port_index=dyn.diagram.get_input_port(
-                dyn.scene.actuation_port).get_index(),
+            dyn.diagram,
+            dyn.context,
+            times,
+            states,
+            inputs,
+            num_time_steps=1,
+            input_port_index=dyn.diagram.get_input_port(dyn.scene.actuation_port).get_index(),
             parallelize=Parallelism(num_threads(threads)),
         )
     except RuntimeError as e:
@@ -231,8 +249,10 @@ def _autodiff_pool(dyn: Dynamics, workers: int):
         from concurrent.futures import ProcessPoolExecutor
 
         pool = ProcessPoolExecutor(
-            max_workers=workers - 1, mp_context=multiprocessing.get_context("spawn"),
-            initializer=_worker_init, initargs=(dyn.task.to_dict(), dyn.task.base_dir),
+            max_workers=workers - 1,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_worker_init,
+            initargs=(dyn.task.to_dict(), dyn.task.base_dir),
         )
         atexit.register(pool.shutdown, wait=False, cancel_futures=True)
         dyn._ad_pool = pool

@@ -178,8 +178,17 @@ def solve(
     accepted = False
 
     def partials(X, U):
-        return linearize(dyn, X, U, method, s.fd_epsilon, s.threads, s.derivative_interval,
-                         rollout=True, adaptive=s.derivative_adaptive)
+        return linearize(
+            dyn,
+            X,
+            U,
+            method,
+            s.fd_epsilon,
+            s.threads,
+            s.derivative_interval,
+            rollout=True,
+            adaptive=s.derivative_adaptive,
+        )
 
     for it in range(max_it):
         t_it = time.perf_counter()

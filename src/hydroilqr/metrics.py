@@ -20,6 +20,7 @@ def metric(name: str):
     def deco(fn):
         METRICS[name] = fn
         return fn
+
     return deco
 
 

@@ -131,15 +131,16 @@ def cheetah_metrics(task, sol) -> dict:
     out = {
         "target_velocity_mps": v_target,
         "mean_forward_velocity_mps": v_mean,
-        "velocity_error_fraction": (abs(v_mean - v_target) / abs(v_target)
-                                    if v_target else abs(v_mean)),
+        "velocity_error_fraction": (
+            abs(v_mean - v_target) / abs(v_target) if v_target else abs(v_mean)
+        ),
         "min_body_height_m": float(np.min(X[settled, pos.coords[2]])),
         "body_ground_contact_steps": int(np.sum(body[settled])),
         "duty_factor": {lab: float(np.sum(f[:, j]) / n) for j, lab in enumerate(labels)},
-        "diagonal_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n
-                                                for a, b in DIAGONAL])),
-        "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n
-                                               for a, b in LATERAL])),
+        "diagonal_pair_overlap": float(
+            np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in DIAGONAL])
+        ),
+        "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in LATERAL])),
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,

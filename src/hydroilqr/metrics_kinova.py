@@ -73,7 +73,8 @@ def kinova_metrics(task, sol) -> dict:
     err = np.where(w > 0, P[-1] - targets[-1], 0.0)
     steps, max_faces = ball_contacts(task, sol, name)
     order = [b for b in _body_order(task) if b in steps] + sorted(
-        b for b in steps if b not in _body_order(task))
+        b for b in steps if b not in _body_order(task)
+    )
     return {
         "ball_start_m": P[0],
         "ball_final_m": P[-1],

@@ -55,9 +55,11 @@ class Scene:
 # ------------------------------------------------------------------------------------------
 
 
-def _proximity_props(p: ContactProperties, old: ProximityProperties | None,
-                     shape: str = "") -> ProximityProperties:
+def _proximity_props(
+    p: ContactProperties, old: ProximityProperties | None, shape: str = ""
+) -> ProximityProperties:
     """New ProximityProperties: the old material/hydroelastic values overridden by ``p``."""
+
     def old_value(group, name, default=None):
         if old is not None and old.HasProperty(group, name):
             return old.GetProperty(group, name)
@@ -71,8 +73,9 @@ def _proximity_props(p: ContactProperties, old: ProximityProperties | None,
     if dissipation is None:
         dissipation = old_value("material", "hunt_crossley_dissipation")
     stiffness = old_value("material", "point_contact_stiffness")
-    AddContactMaterial(dissipation=dissipation, point_stiffness=stiffness, friction=friction,
-                       properties=props)
+    AddContactMaterial(
+        dissipation=dissipation, point_stiffness=stiffness, friction=friction, properties=props
+    )
     relaxation = p.relaxation_time
     if relaxation is None:
         relaxation = old_value("material", "relaxation_time")
@@ -86,8 +89,11 @@ def _proximity_props(p: ContactProperties, old: ProximityProperties | None,
             compliance = "compliant"
         elif old is not None and old.HasGroup("hydroelastic") or shape:
             compliance = "rigid"
-    hint = p.resolution_hint if p.resolution_hint is not None else old_value(
-        "hydroelastic", "resolution_hint")
+    hint = (
+        p.resolution_hint
+        if p.resolution_hint is not None
+        else old_value("hydroelastic", "resolution_hint")
+    )
     if compliance == "compliant":
         modulus = p.hydroelastic_modulus if p.hydroelastic_modulus is not None else old_modulus
         if modulus is None:
@@ -132,7 +138,7 @@ def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
 
 
 def hydroelastic_kind(props) -> str:
-    """"compliant", "rigid" or "none" for a geometry's ProximityProperties (or None).
+    """ "compliant", "rigid" or "none" for a geometry's ProximityProperties (or None).
 
     Drake's compliance type is not readable from Python; it is inferred: a hydroelastic
     modulus means compliant, any other hydroelastic property means rigid.
@@ -214,8 +220,9 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
         for wkey, w in welds:
             try:
-                parent = (plant.world_frame() if w.parent == "world"
-                          else plant.GetFrameByName(w.parent))
+                parent = (
+                    plant.world_frame() if w.parent == "world" else plant.GetFrameByName(w.parent)
+                )
                 child = None
                 for inst in instances:
                     if plant.HasFrameNamed(w.child, inst):
@@ -223,10 +230,18 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                 if child is None:
                     child = plant.GetFrameByName(w.child)
             except Exception:
-                bad = "parent" if w.parent != "world" and not plant.HasFrameNamed(
-                    w.parent) else "child"
-                frames = sorted({plant.get_frame(f).name() for inst in instances
-                                 for f in plant.GetFrameIndices(inst)})
+                bad = (
+                    "parent"
+                    if w.parent != "world" and not plant.HasFrameNamed(w.parent)
+                    else "child"
+                )
+                frames = sorted(
+                    {
+                        plant.get_frame(f).name()
+                        for inst in instances
+                        for f in plant.GetFrameIndices(inst)
+                    }
+                )
                 raise ConfigError(
                     f"{wkey}.{bad}: unknown frame {getattr(w, bad)!r} "
                     f"(frames of the model: {', '.join(frames)})"
@@ -248,8 +263,9 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         name = o.name or f"scene_{i}"
         plant.RegisterCollisionGeometry(world, X, _shape(o), name, props)
         if o.shape != "halfspace":
-            plant.RegisterVisualGeometry(world, X, _shape(o), name + "_visual", np.asarray(
-                o.color, dtype=float))
+            plant.RegisterVisualGeometry(
+                world, X, _shape(o), name + "_visual", np.asarray(o.color, dtype=float)
+            )
 
     # Overrides of the models' collision properties.
     if task.geometry:
@@ -375,8 +391,13 @@ class Dynamics:
             ad_context = ad_diagram.CreateDefaultContext()
             ad_plant = ad_diagram.GetSubsystemByName(self.plant.get_name())
             ad_plant_context = ad_plant.GetMyMutableContextFromRoot(ad_context)
-            self._ad = (ad_diagram, ad_context, ad_plant, ad_plant_context,
-                        ad_diagram.get_input_port(self.scene.actuation_port))
+            self._ad = (
+                ad_diagram,
+                ad_context,
+                ad_plant,
+                ad_plant_context,
+                ad_diagram.get_input_port(self.scene.actuation_port),
+            )
         return self._ad
 
     def default_state(self) -> np.ndarray:
@@ -434,8 +455,11 @@ class Dynamics:
 
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         query = self.plant.get_geometry_query_input_port().Eval(self.plant_context)
-        rep = (Rep.kPolygon if self.task.plant.contact_surface_representation == "polygon"
-               else Rep.kTriangle)
+        rep = (
+            Rep.kPolygon
+            if self.task.plant.contact_surface_representation == "polygon"
+            else Rep.kTriangle
+        )
         if self.task.plant.contact_model == "hydroelastic":
             return query.ComputeContactSurfaces(rep), []
         return query.ComputeContactSurfacesWithFallback(rep)

@@ -83,8 +83,10 @@ class PlaybackSettings:
         if self.policy not in POLICIES:
             raise ConfigError(f"playback policy: expected pd or ilqr, got {self.policy!r}")
         if self.truth_contact is not None and self.truth_contact not in APPROXIMATIONS:
-            raise ConfigError(f"playback truth-contact: expected one of "
-                              f"{', '.join(APPROXIMATIONS)}, got {self.truth_contact!r}")
+            raise ConfigError(
+                f"playback truth-contact: expected one of "
+                f"{', '.join(APPROXIMATIONS)}, got {self.truth_contact!r}"
+            )
 
 
 @dataclass
@@ -181,7 +183,8 @@ def truth_config(task, settings: PlaybackSettings):
     d = cfg.to_dict()
     d["plant"]["time_step"] = float(settings.truth_time_step)
     d["plant"]["contact_approximation"] = (
-        settings.truth_contact or TRUTH_CONTACT[cfg.plant.contact_approximation])
+        settings.truth_contact or TRUTH_CONTACT[cfg.plant.contact_approximation]
+    )
     from .config import parse_override
 
     for text in settings.truth_overrides:
@@ -204,8 +207,10 @@ def actuated_joints(plant):
     for a in acts:
         j = a.joint()
         if j.num_positions() != 1 or j.num_velocities() != 1:
-            raise ConfigError(f"actuator {a.name()}: joint {j.name()} is not a 1-DoF joint; "
-                              "PD+ playback needs 1-DoF actuated joints")
+            raise ConfigError(
+                f"actuator {a.name()}: joint {j.name()} is not a 1-DoF joint; "
+                "PD+ playback needs 1-DoF actuated joints"
+            )
         names.append(a.name())
         joints.append(j.name())
         units.append("m" if j.type_name() == "prismatic" else "rad")
@@ -222,16 +227,19 @@ def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
     if requested:
         b = layout.block(requested, "playback object")
         if b.kind == "quaternion":
-            raise ConfigError(f"playback object: {requested} is an orientation; "
-                              "give a position block")
-        return ObjectSpec(requested, "joint", b.coords,
-                          unit="m" if requested.endswith("position") else "")
+            raise ConfigError(
+                f"playback object: {requested} is an orientation; give a position block"
+            )
+        return ObjectSpec(
+            requested, "joint", b.coords, unit="m" if requested.endswith("position") else ""
+        )
     for b in layout.quaternions:
         base = b.name[: -len(".orientation")]
         pos = layout.primitives[f"{base}.position"]
         return ObjectSpec(pos.name, "floating", pos.coords, b.coords, "m")
-    actuated = {plant.get_joint_actuator(i).joint().index()
-                for i in plant.GetJointActuatorIndices()}
+    actuated = {
+        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
+    }
     from pydrake.multibody.tree import JointIndex
 
     first = None
@@ -296,8 +304,9 @@ class PlanSampler:
 # ------------------------------------------------------------------------------------------
 
 
-def playback(task, sol: Solution, settings: PlaybackSettings | None = None,
-             progress=None) -> PlaybackResult:
+def playback(
+    task, sol: Solution, settings: PlaybackSettings | None = None, progress=None
+) -> PlaybackResult:
     """Executes ``sol`` on the "real" system with the chosen policy. Raises SimulationError
     if the real system's time step fails, ConfigError on bad settings."""
     settings = settings or PlaybackSettings()
@@ -308,8 +317,10 @@ def playback(task, sol: Solution, settings: PlaybackSettings | None = None,
     if truth.nx != planner.nx or truth.nu != planner.nu:
         raise ConfigError("playback: the truth model's state/input size differs from the plan's")
     if sol.X.shape[1] != truth.nx or sol.U.shape[1] != truth.nu:
-        raise ConfigError(f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
-                          f"but the task has nx={truth.nx}, nu={truth.nu}")
+        raise ConfigError(
+            f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
+            f"but the task has nx={truth.nx}, nu={truth.nu}"
+        )
     plant = truth.plant
     act_names, joint_names, units, qi, vi, limits = actuated_joints(plant)
     obj = choose_object(truth, settings.object)
@@ -388,18 +399,32 @@ def playback(task, sol: Solution, settings: PlaybackSettings | None = None,
 
     t = np.arange(n + 1) * dt
     X_plan = np.array([plan.state(s * tk) for tk in t])
-    reference = Reference(np.array(ref_t), np.array(ref_q).reshape(len(ref_t), -1),
-                          np.array(ref_v).reshape(len(ref_t), -1),
-                          np.array(ref_u).reshape(len(ref_t), -1))
-    result = PlaybackResult(
-        settings=settings, planner_contact=task.config.plant.contact_approximation,
-        truth_contact=truth.task.plant.contact_approximation,
-        planner_time_step=task.config.plant.time_step, t=t, X=X, U=U, X_plan=X_plan,
-        reference=reference, joints=joint_names, joint_units=units, actuators=act_names,
-        q_indices=qi, v_indices=vi, obj=obj, metrics={}, wall_seconds=0.0,
+    reference = Reference(
+        np.array(ref_t),
+        np.array(ref_q).reshape(len(ref_t), -1),
+        np.array(ref_v).reshape(len(ref_t), -1),
+        np.array(ref_u).reshape(len(ref_t), -1),
     )
-    result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls,
-                              plan.X[-1])
+    result = PlaybackResult(
+        settings=settings,
+        planner_contact=task.config.plant.contact_approximation,
+        truth_contact=truth.task.plant.contact_approximation,
+        planner_time_step=task.config.plant.time_step,
+        t=t,
+        X=X,
+        U=U,
+        X_plan=X_plan,
+        reference=reference,
+        joints=joint_names,
+        joint_units=units,
+        actuators=act_names,
+        q_indices=qi,
+        v_indices=vi,
+        obj=obj,
+        metrics={},
+        wall_seconds=0.0,
+    )
+    result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
     if settings.policy == "pd":
         result.metrics.update(_pd_check(truth, plan.X[0], joint_names, settings))
     result.wall_seconds = time.perf_counter() - wall0
@@ -426,7 +451,8 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
         if ratio >= 2.0:
             warnings.append(
                 f"{name}: (Kd·h + Kp·h²)/M = {ratio:.2f} ≥ 2 at {st.rate:g} Hz (inertia {m:.3g}): "
-                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate")
+                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate"
+            )
     return {"pd_loop": per, "warnings": warnings}
 
 
@@ -444,8 +470,7 @@ def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
 
 
-def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls,
-             x_plan_final) -> dict:
+def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_plan_final) -> dict:
     o = r.obj
     c = list(o.coords)
     actual, planned = r.X[:, c], r.X_plan[:, c]
@@ -475,7 +500,8 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls,
         oc = list(o.orientation)
         ang = _angle_between(r.X[:, oc], r.X_plan[:, oc])
         obj["final_orientation_error_deg"] = float(
-            np.degrees(_angle_between(r.X[-1, oc], x_plan_final[oc])))
+            np.degrees(_angle_between(r.X[-1, oc], x_plan_final[oc]))
+        )
         obj["max_orientation_deviation_deg"] = float(np.degrees(ang.max()))
     q_err = r.X[:, qi] - r.X_plan[:, qi]
     v_err = r.X[:, vi] - vscale * r.X_plan[:, vi]
@@ -490,18 +516,22 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls,
         for i, (name, unit) in enumerate(zip(r.joints, r.joint_units))
     }
     torques = {
-        name: {"max_abs": float(np.max(np.abs(r.U[:, i]))) if len(r.U) else 0.0,
-               "effort_limit": float(limits[i]) if np.isfinite(limits[i]) else None}
+        name: {
+            "max_abs": float(np.max(np.abs(r.U[:, i]))) if len(r.U) else 0.0,
+            "effort_limit": float(limits[i]) if np.isfinite(limits[i]) else None,
+        }
         for i, name in enumerate(r.actuators)
     }
     st = r.settings
     return {
         "policy": st.policy,
         "settings": asdict(st),
-        "truth": {"time_step": st.truth_time_step, "contact_approximation": r.truth_contact,
-                  "overrides": list(st.truth_overrides)},
-        "planner": {"time_step": r.planner_time_step,
-                    "contact_approximation": r.planner_contact},
+        "truth": {
+            "time_step": st.truth_time_step,
+            "contact_approximation": r.truth_contact,
+            "overrides": list(st.truth_overrides),
+        },
+        "planner": {"time_step": r.planner_time_step, "contact_approximation": r.planner_contact},
         "plan_duration_s": float(r.t[-1] * st.speed),
         "playback_duration_s": float(r.t[-1]),
         "truth_steps": int(len(r.U)),
@@ -522,6 +552,7 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls,
 
 def write_reference_csv(r: PlaybackResult, path: Path) -> None:
     """time, q̄_J, v̄_J, ū at the update rate; units in the column names (docs/playback.md)."""
+
     def vunit(u):
         return "m_per_s" if u == "m" else "rad_per_s"
 
@@ -534,8 +565,9 @@ def write_reference_csv(r: PlaybackResult, path: Path) -> None:
         w = csv.writer(f)
         w.writerow(header)
         for i in range(len(ref.t)):
-            w.writerow([f"{ref.t[i]:.6f}"] + [f"{v:.9g}" for v in
-                                               np.r_[ref.q[i], ref.v[i], ref.u[i]]])
+            w.writerow(
+                [f"{ref.t[i]:.6f}"] + [f"{v:.9g}" for v in np.r_[ref.q[i], ref.v[i], ref.u[i]]]
+            )
 
 
 def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
@@ -567,10 +599,13 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     if 1 < len(r.joints) <= 12:
         ax.legend(fontsize=6, ncol=4, loc="best")
     ob = m["object"]
-    fig.suptitle(f"{title}: {m['policy']} at speed {r.settings.speed:g}, truth "
-                 f"{r.truth_contact} dt={r.settings.truth_time_step:g}\nfinal gap "
-                 f"{ob['final_gap']:.3g} {r.obj.unit}, max deviation "
-                 f"{ob['max_deviation']:.3g} {r.obj.unit}", fontsize=9)
+    fig.suptitle(
+        f"{title}: {m['policy']} at speed {r.settings.speed:g}, truth "
+        f"{r.truth_contact} dt={r.settings.truth_time_step:g}\nfinal gap "
+        f"{ob['final_gap']:.3g} {r.obj.unit}, max deviation "
+        f"{ob['max_deviation']:.3g} {r.obj.unit}",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -584,8 +619,9 @@ def write_replay(task, r: PlaybackResult, path: Path) -> None:
     replay.write_replay(task, [r.X, r.X_plan], r.t, path)
 
 
-def write_outputs(task, r: PlaybackResult, out: str | Path, replay: bool = True,
-                  run_dir: str | Path | None = None) -> dict:
+def write_outputs(
+    task, r: PlaybackResult, out: str | Path, replay: bool = True, run_dir: str | Path | None = None
+) -> dict:
     """playback.json, playback.png, reference.csv, playback.npz and (optionally)
     playback.html in ``out``. Returns the JSON dict."""
     from .report import write_json
@@ -595,9 +631,17 @@ def write_outputs(task, r: PlaybackResult, out: str | Path, replay: bool = True,
     data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
     write_json(out / "playback.json", data)
     write_reference_csv(r, out / "reference.csv")
-    np.savez_compressed(out / "playback.npz", t=r.t, X=r.X, U=r.U, X_plan=r.X_plan,
-                        ref_t=r.reference.t, ref_q=r.reference.q, ref_v=r.reference.v,
-                        ref_u=r.reference.u)
+    np.savez_compressed(
+        out / "playback.npz",
+        t=r.t,
+        X=r.X,
+        U=r.U,
+        X_plan=r.X_plan,
+        ref_t=r.reference.t,
+        ref_q=r.reference.q,
+        ref_v=r.reference.v,
+        ref_u=r.reference.u,
+    )
     plot_playback(r, out / "playback.png", task.name)
     if replay:
         write_replay(task, r, out / "playback.html")
@@ -613,39 +657,59 @@ def cmd_playback(args) -> int:
     task, sol, _ = load_run(args.dir)
     speed = args.speed if args.speed is not None else (0.5 if args.policy == "pd" else 1.0)
     settings = PlaybackSettings(
-        speed=speed, kp=args.kp, kd=args.kd, rate=args.rate, update_period=args.update_period,
-        policy=args.policy, truth_time_step=args.truth_time_step,
-        truth_contact=args.truth_contact, truth_overrides=list(args.truth_set or []),
+        speed=speed,
+        kp=args.kp,
+        kd=args.kd,
+        rate=args.rate,
+        update_period=args.update_period,
+        policy=args.policy,
+        truth_time_step=args.truth_time_step,
+        truth_contact=args.truth_contact,
+        truth_overrides=list(args.truth_set or []),
         clip_torques=not args.no_clip,
-        scale_velocity_reference=not args.no_velocity_scaling, object=args.object,
+        scale_velocity_reference=not args.no_velocity_scaling,
+        object=args.object,
     )
     settings.validate()
     out = Path(args.out or Path(args.dir) / f"playback-{args.policy}")
     con = cli.console
-    truth_contact = settings.truth_contact or TRUTH_CONTACT[
-        task.config.plant.contact_approximation]
-    con.print(f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {speed:g}, "
-              f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
-              f"(plan dt={task.config.plant.time_step:g} "
-              f"contact={task.config.plant.contact_approximation}) -> {out}")
+    truth_contact = settings.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
+    con.print(
+        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {speed:g}, "
+        f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
+        f"(plan dt={task.config.plant.time_step:g} "
+        f"contact={task.config.plant.contact_approximation}) -> {out}"
+    )
     r = playback(task, sol, settings)
     data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
     ob = data["object"]
     unit = ob["unit"]
-    con.print(f"{data['truth_steps']} truth steps in {r.wall_seconds:.2f} s; object "
-              f"{ob['name']}: final gap {ob['final_gap']:.4g} {unit}, max deviation "
-              f"{ob['max_deviation']:.4g} {unit}, progress ratio "
-              f"{_fmt(ob['progress_ratio'])}")
-    con.print(f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
-              f"saturated commands {100 * data['saturated_fraction']:.1f}%")
+    con.print(
+        f"{data['truth_steps']} truth steps in {r.wall_seconds:.2f} s; object "
+        f"{ob['name']}: final gap {ob['final_gap']:.4g} {unit}, max deviation "
+        f"{ob['max_deviation']:.4g} {unit}, progress ratio "
+        f"{_fmt(ob['progress_ratio'])}"
+    )
+    con.print(
+        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
+        f"saturated commands {100 * data['saturated_fraction']:.1f}%"
+    )
     for w in data.get("warnings", []):
         con.print(f"[yellow]warning:[/yellow] {w}")
-    if (settings.policy == "pd" and ob["kind"] == "joint" and unit == "rad"
-            and ob["final_gap"] > 0.5):
-        con.print("[yellow]note:[/yellow] PD+ has no feedback on unactuated joints, so an "
-                  "underactuated system like the cart-pole falls; try --policy ilqr")
-    con.print(f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
-              + ("" if args.no_replay else ", playback.html"))
+    if (
+        settings.policy == "pd"
+        and ob["kind"] == "joint"
+        and unit == "rad"
+        and ob["final_gap"] > 0.5
+    ):
+        con.print(
+            "[yellow]note:[/yellow] PD+ has no feedback on unactuated joints, so an "
+            "underactuated system like the cart-pole falls; try --policy ilqr"
+        )
+    con.print(
+        f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
+        + ("" if args.no_replay else ", playback.html")
+    )
     return 0
 
 
@@ -653,34 +717,65 @@ def _fmt(v) -> str:
     return "n/a" if v is None else f"{v:.3g}"
 
 
-@cli.register("playback", "execute a solved trajectory open loop (PD+, paper §V) on a finer "
-              "'real' simulation and compare planned vs actual")
+@cli.register(
+    "playback",
+    "execute a solved trajectory open loop (PD+, paper §V) on a finer "
+    "'real' simulation and compare planned vs actual",
+)
 def setup(p) -> None:
-    p.add_argument("dir", help="output directory of `hydroilqr solve` (summary.json, "
-                   "solution.npz)")
-    p.add_argument("--speed", type=float, default=None,
-                   help="playback speed (plan time per playback second); default 0.5 for pd, "
-                   "1 for ilqr")
+    p.add_argument("dir", help="output directory of `hydroilqr solve` (summary.json, solution.npz)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        help="playback speed (plan time per playback second); default 0.5 for pd, 1 for ilqr",
+    )
     p.add_argument("--kp", type=float, default=500.0, help="PD+ stiffness (default 500)")
     p.add_argument("--kd", type=float, default=5.0, help="PD+ damping (default 5)")
     p.add_argument("--rate", type=float, default=1000.0, help="PD+ control rate, Hz")
-    p.add_argument("--update-period", type=float, default=0.02,
-                   help="seconds between reference updates (default 0.02)")
-    p.add_argument("--policy", choices=POLICIES, default="pd",
-                   help="pd: PD+ on the joints (eq. 11); ilqr: u = ū − K(x − x̄) (eq. 8)")
-    p.add_argument("--truth-time-step", type=float, default=0.001,
-                   help="time step of the 'real' simulation (default 0.001)")
-    p.add_argument("--truth-contact", choices=APPROXIMATIONS, default=None,
-                   help="contact approximation of the 'real' simulation (default: one "
-                   "different from the planner's: sap->similar, others->sap)")
-    p.add_argument("--truth-set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a task key of the 'real' system only, e.g. "
-                   "ball.friction=0.3 (repeatable)")
-    p.add_argument("--object", help="state block compared planned vs actual (default: the "
-                   "floating body, else the first unactuated joint)")
+    p.add_argument(
+        "--update-period",
+        type=float,
+        default=0.02,
+        help="seconds between reference updates (default 0.02)",
+    )
+    p.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="pd",
+        help="pd: PD+ on the joints (eq. 11); ilqr: u = ū − K(x − x̄) (eq. 8)",
+    )
+    p.add_argument(
+        "--truth-time-step",
+        type=float,
+        default=0.001,
+        help="time step of the 'real' simulation (default 0.001)",
+    )
+    p.add_argument(
+        "--truth-contact",
+        choices=APPROXIMATIONS,
+        default=None,
+        help="contact approximation of the 'real' simulation (default: one "
+        "different from the planner's: sap->similar, others->sap)",
+    )
+    p.add_argument(
+        "--truth-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key of the 'real' system only, e.g. ball.friction=0.3 (repeatable)",
+    )
+    p.add_argument(
+        "--object",
+        help="state block compared planned vs actual (default: the "
+        "floating body, else the first unactuated joint)",
+    )
     p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
-    p.add_argument("--no-velocity-scaling", action="store_true",
-                   help="use the plan's v̄_J unscaled (default scales it by the speed)")
+    p.add_argument(
+        "--no-velocity-scaling",
+        action="store_true",
+        help="use the plan's v̄_J unscaled (default scales it by the speed)",
+    )
     p.add_argument("--no-replay", action="store_true", help="skip playback.html")
     p.add_argument("--out", help="output directory (default DIR/playback-POLICY)")
     p.set_defaults(func=cmd_playback)

@@ -18,8 +18,12 @@ class ResolveProgress:
 
     def __init__(self, total: int):
         self.progress = Progress(
-            TextColumn("[bold]resolves"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("{task.fields[info]}"), TimeElapsedColumn(), TextColumn("left"),
+            TextColumn("[bold]resolves"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(),
+            TextColumn("left"),
             TimeRemainingColumn(),
         )
         self.total = total

@@ -28,9 +28,12 @@ def shift_guess(U: np.ndarray, shift: int) -> np.ndarray:
     return np.vstack([U[shift:], np.tile(U[-1], (shift, 1))])
 
 
-def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None = None,
-                   checkpoint_dir: str | Path | None = None,
-                   on_resolve: Callable[[int, int, Solution], None] | None = None) -> Solution:
+def solve_receding(
+    task,
+    callbacks: list[Callable[[IterationInfo], None]] | None = None,
+    checkpoint_dir: str | Path | None = None,
+    on_resolve: Callable[[int, int, Solution], None] | None = None,
+) -> Solution:
     """Runs the task's receding-horizon schedule. Returns the stitched Solution."""
     cfg = task.config
     rh = cfg.receding_horizon
@@ -50,12 +53,13 @@ def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None
         max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
         t_start = time.perf_counter()
         try:
-            sol = solve(task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it,
-                        final_gains=False)
+            sol = solve(
+                task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it, final_gains=False
+            )
         except SimulationError as e:
             raise SimulationError(f"resolve {r}: {e}") from None
         wall = time.perf_counter() - t_start
-        st["X"] = np.vstack([st["X"], sol.X[1:S + 1]])
+        st["X"] = np.vstack([st["X"], sol.X[1 : S + 1]])
         st["U"] = np.vstack([st["U"], sol.U[:S]])
         st["K"] = np.concatenate([st["K"], sol.K[:S]])
         st["kappa"] = np.vstack([st["kappa"], sol.kappa[:S]])
@@ -64,9 +68,15 @@ def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None
         st["iteration_seconds"] += sol.iteration_seconds
         for p in PHASES:
             st["phase_seconds"][p] += sol.phase_seconds[p]
-        st["resolves"].append({"iterations": sol.iterations, "seconds": wall,
-                               "cost": sol.final_cost, "converged": sol.converged,
-                               "reason": sol.reason})
+        st["resolves"].append(
+            {
+                "iterations": sol.iterations,
+                "seconds": wall,
+                "cost": sol.final_cost,
+                "converged": sol.converged,
+                "reason": sol.reason,
+            }
+        )
         if r == 0:
             st["costs"].insert(0, float(sol.costs[0]))
         st["done"] = r + 1
@@ -77,9 +87,14 @@ def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None
     res = st["resolves"]
     N = st["U"].shape[0]
     return Solution(
-        X=st["X"], U=st["U"], K=st["K"], kappa=st["kappa"],
-        t=dyn.dt * np.arange(N + 1), costs=np.array(st["costs"]),
-        iteration_seconds=st["iteration_seconds"], phase_seconds=st["phase_seconds"],
+        X=st["X"],
+        U=st["U"],
+        K=st["K"],
+        kappa=st["kappa"],
+        t=dyn.dt * np.arange(N + 1),
+        costs=np.array(st["costs"]),
+        iteration_seconds=st["iteration_seconds"],
+        phase_seconds=st["phase_seconds"],
         converged=all(r_["converged"] for r_ in res) if res else False,
         reason=f"{sum(r_['converged'] for r_ in res)}/{len(res)} windows converged",
         derivatives=cfg.solver.derivatives,
@@ -89,19 +104,32 @@ def solve_receding(task, callbacks: list[Callable[[IterationInfo], None]] | None
 
 def _empty_state(x0, guess, nx, nu):
     return {
-        "done": 0, "X": x0[None, :].copy(), "U": np.zeros((0, nu)), "K": np.zeros((0, nu, nx)),
-        "kappa": np.zeros((0, nu)), "guess": guess, "costs": [], "iteration_seconds": [],
-        "phase_seconds": {p: [] for p in PHASES}, "resolves": [],
+        "done": 0,
+        "X": x0[None, :].copy(),
+        "U": np.zeros((0, nu)),
+        "K": np.zeros((0, nu, nx)),
+        "kappa": np.zeros((0, nu)),
+        "guess": guess,
+        "costs": [],
+        "iteration_seconds": [],
+        "phase_seconds": {p: [] for p in PHASES},
+        "resolves": [],
     }
 
 
 def _save(path: Path, st: dict) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
-    meta = {k: st[k] for k in ("done", "costs", "iteration_seconds", "phase_seconds",
-                               "resolves")}
+    meta = {k: st[k] for k in ("done", "costs", "iteration_seconds", "phase_seconds", "resolves")}
     tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, X=st["X"], U=st["U"], K=st["K"], kappa=st["kappa"], guess=st["guess"],
-             meta=np.array(json.dumps(meta)))
+    np.savez(
+        tmp,
+        X=st["X"],
+        U=st["U"],
+        K=st["K"],
+        kappa=st["kappa"],
+        guess=st["guess"],
+        meta=np.array(json.dumps(meta)),
+    )
     os.replace(tmp, path)
 
 

@@ -36,8 +36,7 @@ def camera_for(task):
     return np.array([0.0, -3.0, 1.0]), np.array([0.0, 0.0, 0.3])
 
 
-def write_replay(task, trajectories, t: np.ndarray, path: str | Path,
-                 fps: float = 30.0) -> Path:
+def write_replay(task, trajectories, t: np.ndarray, path: str | Path, fps: float = 30.0) -> Path:
     """trajectories: X [T, nx] or a list of them (drawn in turn). t: [T] seconds."""
     if isinstance(trajectories, np.ndarray):
         trajectories = [trajectories]
@@ -48,8 +47,9 @@ def write_replay(task, trajectories, t: np.ndarray, path: str | Path,
     diagram, plant = scene.diagram, scene.plant
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyMutableContextFromRoot(context)
-    diagram.get_input_port(scene.actuation_port).FixValue(context, np.zeros(
-        plant.num_actuated_dofs()))
+    diagram.get_input_port(scene.actuation_port).FixValue(
+        context, np.zeros(plant.num_actuated_dofs())
+    )
     pos, target = camera_for(task)
     meshcat.SetCameraPose(pos, target)
     vis = scene.visualizers[0]

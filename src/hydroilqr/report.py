@@ -1,11 +1,11 @@
 """Everything a solve writes into its output directory.
 
-    solution.npz    X, U, K, kappa, t (+ statistics)          -> Solution.load
-    summary.json    task, converged, iterations, final_cost, iteration_seconds,
-                    phase_seconds, derivatives, metrics, config (the fully resolved task)
-    convergence.png cost against iteration (log scale)
-    replay.html     self-contained Meshcat replay with contact surfaces/forces
-    plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
+solution.npz    X, U, K, kappa, t (+ statistics)          -> Solution.load
+summary.json    task, converged, iterations, final_cost, iteration_seconds,
+                phase_seconds, derivatives, metrics, config (the fully resolved task)
+convergence.png cost against iteration (log scale)
+replay.html     self-contained Meshcat replay with contact surfaces/forces
+plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ def plot(name: str):
     def deco(fn):
         PLOTS[name] = fn
         return fn
+
     return deco
 
 

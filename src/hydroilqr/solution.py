@@ -66,9 +66,16 @@ class Solution:
     def save(self, path: str | Path) -> None:
         """Writes an .npz with the arrays and the statistics (as JSON inside)."""
         np.savez_compressed(
-            path, X=self.X, U=self.U, K=self.K, kappa=self.kappa, t=self.t, costs=self.costs,
-            meta=np.array(json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu,
-                                      "extra": self.extra})),
+            path,
+            X=self.X,
+            U=self.U,
+            K=self.K,
+            kappa=self.kappa,
+            t=self.t,
+            costs=self.costs,
+            meta=np.array(
+                json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu, "extra": self.extra})
+            ),
         )
 
     @staticmethod
@@ -76,10 +83,18 @@ class Solution:
         with np.load(path, allow_pickle=False) as d:
             meta = json.loads(str(d["meta"]))
             return Solution(
-                X=d["X"], U=d["U"], K=d["K"], kappa=d["kappa"], t=d["t"], costs=d["costs"],
+                X=d["X"],
+                U=d["U"],
+                K=d["K"],
+                kappa=d["kappa"],
+                t=d["t"],
+                costs=d["costs"],
                 iteration_seconds=meta["iteration_seconds"],
                 phase_seconds=meta["phase_seconds"],
-                converged=meta["converged"], reason=meta["reason"],
-                derivatives=meta["derivatives"], eps=meta.get("eps", []),
-                mu=meta.get("mu", []), extra=meta.get("extra", {}),
+                converged=meta["converged"],
+                reason=meta["reason"],
+                derivatives=meta["derivatives"],
+                eps=meta.get("eps", []),
+                mu=meta.get("mu", []),
+                extra=meta.get("extra", {}),
             )

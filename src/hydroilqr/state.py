@@ -102,14 +102,27 @@ class StateLayout:
             v0, nvj = j.velocity_start(), j.num_velocities()
             if j.type_name() == "quaternion_floating":
                 blocks += [
-                    Block(f"{name}.orientation", tuple(range(q0, q0 + 4)),
-                          tuple(range(v0, v0 + 3)), "quaternion"),
-                    Block(f"{name}.position", tuple(range(q0 + 4, q0 + 7)),
-                          tuple(range(v0 + 3, v0 + 6))),
-                    Block(f"{name}.angular_velocity", tuple(range(nq + v0, nq + v0 + 3)),
-                          tuple(range(nv + v0, nv + v0 + 3))),
-                    Block(f"{name}.velocity", tuple(range(nq + v0 + 3, nq + v0 + 6)),
-                          tuple(range(nv + v0 + 3, nv + v0 + 6))),
+                    Block(
+                        f"{name}.orientation",
+                        tuple(range(q0, q0 + 4)),
+                        tuple(range(v0, v0 + 3)),
+                        "quaternion",
+                    ),
+                    Block(
+                        f"{name}.position",
+                        tuple(range(q0 + 4, q0 + 7)),
+                        tuple(range(v0 + 3, v0 + 6)),
+                    ),
+                    Block(
+                        f"{name}.angular_velocity",
+                        tuple(range(nq + v0, nq + v0 + 3)),
+                        tuple(range(nv + v0, nv + v0 + 3)),
+                    ),
+                    Block(
+                        f"{name}.velocity",
+                        tuple(range(nq + v0 + 3, nq + v0 + 6)),
+                        tuple(range(nv + v0 + 3, nv + v0 + 6)),
+                    ),
                 ]
             else:
                 if nqj != nvj:
@@ -118,12 +131,13 @@ class StateLayout:
                     )
                 blocks += [
                     Block(name, tuple(range(q0, q0 + nqj)), tuple(range(v0, v0 + nvj))),
-                    Block(f"{name}.v", tuple(range(nq + v0, nq + v0 + nvj)),
-                          tuple(range(nv + v0, nv + v0 + nvj))),
+                    Block(
+                        f"{name}.v",
+                        tuple(range(nq + v0, nq + v0 + nvj)),
+                        tuple(range(nv + v0, nv + v0 + nvj)),
+                    ),
                 ]
-        actuators = [
-            plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()
-        ]
+        actuators = [plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()]
         return StateLayout(nq, nv, blocks, actuators)
 
     # ---------------------------------------------------------------------------- names

@@ -37,10 +37,26 @@ import numpy as np
 from .cli import add_task_args, console, register
 from .config import ConfigError, parse_override, task_file
 
-POINT_COLUMNS = ("final_cost", "max_overlap_m", "tunnelled", "iterations", "converged",
-                 "wall_seconds", "status", "error")
-EXTRA_COLUMNS = ("initial_cost", "reason", "solve_seconds", "final_angle_error_rad",
-                 "min_signed_distance_m", "wall_contact_steps", "worker", "code")
+POINT_COLUMNS = (
+    "final_cost",
+    "max_overlap_m",
+    "tunnelled",
+    "iterations",
+    "converged",
+    "wall_seconds",
+    "status",
+    "error",
+)
+EXTRA_COLUMNS = (
+    "initial_cost",
+    "reason",
+    "solve_seconds",
+    "final_angle_error_rad",
+    "min_signed_distance_m",
+    "wall_contact_steps",
+    "worker",
+    "code",
+)
 EVENT_TOPIC = "hydroilqr-sweep"
 
 
@@ -127,8 +143,14 @@ def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     a_name = task.config.metric_params.get("contact_pair", ["tip", "wall"])[0]
     gid = geometry_ids(dyn, a_name)[0]
     body = plant.GetBodyByName(dyn.geometry_names()[gid][1])
-    joint = next((plant.get_joint(j) for j in plant.GetJointIndices()
-                  if plant.get_joint(j).child_body().index() == body.index()), None)
+    joint = next(
+        (
+            plant.get_joint(j)
+            for j in plant.GetJointIndices()
+            if plant.get_joint(j).child_body().index() == body.index()
+        ),
+        None,
+    )
     inspector = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context).inspector()
     shape = inspector.GetShape(gid)
     radius = float(shape.radius()) if hasattr(shape, "radius") else 0.05
@@ -147,8 +169,14 @@ def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
-def solve_point(task_name: str, config_file: str | None, smoke: bool,
-                overrides: dict[str, Any], values: dict[str, Any], pid: str) -> dict:
+def solve_point(
+    task_name: str,
+    config_file: str | None,
+    smoke: bool,
+    overrides: dict[str, Any],
+    values: dict[str, Any],
+    pid: str,
+) -> dict:
     """Runs on a worker. Never raises: a failure comes back as status "failed" + reason."""
     t0 = time.perf_counter()
     row: dict[str, Any] = {"id": pid, **{f"param:{k}": v for k, v in values.items()}}
@@ -175,10 +203,15 @@ def solve_point(task_name: str, config_file: str | None, smoke: bool,
             sol = api.solve(task)
         row["solve_seconds"] = time.perf_counter() - ts
         cost = sol.final_cost
-        row.update(status="ok" if math.isfinite(cost) else "failed",
-                   error="" if math.isfinite(cost) else "final cost is not finite",
-                   final_cost=cost, initial_cost=float(sol.costs[0]),
-                   iterations=sol.iterations, converged=bool(sol.converged), reason=sol.reason)
+        row.update(
+            status="ok" if math.isfinite(cost) else "failed",
+            error="" if math.isfinite(cost) else "final cost is not finite",
+            final_cost=cost,
+            initial_cost=float(sol.costs[0]),
+            iterations=sol.iterations,
+            converged=bool(sol.converged),
+            reason=sol.reason,
+        )
         arrays = {"X": sol.X, "U": sol.U, "t": sol.t, "costs": np.asarray(sol.costs)}
         m = metrics_mod.compute(task, sol)
         row.update({k: v for k, v in m.items() if _scalar(v)})
@@ -190,7 +223,8 @@ def solve_point(task_name: str, config_file: str | None, smoke: bool,
             a_name, b_name = p.get("contact_pair", ["tip", "wall"])
             ia, ib = geometry_ids(task.dynamics, a_name), geometry_ids(task.dynamics, b_name)
             arrays["signed_distance"] = np.array(
-                [signed_distance(task.dynamics, x, ia, ib) for x in sol.X])
+                [signed_distance(task.dynamics, x, ia, ib) for x in sol.X]
+            )
     except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
             raise
@@ -227,10 +261,20 @@ def code_version() -> str:
 
     here = Path(__file__).parent
     try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, text=True,
-                              capture_output=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=here, text=True,
-                               capture_output=True, timeout=10).stdout.strip()
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=here,
+            text=True,
+            capture_output=True,
+            timeout=10,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "."],
+            cwd=here,
+            text=True,
+            capture_output=True,
+            timeout=10,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return ""
     return head + ("-dirty" if head and dirty else "")
@@ -272,8 +316,9 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_tables(out: Path, spec: dict, param_keys: list[str], rows: list[dict],
-                 pending: int) -> None:
+def write_tables(
+    out: Path, spec: dict, param_keys: list[str], rows: list[dict], pending: int
+) -> None:
     from .report import json_safe
 
     trs = table_rows(param_keys, rows)
@@ -285,9 +330,17 @@ def write_tables(out: Path, spec: dict, param_keys: list[str], rows: list[dict],
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols + ["id"]})
     _atomic_text(out / "sweep.csv", buf.getvalue())
     failed = sum(r.get("status") != "ok" for r in rows)
-    doc = {**spec, "summary": {"points": len(rows) + pending, "done": len(rows) - failed,
-                               "failed": failed, "missing": pending},
-           "columns": cols, "points": trs}
+    doc = {
+        **spec,
+        "summary": {
+            "points": len(rows) + pending,
+            "done": len(rows) - failed,
+            "failed": failed,
+            "missing": pending,
+        },
+        "columns": cols,
+        "points": trs,
+    }
     _atomic_text(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
 
 
@@ -301,8 +354,9 @@ def _log_axis(vals: list) -> bool:
     return bool(v) and min(v) > 0 and max(v) / min(v) >= 100
 
 
-def plot_sweep(path: Path, task_name: str, param_keys: list[str], rows: list[dict],
-               grid_values: list[list]) -> None:
+def plot_sweep(
+    path: Path, task_name: str, param_keys: list[str], rows: list[dict], grid_values: list[list]
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -313,15 +367,18 @@ def plot_sweep(path: Path, task_name: str, param_keys: list[str], rows: list[dic
     has_overlap = any(r.get("max_overlap_m") is not None for r in rows)
     panels = (["max_overlap_m"] if has_overlap else []) + ["final_cost"]
     labels = {"max_overlap_m": "max overlap [m]", "final_cost": "optimal cost"}
-    fig, axes = plt.subplots(len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4),
-                             sharex=True, squeeze=False)
-    series = [(None, rows)] if other is None else [
-        (v, [r for r in rows if r.get(f"param:{other}") == v]) for v in grid_values[1]]
+    fig, axes = plt.subplots(
+        len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4), sharex=True, squeeze=False
+    )
+    series = (
+        [(None, rows)]
+        if other is None
+        else [(v, [r for r in rows if r.get(f"param:{other}") == v]) for v in grid_values[1]]
+    )
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, metric in zip(axes[:, 0], panels):
         for j, (ov, rs) in enumerate(series):
-            ok = sorted((r for r in rs if r.get("status") == "ok"),
-                        key=lambda r: r[f"param:{key}"])
+            ok = sorted((r for r in rs if r.get("status") == "ok"), key=lambda r: r[f"param:{key}"])
             xs = [r[f"param:{key}"] for r in ok]
             ys = [r.get(metric) for r in ok]
             c = colors[j % len(colors)]
@@ -329,17 +386,31 @@ def plot_sweep(path: Path, task_name: str, param_keys: list[str], rows: list[dic
             ax.plot(xs, [np.nan if y is None else y for y in ys], "o-", color=c, ms=5, label=lab)
             tun = [(x, y) for x, y, r in zip(xs, ys, ok) if r.get("tunnelled") and y is not None]
             if tun:
-                ax.plot(*zip(*tun), "x", color="red", ms=11, mew=2.5,
-                        label="tunnelled" if j == 0 else None)
-            nconv = [(x, y) for x, y, r in zip(xs, ys, ok)
-                     if not r.get("converged") and y is not None]
+                ax.plot(
+                    *zip(*tun),
+                    "x",
+                    color="red",
+                    ms=11,
+                    mew=2.5,
+                    label="tunnelled" if j == 0 else None,
+                )
+            nconv = [
+                (x, y) for x, y, r in zip(xs, ys, ok) if not r.get("converged") and y is not None
+            ]
             if nconv:
-                ax.plot(*zip(*nconv), "o", mfc="none", mec="k", ms=10,
-                        label="not converged" if j == 0 else None)
+                ax.plot(
+                    *zip(*nconv),
+                    "o",
+                    mfc="none",
+                    mec="k",
+                    ms=10,
+                    label="not converged" if j == 0 else None,
+                )
             bad = [r[f"param:{key}"] for r in rs if r.get("status") != "ok"]
             for i, x in enumerate(bad):
-                ax.axvline(x, color="gray", ls=":", lw=1.2,
-                           label="failed" if (i == 0 and j == 0) else None)
+                ax.axvline(
+                    x, color="gray", ls=":", lw=1.2, label="failed" if (i == 0 and j == 0) else None
+                )
         ax.set_ylabel(labels.get(metric, metric))
         if metric == "final_cost":
             costs = [r.get("final_cost") for r in rows if r.get("status") == "ok"]
@@ -367,8 +438,9 @@ def _representative(rows: list[dict], key: str, n: int = 4) -> list[dict]:
     return [ok[i] for i in idx]
 
 
-def plot_snapshots(path: Path, points_dir: Path, task_cfg, param_keys: list[str],
-                   rows: list[dict]) -> bool:
+def plot_snapshots(
+    path: Path, points_dir: Path, task_cfg, param_keys: list[str], rows: list[dict]
+) -> bool:
     """Pole + wall in the x-z plane at the step of maximum overlap, a few points side by side."""
     import matplotlib
 
@@ -401,11 +473,20 @@ def plot_snapshots(path: Path, points_dir: Path, task_cfg, param_keys: list[str]
         rad = float(d["tip_radius"])
         for o in walls:
             color = o.color[:3] if len(o.color) >= 3 else (0.5, 0.5, 0.5)
-            ax.add_patch(Rectangle((o.xyz[0] - o.size[0] / 2, o.xyz[2] - o.size[2] / 2),
-                                   o.size[0], o.size[2], color=color, alpha=0.7, lw=0))
+            ax.add_patch(
+                Rectangle(
+                    (o.xyz[0] - o.size[0] / 2, o.xyz[2] - o.size[2] / 2),
+                    o.size[0],
+                    o.size[2],
+                    color=color,
+                    alpha=0.7,
+                    lw=0,
+                )
+            )
         ax.plot(tip[:, 0], tip[:, 2], "-", color="0.6", lw=0.8, label="tip path")
-        ax.add_patch(Rectangle((cart[k, 0] - 0.12, cart[k, 2] - 0.06), 0.24, 0.12,
-                               color=(0.2, 0.3, 0.8)))
+        ax.add_patch(
+            Rectangle((cart[k, 0] - 0.12, cart[k, 2] - 0.06), 0.24, 0.12, color=(0.2, 0.3, 0.8))
+        )
         ax.plot([pin[k, 0], tip[k, 0]], [pin[k, 2], tip[k, 2]], "-", color="0.3", lw=3)
         ax.add_patch(Circle((tip[k, 0], tip[k, 2]), rad, color=(0.9, 0.4, 0.1), alpha=0.9))
         ax.set_aspect("equal")
@@ -413,14 +494,16 @@ def plot_snapshots(path: Path, points_dir: Path, task_cfg, param_keys: list[str]
         ax.set_ylim(*ylim)
         ov = r.get("max_overlap_m") or 0.0
         tun = " TUNNELLED" if r.get("tunnelled") else ""
-        ax.set_title(f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}\n"
-                     f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}", fontsize=8)
+        ax.set_title(
+            f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}\n"
+            f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}",
+            fontsize=8,
+        )
         ax.tick_params(labelsize=7)
         ax.set_xlabel("x [m]", fontsize=8)
     axes[0, 0].set_ylabel("z [m]", fontsize=8)
     axes[0, 0].legend(fontsize=7, loc="upper right")
-    fig.suptitle("configuration of maximum overlap (grey: tip path over the horizon)",
-                 fontsize=9)
+    fig.suptitle("configuration of maximum overlap (grey: tip path over the horizon)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -445,9 +528,13 @@ class SweepProgress:
         )
 
         self.progress = Progress(
-            TextColumn("[bold]points"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("[bold]points"),
+            BarColumn(),
+            MofNCompleteColumn(),
             TextColumn("running {task.fields[running]}  failed {task.fields[failed]}"),
-            TimeElapsedColumn(), console=console, transient=False,
+            TimeElapsedColumn(),
+            console=console,
+            transient=False,
         )
         self.total, self.done, self.failed = total, already, failed
         self.running: set[str] = set()
@@ -456,8 +543,9 @@ class SweepProgress:
 
     def __enter__(self):
         self.progress.__enter__()
-        self.id = self.progress.add_task("points", total=self.total, completed=self.done,
-                                         running=0, failed=self.failed)
+        self.id = self.progress.add_task(
+            "points", total=self.total, completed=self.done, running=0, failed=self.failed
+        )
         return self
 
     def __exit__(self, *exc):
@@ -476,8 +564,9 @@ class SweepProgress:
         self._refresh()
 
     def _refresh(self) -> None:
-        self.progress.update(self.id, completed=self.done, running=len(self.running),
-                             failed=self.failed)
+        self.progress.update(
+            self.id, completed=self.done, running=len(self.running), failed=self.failed
+        )
 
 
 def _describe(row: dict, param_keys: list[str]) -> str:
@@ -490,8 +579,10 @@ def _describe(row: dict, param_keys: list[str]) -> str:
         if row.get("tunnelled"):
             extra += " [red]tunnelled[/red]"
     conv = "converged" if row.get("converged") else f"stopped ({row.get('reason')})"
-    return (f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
-            f"{row['wall_seconds']:.1f} s on {row.get('worker')}")
+    return (
+        f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
+        f"{row['wall_seconds']:.1f} s on {row.get('worker')}"
+    )
 
 
 def _open_client(scheduler: str | None, workers: int | None):
@@ -506,18 +597,32 @@ def _open_client(scheduler: str | None, workers: int | None):
             raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
         return client, None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR,
-                           # The scheduler's HTTP routes still bind a port: any free one, so
-                           # parallel sweeps do not warn about 8787 being taken.
-                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+    cluster = LocalCluster(
+        n_workers=n,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+        # The scheduler's HTTP routes still bind a port: any free one, so
+        # parallel sweeps do not warn about 8787 being taken.
+        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+    )
     return Client(cluster), cluster
 
 
-def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
-              sets: list[str] | None = None, config_file: str | None = None,
-              smoke: bool = False, scheduler: str | None = None, workers: int | None = None,
-              retry_failed: bool = False, plots: bool = True) -> dict:
+def run_sweep(
+    task: str,
+    params: list[tuple[str, list]],
+    out: str | Path,
+    *,
+    sets: list[str] | None = None,
+    config_file: str | None = None,
+    smoke: bool = False,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    retry_failed: bool = False,
+    plots: bool = True,
+) -> dict:
     """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}."""
     from .task import Task
 
@@ -529,8 +634,11 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
     if len(params) > 2:
         raise ConfigError("--param: at most two parameters (a grid)")
     path = task_file(task)
-    task_arg = task if path.parent.resolve() == (Path(__file__).parent / "tasks").resolve() \
+    task_arg = (
+        task
+        if path.parent.resolve() == (Path(__file__).parent / "tasks").resolve()
         else str(path.resolve())
+    )
     cfg_arg = str(Path(config_file).resolve()) if config_file else None
     overrides: dict[str, Any] = {}
     for s in sets or []:
@@ -549,9 +657,14 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
     out = Path(out)
     points_dir = out / "points"
     points_dir.mkdir(parents=True, exist_ok=True)
-    spec = {"task": task_cfg.name, "task_arg": task_arg, "config_file": cfg_arg,
-            "smoke": bool(smoke), "set": sorted(f"{k}={v}" for k, v in overrides.items()),
-            "params": [{"key": k, "values": v} for k, v in params]}
+    spec = {
+        "task": task_cfg.name,
+        "task_arg": task_arg,
+        "config_file": cfg_arg,
+        "smoke": bool(smoke),
+        "set": sorted(f"{k}={v}" for k, v in overrides.items()),
+        "params": [{"key": k, "values": v} for k, v in params],
+    }
     spec_file = out / "sweep_spec.json"
     if spec_file.exists():
         try:
@@ -566,7 +679,8 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                 raise ConfigError(
                     f"{out} holds a different sweep ({old.get('task')}, "
                     f"{', '.join(old_keys)}, set {old.get('set')}, smoke {old.get('smoke')}): "
-                    "choose another --out")
+                    "choose another --out"
+                )
     _atomic_text(spec_file, json.dumps(spec, indent=1))
 
     ids = [point_id(p) for p in points]
@@ -583,10 +697,12 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
         return [rows[pid] for pid in ids if pid in rows]
 
     n_failed0 = sum(r.get("status") != "ok" for r in rows.values())
-    console.print(f"[bold]sweep[/bold] {task_cfg.name}: "
-                  + " x ".join(f"{k} ({len(v)})" for k, v in params)
-                  + f" = {len(points)} points; {len(rows)} already done, {len(todo)} to compute"
-                  + f" -> {out}")
+    console.print(
+        f"[bold]sweep[/bold] {task_cfg.name}: "
+        + " x ".join(f"{k} ({len(v)})" for k, v in params)
+        + f" = {len(points)} points; {len(rows)} already done, {len(todo)} to compute"
+        + f" -> {out}"
+    )
     computed = 0
     log = out / "computed.log"
     code = code_version()
@@ -599,6 +715,7 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
             from distributed import as_completed
 
             with SweepProgress(len(points), len(rows), n_failed0) as prog:
+
                 def on_event(event):
                     msg = event[1] if isinstance(event, tuple) else event
                     if isinstance(msg, dict) and msg.get("state") == "running":
@@ -610,9 +727,17 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                     pass
                 futures = {}
                 for i in todo:
-                    f = client.submit(solve_point, task_arg, cfg_arg, bool(smoke), overrides,
-                                      points[i], ids[i], pure=False,
-                                      key=f"hydroilqr-point-{ids[i]}-{os.getpid()}-{time.time_ns()}")
+                    f = client.submit(
+                        solve_point,
+                        task_arg,
+                        cfg_arg,
+                        bool(smoke),
+                        overrides,
+                        points[i],
+                        ids[i],
+                        pure=False,
+                        key=f"hydroilqr-point-{ids[i]}-{os.getpid()}-{time.time_ns()}",
+                    )
                     futures[f] = i
                 for fut in as_completed(list(futures)):
                     i = futures[fut]
@@ -620,11 +745,15 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
                         result = fut.result()
                     except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
                         msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-                        result = {"row": {"id": ids[i],
-                                          **{f"param:{k}": v for k, v in points[i].items()},
-                                          "status": "failed",
-                                          "error": f"{type(e).__name__}: {msg}"[:500]},
-                                  "arrays": {}}
+                        result = {
+                            "row": {
+                                "id": ids[i],
+                                **{f"param:{k}": v for k, v in points[i].items()},
+                                "status": "failed",
+                                "error": f"{type(e).__name__}: {msg}"[:500],
+                            },
+                            "arrays": {},
+                        }
                     result["row"]["code"] = code
                     save_point(points_dir, result)
                     row = result["row"]
@@ -651,18 +780,27 @@ def run_sweep(task: str, params: list[tuple[str, list]], out: str | Path, *,
         plot_sweep(out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
         wrote.append("sweep.png")
         if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
-                out / "snapshots.png", points_dir, task_cfg, keys, all_rows):
+            out / "snapshots.png", points_dir, task_cfg, keys, all_rows
+        ):
             wrote.append("snapshots.png")
     failed = sum(r.get("status") != "ok" for r in all_rows)
     versions = {r.get("code") for r in all_rows if r.get("code")}
     if len(versions) > 1:
-        console.print(f"[yellow]note:[/yellow] the points were computed by {len(versions)} code "
-                      f"versions ({', '.join(sorted(versions))}); see the code column")
-    console.print(f"{len(all_rows)} points ({computed} computed now, "
-                  f"{len(all_rows) - computed} from earlier runs), {failed} failed; "
-                  f"wrote {', '.join(wrote)} in {out}")
-    return {"rows": all_rows, "computed": computed, "skipped": len(all_rows) - computed,
-            "failed": failed}
+        console.print(
+            f"[yellow]note:[/yellow] the points were computed by {len(versions)} code "
+            f"versions ({', '.join(sorted(versions))}); see the code column"
+        )
+    console.print(
+        f"{len(all_rows)} points ({computed} computed now, "
+        f"{len(all_rows) - computed} from earlier runs), {failed} failed; "
+        f"wrote {', '.join(wrote)} in {out}"
+    )
+    return {
+        "rows": all_rows,
+        "computed": computed,
+        "skipped": len(all_rows) - computed,
+        "failed": failed,
+    }
 
 
 # ------------------------------------------------------------------------------------------
@@ -680,25 +818,46 @@ def cmd_sweep(args) -> int:
     params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
-    res = run_sweep(task, params, args.out, sets=args.set, config_file=args.config,
-                    smoke=args.smoke, scheduler=args.scheduler, workers=args.workers,
-                    retry_failed=args.retry_failed)
+    res = run_sweep(
+        task,
+        params,
+        args.out,
+        sets=args.set,
+        config_file=args.config,
+        smoke=args.smoke,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        retry_failed=args.retry_failed,
+    )
     return 0 if res["rows"] else 1
 
 
 @register("sweep", "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)")
 def setup(p) -> None:
     add_task_args(p)
-    p.add_argument("--param", action="append", metavar="KEY",
-                   help="numeric task key to sweep, e.g. tip.hydroelastic_modulus "
-                        "(twice for a grid)")
-    p.add_argument("--values", action="append", metavar="SPEC",
-                   help="V1,V2,... or logspace:A:B:N or linspace:A:B:N (one per --param)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local "
-                        "cluster, one single-threaded worker process per core)")
+    p.add_argument(
+        "--param",
+        action="append",
+        metavar="KEY",
+        help="numeric task key to sweep, e.g. tip.hydroelastic_modulus (twice for a grid)",
+    )
+    p.add_argument(
+        "--values",
+        action="append",
+        metavar="SPEC",
+        help="V1,V2,... or logspace:A:B:N or linspace:A:B:N (one per --param)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local "
+        "cluster, one single-threaded worker process per core)",
+    )
     p.add_argument("--workers", type=int, help="worker processes of the local cluster")
-    p.add_argument("--retry-failed", action="store_true",
-                   help="on resume, also recompute points recorded as failed")
+    p.add_argument(
+        "--retry-failed",
+        action="store_true",
+        help="on resume, also recompute points recorded as failed",
+    )
     p.add_argument("--out", required=True, help="output directory (resumable)")
     p.set_defaults(func=cmd_sweep)

@@ -1,11 +1,11 @@
 """A task: model + contact scene + cost + initial state and guess, all from one YAML file.
 
-    task = Task.load("cartpole-wall")                      # built-in
-    task = Task.from_yaml("my_task.yaml", overrides=["solver.max_iterations=20"])
-    task.dynamics   # plant.Dynamics (built on first use)
-    task.cost       # cost.QuadraticCost
-    task.x0         # [nx]
-    task.initial_guess(N)  # [N, nu]
+task = Task.load("cartpole-wall")                      # built-in
+task = Task.from_yaml("my_task.yaml", overrides=["solver.max_iterations=20"])
+task.dynamics   # plant.Dynamics (built on first use)
+task.cost       # cost.QuadraticCost
+task.x0         # [nx]
+task.initial_guess(N)  # [N, nu]
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ class Task:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def load(cls, name_or_path: str, overrides=None, config_file: str | None = None,
-             smoke: bool = False) -> Task:
+    def load(
+        cls, name_or_path: str, overrides=None, config_file: str | None = None, smoke: bool = False
+    ) -> Task:
         """A built-in task by name, or a task YAML file by path."""
         return cls(load_task(name_or_path, overrides, config_file, smoke))
 
@@ -51,8 +52,9 @@ class Task:
 
     @functools.cached_property
     def cost(self) -> QuadraticCost:
-        return QuadraticCost.from_config(self.dynamics.layout, self.config.cost,
-                                         self.config.plant.time_step)
+        return QuadraticCost.from_config(
+            self.dynamics.layout, self.config.cost, self.config.plant.time_step
+        )
 
     @functools.cached_property
     def x0(self) -> np.ndarray:
@@ -73,8 +75,9 @@ class Task:
         metrics_mod.load_plugins()
         for name in self.config.metrics:
             if name not in metrics_mod.METRICS:
-                raise ConfigError(f"metrics: unknown metric {name!r} "
-                                  f"(known: {', '.join(metrics_mod.METRICS)})")
+                raise ConfigError(
+                    f"metrics: unknown metric {name!r} (known: {', '.join(metrics_mod.METRICS)})"
+                )
 
     def initial_guess(self, N: int, x: np.ndarray | None = None) -> np.ndarray:
         """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file."""
