@@ -17,7 +17,7 @@ def test_mpc_lockstep_brings_pole_up_and_reports_timing():
     assert res.X.shape == (51, 4) and res.U.shape == (50, 1)
     assert err[-1] < err[0] - 0.1  # moving towards upright
     s = res.stats()
-    assert s["updates"] == 24 and abs(s["achieved_rate_hz"] - 48.0) < 1e-6
+    assert s["updates"] == 24 and abs(s["achieved_rate_hz"] - 50.0) < 1e-6
     assert s["solve_seconds"]["p95"] >= s["solve_seconds"]["p50"] > 0
 
 

@@ -135,6 +135,9 @@ class SolverConfig:
     expected_decrease_tolerance: float = 1e-7
     line_search_factor: float = 0.5
     line_search_max_steps: int = 12
+    # After a failed line search μ grows and the backward pass + line search run again, at
+    # most this many times (and while μ <= regularization_max).
+    line_search_retries: int = 20
     armijo: float = 1e-4
     regularization_init: float = 1e-6
     regularization_min: float = 1e-9
@@ -147,6 +150,9 @@ class SolverConfig:
     # AutoDiff in this many processes (the time steps split between them; each worker process
     # holds its own plant). 1 = serial in this process, as in the paper; 0 = one per core.
     autodiff_workers: int = 1
+    # > 0: reuse a step's partials while its (x, u) has moved less than this (scaled max norm,
+    # |Δz_i| / max(1, |z_i|)) since they were taken; 0 = recompute every iteration.
+    derivative_reuse_tolerance: float = 0.0
 
 
 @dataclass
@@ -169,6 +175,22 @@ class MPCConfig:
     # (measured: 13 ms of wake-up per batched call on a busy 2-core machine).
     threads: int = 1
     derivatives: str = ""  # empty: the task's solver.derivatives
+    # true: the horizon ends at the task's own end time (shrinks as time passes; a
+    # point-to-point task such as a push); false: a fixed-length horizon that recedes.
+    shrinking_horizon: bool = False
+    # Controls for the steps a shifted warm start lacks: "last" repeats the last control,
+    # "guess" takes them from the task's initial guess (e.g. standing torques).
+    warm_start_tail: str = "last"
+    # Partials kept across updates (the plan only shifts): a step's partials are recomputed
+    # when its (x, u) moved more than this (see solver.derivative_reuse_tolerance); 0 =
+    # recompute every step every iteration.
+    derivative_reuse_tolerance: float = 0.0
+    # At most this many steps differentiated per iteration (those that moved most); 0 = no cap.
+    derivative_steps_per_update: int = 0
+    # Line search per update: step sizes tried (1, 1/2, ...) and retries with a larger μ. A
+    # failed search keeps the previous plan (shifted); it is not an error.
+    line_search_steps: int = 3
+    line_search_retries: int = 0
 
 
 @dataclass
@@ -501,6 +523,14 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("solver.fd_epsilon: must be positive")
     if cfg.solver.autodiff_workers < 0:
         raise ConfigError("solver.autodiff_workers: must be >= 0 (0 = one per core)")
+    if cfg.mpc.warm_start_tail not in ("last", "guess"):
+        raise ConfigError("mpc.warm_start_tail: expected last or guess")
+    if not cfg.mpc.derivative_reuse_tolerance >= 0 or cfg.mpc.derivative_steps_per_update < 0:
+        raise ConfigError(
+            "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
+        )
+    if not cfg.solver.derivative_reuse_tolerance >= 0:
+        raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
     if cfg.solver.derivative_interval < 1:
         raise ConfigError("solver.derivative_interval: must be >= 1")
     for name, p in cfg.geometry.items():

@@ -69,14 +69,127 @@ def linearize(
     N = U.shape[0]
     rollout = rollout and X.shape[0] == N + 1
     if interval > 1 and N > 2:
-        keys = set(range(0, N, interval)) | {N - 1}
-        if adaptive:
-            keys |= contact_events(dyn, X[:N])
-        keys = sorted(keys)
+        keys = keypoints(dyn, X, N, interval, adaptive)
         nxt = X[np.asarray(keys) + 1] if rollout else None
         Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt)
         return _interpolate(keys, Ak, Bk, N)
     return _fd_or_ad(dyn, X[:N], U, method, eps, threads, X[1 : N + 1] if rollout else None)
+
+
+def keypoints(dyn: Dynamics, X: np.ndarray, N: int, interval: int, adaptive: bool) -> list[int]:
+    """Steps with exact partials: every ``interval``-th, the last, and (adaptive) both sides
+    of every contact event. X: [N+1, nx] (or [N, nx])."""
+    if interval <= 1 or N <= 2:
+        return list(range(N))
+    keys = set(range(0, N, interval)) | {N - 1}
+    if adaptive:
+        keys |= contact_events(dyn, X[:N])
+    return sorted(keys)
+
+
+class Linearizer:
+    """Partials along successive trajectories, reusing those taken at (nearly) the same point.
+
+    For each time step k it keeps the point z_k = (x_k, u_k) where exact partials were last
+    taken, and those partials. A call with a new trajectory recomputes, among the keypoints
+    (see ``keypoints``), only the steps whose point moved by more than ``reuse_tolerance`` in
+    the scaled max norm ``max_i |Δz_i| / max(1, |z_i|)``. With ``max_steps > 0`` at most that
+    many are recomputed per call, those that moved most first (steps never computed come
+    first); a step never computed and left out borrows the partials of the nearest step that
+    has some. ``reuse_tolerance = 0`` and ``max_steps = 0`` give exactly ``linearize`` (only a
+    step whose (x, u) is bitwise unchanged keeps its partials).
+
+    MPC keeps one Linearizer across updates and calls ``shift(s)`` when the plan moves s steps
+    forward in time, so partials of the previous plan serve the next one (the derivatives of a
+    step are a function of its (x, u) only, not of time).
+
+    ``last_computed``: how many steps the last call differentiated.
+    """
+
+    def __init__(
+        self,
+        dyn: Dynamics,
+        method: DerivativeMethod | str,
+        eps: float = 1e-6,
+        threads: int = 0,
+        interval: int = 1,
+        adaptive: bool = False,
+        reuse_tolerance: float = 0.0,
+        max_steps: int = 0,
+    ):
+        self.dyn = dyn
+        self.method = DerivativeMethod(method)
+        self.eps, self.threads = eps, threads
+        self.interval, self.adaptive = interval, adaptive
+        self.reuse_tolerance, self.max_steps = reuse_tolerance, max_steps
+        self.Z: np.ndarray | None = None  # [N, nz] points of the cached partials (NaN: none)
+        self.A: np.ndarray | None = None  # [N, nx, nx]
+        self.B: np.ndarray | None = None  # [N, nx, nu]
+        self.last_computed = 0
+
+    @staticmethod
+    def from_settings(dyn: Dynamics, s) -> Linearizer:
+        return Linearizer(
+            dyn,
+            s.derivatives,
+            s.fd_epsilon,
+            s.threads,
+            s.derivative_interval,
+            s.derivative_adaptive,
+            s.derivative_reuse_tolerance,
+        )
+
+    def shift(self, steps: int) -> None:
+        """The plan moved ``steps`` forward: cached step k + steps becomes step k."""
+        if self.Z is not None and steps > 0:
+            self.Z, self.A, self.B = self.Z[steps:], self.A[steps:], self.B[steps:]
+
+    def _resize(self, N: int) -> None:
+        dyn = self.dyn
+        nz = dyn.nx + dyn.nu
+        if self.Z is None:
+            self.Z = np.full((0, nz), np.nan)
+            self.A = np.zeros((0, dyn.nx, dyn.nx))
+            self.B = np.zeros((0, dyn.nx, dyn.nu))
+        n = self.Z.shape[0]
+        if n > N:
+            self.Z, self.A, self.B = self.Z[:N], self.A[:N], self.B[:N]
+        elif n < N:
+            m = N - n
+            self.Z = np.vstack([self.Z, np.full((m, nz), np.nan)])
+            self.A = np.concatenate([self.A, np.zeros((m, dyn.nx, dyn.nx))])
+            self.B = np.concatenate([self.B, np.zeros((m, dyn.nx, dyn.nu))])
+
+    def __call__(self, X: np.ndarray, U: np.ndarray, rollout: bool = True):
+        """X: [N+1, nx] (a rollout of U if ``rollout``), U: [N, nu] -> A: [N, nx, nx],
+        B: [N, nx, nu]. Raises SimulationError if a step fails."""
+        N = U.shape[0]
+        self._resize(N)
+        keys = np.array(keypoints(self.dyn, X, N, self.interval, self.adaptive))
+        Z = np.concatenate([X[:N], U], axis=1)
+        with np.errstate(invalid="ignore"):
+            moved = np.max(
+                np.abs(Z[keys] - self.Z[keys]) / np.maximum(1.0, np.abs(Z[keys])), axis=1
+            )
+        moved[~np.isfinite(moved)] = np.inf
+        todo = keys[moved > self.reuse_tolerance]
+        if self.max_steps > 0 and todo.size > self.max_steps:
+            order = np.argsort(-moved[moved > self.reuse_tolerance], kind="stable")
+            todo = np.sort(todo[order[: self.max_steps]])
+        if todo.size:
+            rollout = rollout and X.shape[0] == N + 1
+            nxt = X[todo + 1] if rollout else None
+            A, B = _fd_or_ad(self.dyn, X[todo], U[todo], self.method, self.eps, self.threads, nxt)
+            self.A[todo], self.B[todo], self.Z[todo] = A, B, Z[todo]
+        self.last_computed = int(todo.size)
+        have = keys[np.isfinite(self.Z[keys, 0])]
+        if have.size < keys.size:  # never computed and over the budget: nearest neighbour
+            for k in keys[~np.isfinite(self.Z[keys, 0])]:
+                j = have[np.argmin(np.abs(have - k))]
+                self.A[k], self.B[k] = self.A[j], self.B[j]
+        if len(keys) == N:
+            return self.A.copy(), self.B.copy()
+        return _interpolate(list(keys), self.A[keys], self.B[keys], N)
 
 
 def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):

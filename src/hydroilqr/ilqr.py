@@ -31,7 +31,7 @@ import numpy as np
 
 from .config import SolverConfig
 from .cost import QuadraticCost, Quadratization
-from .derivatives import DerivativeMethod, linearize
+from .derivatives import DerivativeMethod, Linearizer
 from .plant import Dynamics, SimulationError
 from .solution import PHASES, Solution
 
@@ -149,8 +149,16 @@ def solve(
     callbacks: list[Callable[[IterationInfo], None]] | None = None,
     max_iterations: int | None = None,
     final_gains: bool = True,
+    linearizer: Linearizer | None = None,
+    X0: np.ndarray | None = None,
 ) -> Solution:
-    """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution."""
+    """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution.
+
+    ``linearizer`` computes the partials (default: one built from ``settings``); MPC passes
+    its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
+    computed (MPC: the previous plan's prediction); used instead of the initial rollout only
+    when ``X0[0]`` equals x0 exactly, since then it *is* that rollout.
+    """
     s = settings or SolverConfig()
     dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
     method = DerivativeMethod(s.derivatives)
@@ -162,10 +170,13 @@ def solve(
     iter_seconds: list[float] = []
     t_start = time.perf_counter()
     U = np.array(U0, dtype=float)
-    try:
-        X = dyn.rollout(x0, U)
-    except SimulationError as e:
-        raise SimulationError(f"initial rollout failed: {e}") from None
+    if X0 is not None and X0.shape == (N + 1, dyn.nx) and np.array_equal(X0[0], x0):
+        X = np.array(X0, dtype=float)
+    else:
+        try:
+            X = dyn.rollout(x0, U)
+        except SimulationError as e:
+            raise SimulationError(f"initial rollout failed: {e}") from None
     J = cost.total(X, U, t0)
     rollout_time = time.perf_counter() - t_start
     costs = [J]
@@ -177,18 +188,13 @@ def solve(
     eps_hist, mu_hist = [], []
     accepted = False
 
+    lin = linearizer or Linearizer.from_settings(dyn, s)
+    derivative_steps: list[int] = []
+
     def partials(X, U):
-        return linearize(
-            dyn,
-            X,
-            U,
-            method,
-            s.fd_epsilon,
-            s.threads,
-            s.derivative_interval,
-            rollout=True,
-            adaptive=s.derivative_adaptive,
-        )
+        out = lin(X, U, rollout=True)
+        derivative_steps.append(lin.last_computed)
+        return out
 
     for it in range(max_it):
         t_it = time.perf_counter()
@@ -208,6 +214,7 @@ def solve(
         eps = 0.0
         expected = 0.0
         expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
+        searches = 0
         while True:
             t = time.perf_counter()
             bp = backward_pass(A, B, quad, mu)
@@ -239,8 +246,9 @@ def solve(
             ph["line_search"] += time.perf_counter() - t
             if accepted:
                 break
+            searches += 1
             mu = _increase(mu, s)
-            if mu > s.regularization_max:
+            if mu > s.regularization_max or searches > s.line_search_retries:
                 break
 
         seconds = time.perf_counter() - t_it
@@ -306,6 +314,7 @@ def solve(
         derivatives=method.value,
         eps=eps_hist,
         mu=mu_hist,
+        extra={"derivative_steps": derivative_steps},
     )
 
 

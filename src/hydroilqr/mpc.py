@@ -24,6 +24,7 @@ for ``push_duration`` seconds to show recovery.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError
+from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
 from .plant import Dynamics, SimulationError
@@ -68,6 +70,35 @@ class MPCSettings:
     threads: int = 1
     derivatives: str = ""  # empty: the task's own
     feedback_scale: float = 1.0  # scales K in u = ū − K(x − x̄); 0 = feedforward only
+    shrinking_horizon: bool = False  # the horizon ends at the task's end time
+    warm_start_tail: str = "last"  # last | guess: controls appended to a shifted warm start
+    derivative_reuse_tolerance: float = 0.0  # keep partials of steps that moved less
+    derivative_steps_per_update: int = 0  # cap on steps differentiated per iteration (0: none)
+    line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
+    line_search_retries: int = 0  # backward pass + line search again with a larger μ
+
+    @staticmethod
+    def from_task(task, **overrides) -> MPCSettings:
+        """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
+        m = task.config.mpc
+        s = MPCSettings(
+            duration=m.duration,
+            rate=m.rate,
+            horizon=m.horizon,
+            iterations_per_update=m.iterations_per_update,
+            threads=m.threads,
+            derivatives=m.derivatives,
+            shrinking_horizon=m.shrinking_horizon,
+            warm_start_tail=m.warm_start_tail,
+            derivative_reuse_tolerance=m.derivative_reuse_tolerance,
+            derivative_steps_per_update=m.derivative_steps_per_update,
+            line_search_steps=m.line_search_steps,
+            line_search_retries=m.line_search_retries,
+        )
+        for k, v in overrides.items():
+            if v is not None:
+                setattr(s, k, v)
+        return s
 
 
 @dataclass
@@ -87,6 +118,8 @@ class MPCResult:
     wall_seconds: float
     settings: MPCSettings
     failure: str = ""  # set when the simulated plant failed (the run stops there)
+    derivative_steps: list[int] = field(default_factory=list)  # differentiated, per update
+    reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -96,7 +129,12 @@ class MPCResult:
             "duration_s": sim,
             "updates": len(self.solve_seconds),
             "requested_rate_hz": self.settings.rate,
-            "achieved_rate_hz": len(self.solve_seconds) / sim if sim > 0 else 0.0,
+            # Updates (the plan at t = 0 included) per second: 1 / mean interval between them.
+            "achieved_rate_hz": (
+                len(self.solve_seconds) / self.update_times[-1]
+                if self.update_times and self.update_times[-1] > 0
+                else 0.0
+            ),
             "horizon_s": self.settings.horizon,
             "iterations_per_update": self.settings.iterations_per_update,
             "mean_iterations": float(np.mean(self.iterations)) if self.iterations else 0.0,
@@ -113,6 +151,11 @@ class MPCResult:
             "simulation_failure": self.failure or None,
             "feedback_scale": self.settings.feedback_scale,
             "solver_failures": self.failures,
+            "shrinking_horizon": self.settings.shrinking_horizon,
+            "updates_on_prediction": int(sum(self.reused_prediction)),
+            "derivative_steps_per_update_mean": (
+                float(np.mean(self.derivative_steps)) if self.derivative_steps else 0.0
+            ),
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
                 for p in self.settings.pushes
@@ -139,34 +182,95 @@ class MPCResult:
 
 
 class Controller:
-    """Receding-horizon iLQR with warm starts. ``update(x, t)`` returns a plan."""
+    """Receding- (or shrinking-) horizon iLQR with warm starts. ``update(x, t)`` returns a plan.
 
-    def __init__(self, task, horizon_steps: int, iterations: int):
+    The partials live in one ``Linearizer`` for the whole run: when the plan shifts, so do
+    they, and a step is differentiated again only when its (x, u) moved by more than
+    ``derivative_reuse_tolerance`` (at most ``derivative_steps_per_update`` per iteration, the
+    steps that moved most first).
+    """
+
+    def __init__(
+        self, task, horizon_steps: int, iterations: int, settings: MPCSettings | None = None
+    ):
+        settings = settings or MPCSettings()
         self.task = task
         self.dyn = task.dynamics
         self.cost = task.cost
         self.N = horizon_steps
+        self.end_step = task.steps if settings.shrinking_horizon else None
+        self.tail = settings.warm_start_tail
         self.iterations = iterations
         self.U = task.initial_guess(horizon_steps)
         self.t_plan = 0.0
         self.plan: Solution | None = None
+        s = task.config.solver
+        self.linearizer = Linearizer(
+            self.dyn,
+            s.derivatives,
+            s.fd_epsilon,
+            s.threads,
+            s.derivative_interval,
+            s.derivative_adaptive,
+            settings.derivative_reuse_tolerance,
+            settings.derivative_steps_per_update,
+        )
+        self.derivative_steps: list[int] = []  # steps differentiated, per update
+        self.reused_prediction: list[bool] = []  # the measured state was the predicted one
+        # Updates search a few step sizes only; the first plan uses the task's settings.
+        self.solver_update = dataclasses.replace(
+            s,
+            line_search_max_steps=max(1, settings.line_search_steps),
+            line_search_retries=max(0, settings.line_search_retries),
+        )
 
-    def update(self, x: np.ndarray, t: float) -> tuple[Solution | None, bool]:
+    def update(self, x: np.ndarray, t: float, full: bool = False) -> tuple[Solution | None, bool]:
+        """``full``: no reuse and no cap on the partials (the first, converged plan)."""
+        dt = self.dyn.dt
+        X0 = None  # the previous plan's prediction, a rollout of the shifted controls
         if self.plan is not None:
-            shift = int(round((t - self.t_plan) / self.dyn.dt))
-            shift = min(max(shift, 0), self.N)
-            if shift:
-                self.U = np.vstack([self.U[shift:], np.tile(self.U[-1], (shift, 1))])
+            shift = int(round((t - self.t_plan) / dt))
+            shift = min(max(shift, 0), self.U.shape[0])
+            pad = None
+            if self.end_step is not None:  # shrinking: drop what has passed, append nothing
+                shift = min(shift, self.U.shape[0] - 1)
+                if shift:
+                    self.U = self.U[shift:]
+            elif shift:
+                pad = (
+                    self.task.initial_guess(shift, x)
+                    if self.tail == "guess"
+                    else np.tile(self.U[-1], (shift, 1))
+                )
+                self.U = np.vstack([self.U[shift:], pad])
+            self.linearizer.shift(shift)
+            Xp = self.plan.X[shift:]
+            if np.array_equal(Xp[0], x):  # the plant went exactly where the plan said
+                try:
+                    tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
+                    X0 = np.vstack([Xp, tail])
+                except SimulationError:
+                    X0 = None
+        self.reused_prediction.append(X0 is not None)
+        lin = self.linearizer
+        keep = lin.reuse_tolerance, lin.max_steps
+        if full:
+            lin.reuse_tolerance, lin.max_steps = 0.0, 0
         try:
             sol = ilqr_solve(
                 Problem(self.dyn, self.cost, x, t),
                 self.U,
-                self.task.config.solver,
+                self.task.config.solver if full else self.solver_update,
                 max_iterations=self.iterations,
                 final_gains=False,
+                linearizer=lin,
+                X0=X0,
             )
         except SimulationError:
             return self.plan, False
+        finally:
+            lin.reuse_tolerance, lin.max_steps = keep
+        self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
         if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
             return self.plan, False
         self.U = sol.U.copy()
@@ -219,13 +323,23 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     dt = dyn.dt
     if settings.rate <= 0 or settings.horizon <= 0 or settings.duration <= 0:
         raise ConfigError("mpc: rate, horizon and duration must be positive")
+    if settings.warm_start_tail not in ("last", "guess"):
+        raise ConfigError("mpc: warm_start_tail must be last or guess")
     N = max(2, int(round(settings.horizon / dt)))
     period_steps = max(1, int(round(1.0 / (settings.rate * dt))))
     total = int(round(settings.duration / dt))
+    if settings.shrinking_horizon:
+        N = task.steps
+        settings.horizon = N * dt
+        if total > N:
+            raise ConfigError(
+                f"mpc: a shrinking horizon ends with the task ({N * dt:g} s); the duration "
+                f"{settings.duration:g} s is longer"
+            )
     task.config.solver.threads = settings.threads
     if settings.derivatives:
         task.config.solver.derivatives = settings.derivatives
-    ctrl = Controller(task, N, settings.iterations_per_update)
+    ctrl = Controller(task, N, settings.iterations_per_update, settings)
     truth = Truth(task)
     for p in settings.pushes:  # fail early on an unknown body
         truth._set_force(p)
@@ -238,7 +352,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     # The first plan is solved to convergence before the clock starts (as a robot plans before
     # it moves); later updates run at most K iterations each.
     ctrl.iterations = task.config.solver.max_iterations
-    plan, ok = ctrl.update(x, 0.0)
+    plan, ok = ctrl.update(x, 0.0, full=True)
     ctrl.iterations = settings.iterations_per_update
     if plan is None:
         raise SimulationError("mpc: the first plan failed")
@@ -310,6 +424,8 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         wall,
         settings,
         failure,
+        ctrl.derivative_steps[1:],
+        ctrl.reused_prediction[1:],
     )
 
 
@@ -392,27 +508,24 @@ def cmd_mpc(args) -> int:
     from .cli import console, load_task_from_args
 
     task = load_task_from_args(args)
-    m = task.config.mpc
-    settings = MPCSettings(
-        duration=args.duration if args.duration is not None else m.duration,
-        rate=args.rate if args.rate is not None else m.rate,
-        horizon=args.horizon if args.horizon is not None else m.horizon,
-        iterations_per_update=(
-            args.iterations_per_update
-            if args.iterations_per_update is not None
-            else m.iterations_per_update
-        ),
+    settings = MPCSettings.from_task(
+        task,
+        duration=args.duration,
+        rate=args.rate,
+        horizon=args.horizon,
+        iterations_per_update=args.iterations_per_update,
         realtime=args.realtime,
         pushes=[Push.parse(s, args.push_duration) for s in args.push],
-        threads=args.threads if args.threads is not None else m.threads,
-        derivatives=args.derivatives or m.derivatives,
+        threads=args.threads,
+        derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
     console.print(
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
-        f"{settings.horizon:g} s, {settings.iterations_per_update} it/update, "
+        f"{horizon}, {settings.iterations_per_update} it/update, "
         f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
     )
     from rich.progress import Progress

@@ -1,0 +1,75 @@
+"""Partials kept across trajectories (derivatives.Linearizer) and MPC on a shrinking horizon."""
+
+import numpy as np
+import pytest
+
+from hydroilqr import Task
+from hydroilqr.derivatives import Linearizer, linearize
+from hydroilqr.ilqr import solve
+from hydroilqr.mpc import MPCSettings, run_mpc
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    task = Task.load("cartpole-wall", overrides=["num_steps=30"])
+    rng = np.random.default_rng(0)
+    U = 5.0 * rng.standard_normal((30, 1))
+    X = task.dynamics.rollout(task.x0, U)
+    return task, X, U
+
+
+def test_tolerance_zero_is_plain_linearize(cartpole):
+    task, X, U = cartpole
+    lin = Linearizer(task.dynamics, "forward", threads=1)
+    A, B = lin(X, U)
+    A0, B0 = linearize(task.dynamics, X, U, "forward", threads=1, rollout=True)
+    assert np.array_equal(A, A0) and np.array_equal(B, B0)
+    assert lin.last_computed == 30
+    A1, _ = lin(X, U)  # nothing moved: nothing recomputed, same partials
+    assert lin.last_computed == 0 and np.array_equal(A1, A0)
+
+
+def test_reuse_tolerance_cap_and_shift(cartpole):
+    task, X, U = cartpole
+    dyn = task.dynamics
+    lin = Linearizer(dyn, "forward", threads=1, reuse_tolerance=1e-3)
+    lin(X, U)
+    U2 = U.copy()
+    U2[[3, 17]] += 1.0  # two inputs move by far more than the tolerance ...
+    U2[5] += 1e-6  # ... one by much less
+    X2 = dyn.rollout(task.x0, U2)
+    moved = np.max(np.abs(np.c_[X2[:30], U2] - np.c_[X[:30], U]), axis=1)
+    lin(X2, U2)
+    assert lin.last_computed == int(np.sum(moved > 1e-3))
+    capped = Linearizer(dyn, "forward", threads=1, reuse_tolerance=1e-3, max_steps=2)
+    capped(X, U)
+    capped(X2, U2)
+    assert capped.last_computed == 2
+    # After shift(s) the cached partials of step k + s serve step k.
+    lin = Linearizer(dyn, "forward", threads=1)
+    A, _ = lin(X, U)
+    lin.shift(10)
+    A_shifted, _ = lin(X[10:], U[10:])
+    assert lin.last_computed == 0 and np.array_equal(A_shifted, A[10:])
+
+
+def test_known_rollout_is_not_recomputed(cartpole):
+    task, X, U = cartpole
+    problem = task.problem()
+    a = solve(problem, U, task.config.solver, max_iterations=2, final_gains=False)
+    b = solve(problem, U, task.config.solver, max_iterations=2, final_gains=False, X0=X)
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.K, b.K)
+    assert b.phase_seconds["rollout"][0] < a.phase_seconds["rollout"][0]
+
+
+def test_mpc_shrinking_horizon_on_prediction():
+    task = Task.load("kinova-forward", smoke=True)  # 10 steps of 10 ms
+    settings = MPCSettings.from_task(task, duration=0.1, rate=20.0)
+    assert settings.shrinking_horizon and settings.derivative_steps_per_update == 1
+    res = run_mpc(task, settings)
+    s = res.stats()
+    assert res.X.shape[0] == 11 and s["updates"] == 1
+    # Lock-step, same model, no push: the plant goes exactly where the plan said, so the
+    # update starts from the plan's own prediction and differentiates at most one step.
+    assert s["updates_on_prediction"] == 1
+    assert max(res.derivative_steps) <= 1
