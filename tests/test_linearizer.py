@@ -73,3 +73,9 @@ def test_mpc_shrinking_horizon_on_prediction():
     # update starts from the plan's own prediction and differentiates at most one step.
     assert s["updates_on_prediction"] == 1
     assert max(res.derivative_steps) <= 1
+    assert set(s["phase_seconds_mean"]) == {
+        "rollout",
+        "derivatives",
+        "backward_pass",
+        "line_search",
+    }

@@ -175,6 +175,7 @@ class MPCConfig:
     # (measured: 13 ms of wake-up per batched call on a busy 2-core machine).
     threads: int = 1
     derivatives: str = ""  # empty: the task's solver.derivatives
+    derivative_interval: int = 0  # 0: the task's solver.derivative_interval
     # true: the horizon ends at the task's own end time (shrinks as time passes; a
     # point-to-point task such as a push); false: a fixed-length horizon that recedes.
     shrinking_horizon: bool = False

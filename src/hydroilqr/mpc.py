@@ -37,7 +37,7 @@ from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
 from .plant import Dynamics, SimulationError
-from .solution import Solution
+from .solution import PHASES, Solution
 
 
 @dataclass
@@ -69,6 +69,7 @@ class MPCSettings:
     pushes: list[Push] = field(default_factory=list)
     threads: int = 1
     derivatives: str = ""  # empty: the task's own
+    derivative_interval: int = 0  # 0: the task's own
     feedback_scale: float = 1.0  # scales K in u = ū − K(x − x̄); 0 = feedforward only
     shrinking_horizon: bool = False  # the horizon ends at the task's end time
     warm_start_tail: str = "last"  # last | guess: controls appended to a shifted warm start
@@ -88,6 +89,7 @@ class MPCSettings:
             iterations_per_update=m.iterations_per_update,
             threads=m.threads,
             derivatives=m.derivatives,
+            derivative_interval=m.derivative_interval,
             shrinking_horizon=m.shrinking_horizon,
             warm_start_tail=m.warm_start_tail,
             derivative_reuse_tolerance=m.derivative_reuse_tolerance,
@@ -120,6 +122,7 @@ class MPCResult:
     failure: str = ""  # set when the simulated plant failed (the run stops there)
     derivative_steps: list[int] = field(default_factory=list)  # differentiated, per update
     reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
+    phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -153,6 +156,12 @@ class MPCResult:
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
+            # Mean seconds per update in each solver phase (rollout, derivatives, ...).
+            "phase_seconds_mean": {
+                p: float(np.mean([ph.get(p, 0.0) for ph in self.phases])) for p in PHASES
+            }
+            if self.phases
+            else {},
             "derivative_steps_per_update_mean": (
                 float(np.mean(self.derivative_steps)) if self.derivative_steps else 0.0
             ),
@@ -217,6 +226,7 @@ class Controller:
         )
         self.derivative_steps: list[int] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one
+        self.phases: list[dict[str, float]] = []  # seconds per solver phase, per update
         # Updates search a few step sizes only; the first plan uses the task's settings.
         self.solver_update = dataclasses.replace(
             s,
@@ -271,6 +281,7 @@ class Controller:
         finally:
             lin.reuse_tolerance, lin.max_steps = keep
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
+        self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
         if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
             return self.plan, False
         self.U = sol.U.copy()
@@ -339,6 +350,8 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     task.config.solver.threads = settings.threads
     if settings.derivatives:
         task.config.solver.derivatives = settings.derivatives
+    if settings.derivative_interval > 0:
+        task.config.solver.derivative_interval = settings.derivative_interval
     ctrl = Controller(task, N, settings.iterations_per_update, settings)
     truth = Truth(task)
     for p in settings.pushes:  # fail early on an unknown body
@@ -426,6 +439,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         failure,
         ctrl.derivative_steps[1:],
         ctrl.reused_prediction[1:],
+        ctrl.phases[1:],
     )
 
 
