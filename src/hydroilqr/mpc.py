@@ -460,7 +460,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
         for n, w in task.config.cost.Q.items()
         if np.any(np.asarray(w, float) > 0)
         and layout.block(n).kind == "euclidean"
-        and not n.endswith("velocity")
+        and "velocit" not in n
         and not n.endswith(".v")
     ][:4]
     fig, axes = plt.subplots(len(names) + 1, 1, figsize=(7, 2.0 * (len(names) + 1)), sharex=True)
