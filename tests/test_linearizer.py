@@ -79,3 +79,28 @@ def test_mpc_shrinking_horizon_on_prediction():
         "backward_pass",
         "line_search",
     }
+
+
+def test_mpc_warm_start_tail_from_guess():
+    """A shifted receding-horizon plan takes its missing last controls from the task's guess
+    (the cheetah's standing torques), not from its own end-of-horizon controls."""
+    from hydroilqr.mpc import Controller
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    settings = MPCSettings.from_task(task, horizon=0.05, iterations_per_update=1)
+    assert settings.warm_start_tail == "guess"
+    ctrl = Controller(task, 10, 1, settings)
+    plan, ok = ctrl.update(task.x0, 0.0, full=True)
+    assert ok
+    ctrl.iterations = 0  # keep the warm start as it is: look at the shifted controls
+    ctrl.update(plan.X[4], 4 * task.dynamics.dt)
+    np.testing.assert_array_equal(ctrl.U[:6], plan.U[4:])
+    np.testing.assert_array_equal(ctrl.U[6:], task.initial_guess(4, plan.X[4]))
+
+
+def test_shrinking_horizon_longer_than_task_is_a_config_error():
+    from hydroilqr.config import ConfigError
+
+    task = Task.load("kinova-forward", smoke=True)
+    with pytest.raises(ConfigError, match="shrinking horizon"):
+        run_mpc(task, MPCSettings.from_task(task, duration=1.0))
