@@ -29,6 +29,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
     solver: {max_iterations: 100, derivatives: central}
     receding_horizon: null        # {window_steps, shift_steps, resolves}
+    mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
+      {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
+       shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
     metrics: [default]
 
 Overrides use dotted keys (``--set solver.max_iterations=5``). A key whose first part names a
