@@ -10,7 +10,7 @@ import pytest
 
 from hydroilqr.cli import main
 from hydroilqr.config import ConfigError
-from hydroilqr.sweep import grid, parse_values, point_id, run_sweep
+from hydroilqr.sweep import POINT_COLUMNS, grid, parse_values, point_id, run_sweep
 
 # Tiny cart-pole-wall solves: 30 steps, 3 iterations (contact happens within 0.3 s).
 SMALL = ["num_steps=30", "solver.max_iterations=3"]
@@ -66,16 +66,7 @@ def test_three_point_sweep(swept):
     out, _ = swept
     rows = _rows(out)
     assert [float(r[KEY]) for r in rows] == [1000.0, -5.0, 1e6]
-    for col in (
-        "final_cost",
-        "max_overlap_m",
-        "tunnelled",
-        "iterations",
-        "converged",
-        "wall_seconds",
-        "status",
-        "error",
-    ):
+    for col in POINT_COLUMNS:
         assert col in rows[0]
     ok = [r for r in rows if r["status"] == "ok"]
     assert len(ok) == 2
