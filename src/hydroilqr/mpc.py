@@ -78,6 +78,19 @@ class MPCSettings:
     line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
     line_search_retries: int = 0  # backward pass + line search again with a larger μ
 
+    def check(self, task) -> None:
+        """Raises ConfigError for settings that cannot run on ``task``."""
+        if self.rate <= 0 or self.horizon <= 0 or self.duration <= 0:
+            raise ConfigError("mpc: rate, horizon and duration must be positive")
+        if self.warm_start_tail not in ("last", "guess"):
+            raise ConfigError("mpc: warm_start_tail must be last or guess")
+        dt = task.config.plant.time_step
+        if self.shrinking_horizon and int(round(self.duration / dt)) > task.steps:
+            raise ConfigError(
+                f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "
+                f"duration {self.duration:g} s is longer"
+            )
+
     @staticmethod
     def from_task(task, **overrides) -> MPCSettings:
         """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
@@ -332,21 +345,13 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     """Runs the closed loop for ``settings.duration`` seconds of simulated time."""
     dyn = task.dynamics
     dt = dyn.dt
-    if settings.rate <= 0 or settings.horizon <= 0 or settings.duration <= 0:
-        raise ConfigError("mpc: rate, horizon and duration must be positive")
-    if settings.warm_start_tail not in ("last", "guess"):
-        raise ConfigError("mpc: warm_start_tail must be last or guess")
+    settings.check(task)
     N = max(2, int(round(settings.horizon / dt)))
     period_steps = max(1, int(round(1.0 / (settings.rate * dt))))
     total = int(round(settings.duration / dt))
     if settings.shrinking_horizon:
         N = task.steps
         settings.horizon = N * dt
-        if total > N:
-            raise ConfigError(
-                f"mpc: a shrinking horizon ends with the task ({N * dt:g} s); the duration "
-                f"{settings.duration:g} s is longer"
-            )
     task.config.solver.threads = settings.threads
     if settings.derivatives:
         task.config.solver.derivatives = settings.derivatives
@@ -534,6 +539,7 @@ def cmd_mpc(args) -> int:
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
     )
+    settings.check(task)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
