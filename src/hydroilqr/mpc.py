@@ -220,7 +220,7 @@ class Controller:
         self.dyn = task.dynamics
         self.cost = task.cost
         self.N = horizon_steps
-        self.end_step = task.steps if settings.shrinking_horizon else None
+        self.shrinking = settings.shrinking_horizon  # the plan ends at the task's end
         self.tail = settings.warm_start_tail
         self.iterations = iterations
         self.U = task.initial_guess(horizon_steps)
@@ -255,7 +255,7 @@ class Controller:
             shift = int(round((t - self.t_plan) / dt))
             shift = min(max(shift, 0), self.U.shape[0])
             pad = None
-            if self.end_step is not None:  # shrinking: drop what has passed, append nothing
+            if self.shrinking:  # drop what has passed, append nothing
                 shift = min(shift, self.U.shape[0] - 1)
                 if shift:
                     self.U = self.U[shift:]
