@@ -84,6 +84,10 @@ class MPCSettings:
             raise ConfigError("mpc: rate, horizon and duration must be positive")
         if self.warm_start_tail not in ("last", "guess"):
             raise ConfigError("mpc: warm_start_tail must be last or guess")
+        plant = task.dynamics.plant
+        for p in self.pushes:
+            if not plant.HasBodyNamed(p.body):
+                raise ConfigError(f"--push: no body named {p.body!r}")
         dt = task.config.plant.time_step
         if self.shrinking_horizon and int(round(self.duration / dt)) > task.steps:
             raise ConfigError(

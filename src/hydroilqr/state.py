@@ -194,7 +194,8 @@ class StateLayout:
             if vals.size == 1:
                 vals = np.full(n, vals[0])
             if vals.size != n:
-                raise ConfigError(f"{key}.{name}: expected 1 or {n} values, got {vals.size}")
+                want = "1 value" if n == 1 else f"1 or {n} values"
+                raise ConfigError(f"{key}.{name}: expected {want}, got {vals.size}")
             w[list(b.tangent)] = vals
         return w
 
