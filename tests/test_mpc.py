@@ -3,9 +3,11 @@
 import json
 
 import numpy as np
+import pytest
 
 from hydroilqr import Task
 from hydroilqr.cli import main
+from hydroilqr.config import ConfigError
 from hydroilqr.mpc import MPCSettings, Push, run_mpc
 
 
@@ -77,3 +79,23 @@ def test_mpc_cli(tmp_path):
         )
         == 2
     )
+
+
+def test_mpc_truth_overrides_change_the_plant_only():
+    task = Task.load("cartpole-wall")
+    same = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2))
+    heavier = run_mpc(
+        task,
+        MPCSettings(
+            duration=0.2, rate=50.0, horizon=0.2, truth_overrides=["plant.gravity=[0, 0, -12]"]
+        ),
+    )
+    # Same model: the plant lands exactly on the plan's prediction; a mismatch never does.
+    assert same.stats()["updates_on_prediction"] == same.stats()["updates"] > 0
+    assert heavier.stats()["updates_on_prediction"] == 0
+    assert heavier.stats()["truth_overrides"] == ["plant.gravity=[0, 0, -12]"]
+    assert not np.allclose(same.X, heavier.X)
+    assert task.config.plant.gravity[2] == -9.81  # the controller's model is untouched
+    bad = MPCSettings(duration=0.2, truth_overrides=["plant.time_step=0.001"])
+    with pytest.raises(ConfigError, match="time step"):
+        bad.check(task)

@@ -385,6 +385,15 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key.strip(), value
 
 
+def with_overrides(cfg: TaskConfig, overrides: list[str]) -> TaskConfig:
+    """A copy of a loaded task with ``key=value`` overrides applied (validated again)."""
+    d = cfg.to_dict()
+    for text in overrides:
+        key, value = parse_override(text)
+        _set_dotted(d, key, value)
+    return task_from_dict(d, cfg.base_dir)
+
+
 def task_file(name_or_path: str) -> Path:
     """Built-in task name or a path to a task YAML file."""
     p = Path(name_or_path)

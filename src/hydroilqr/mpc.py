@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError
+from .config import ConfigError, with_overrides
 from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
@@ -77,6 +77,8 @@ class MPCSettings:
     derivative_steps_per_update: int = 0  # cap on steps differentiated per iteration (0: none)
     line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
     line_search_retries: int = 0  # backward pass + line search again with a larger μ
+    # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
+    truth_overrides: list[str] = field(default_factory=list)
 
     def check(self, task) -> None:
         """Raises ConfigError for settings that cannot run on ``task``."""
@@ -89,6 +91,13 @@ class MPCSettings:
             if not plant.HasBodyNamed(p.body):
                 raise ConfigError(f"--push: no body named {p.body!r}")
         dt = task.config.plant.time_step
+        if self.truth_overrides:
+            truth = with_overrides(task.config, self.truth_overrides)
+            if truth.plant.time_step != dt:
+                raise ConfigError(
+                    "--truth-set: the simulated plant steps with the controller's time step "
+                    f"({dt:g} s); plant.time_step cannot differ"
+                )
         if self.shrinking_horizon and int(round(self.duration / dt)) > task.steps:
             raise ConfigError(
                 f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "
@@ -182,6 +191,7 @@ class MPCResult:
             "derivative_steps_per_update_mean": (
                 float(np.mean(self.derivative_steps)) if self.derivative_steps else 0.0
             ),
+            "truth_overrides": list(self.settings.truth_overrides),
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
                 for p in self.settings.pushes
@@ -310,8 +320,15 @@ class Controller:
 class Truth:
     """The simulated plant being controlled (its own Drake context), with external pushes."""
 
-    def __init__(self, task):
-        self.dyn = Dynamics(task.config)
+    def __init__(self, task, overrides: list[str] | None = None):
+        cfg = with_overrides(task.config, overrides) if overrides else task.config
+        self.dyn = Dynamics(cfg)
+        ref = task.dynamics
+        if (self.dyn.nx, self.dyn.nu) != (ref.nx, ref.nu):
+            raise ConfigError(
+                f"--truth-set: the simulated plant has nx={self.dyn.nx}, nu={self.dyn.nu}; "
+                f"the controller's has nx={ref.nx}, nu={ref.nu}"
+            )
         self.plant = self.dyn.plant
         self.limits = self.dyn.effort_limits
         self.port = self.plant.get_applied_spatial_force_input_port()
@@ -362,7 +379,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     if settings.derivative_interval > 0:
         task.config.solver.derivative_interval = settings.derivative_interval
     ctrl = Controller(task, N, settings.iterations_per_update, settings)
-    truth = Truth(task)
+    truth = Truth(task, settings.truth_overrides)
     for p in settings.pushes:  # fail early on an unknown body
         truth._set_force(p)
     truth._set_force(None)
@@ -513,6 +530,14 @@ def _setup(p):
     )
     p.add_argument("--push", action="append", default=[], metavar="TIME:BODY:FX,FY,FZ")
     p.add_argument("--push-duration", type=float, default=0.1)
+    p.add_argument(
+        "--truth-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key of the simulated plant only (model mismatch), e.g. "
+        "ball.friction=0.3 (repeatable)",
+    )
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
     p.add_argument(
@@ -542,6 +567,7 @@ def cmd_mpc(args) -> int:
         threads=args.threads,
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
+        truth_overrides=list(args.truth_set),
     )
     settings.check(task)
     out = Path(args.out)
@@ -552,6 +578,8 @@ def cmd_mpc(args) -> int:
         f"{horizon}, {settings.iterations_per_update} it/update, "
         f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
     )
+    if settings.truth_overrides:
+        console.print(f"simulated plant differs: {', '.join(settings.truth_overrides)}")
     from rich.progress import Progress
 
     with Progress(transient=True) as prog:

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from . import cli
-from .config import APPROXIMATIONS, TASKS_DIR, ConfigError, _set_dotted, task_from_dict
+from .config import APPROXIMATIONS, TASKS_DIR, ConfigError, task_from_dict, with_overrides
 from .plant import Dynamics, SimulationError
 from .solution import Solution
 from .state import quat_conj, quat_mul
@@ -185,12 +185,7 @@ def truth_config(task, settings: PlaybackSettings):
     d["plant"]["contact_approximation"] = (
         settings.truth_contact or TRUTH_CONTACT[cfg.plant.contact_approximation]
     )
-    from .config import parse_override
-
-    for text in settings.truth_overrides:
-        key, value = parse_override(text)
-        _set_dotted(d, key, value)
-    return task_from_dict(d, cfg.base_dir)
+    return with_overrides(task_from_dict(d, cfg.base_dir), settings.truth_overrides)
 
 
 # ------------------------------------------------------------------------------------------
