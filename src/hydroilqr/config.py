@@ -185,6 +185,10 @@ class MPCConfig:
     # Controls for the steps a shifted warm start lacks: "last" repeats the last control,
     # "guess" takes them from the task's initial guess (e.g. standing torques).
     warm_start_tail: str = "last"
+    # When the measured state is not the predicted one, start each update from the previous
+    # plan's feedback policy u = ū − K(x − x̄) rolled out from the measured state (true), or
+    # from its shifted controls open loop (false).
+    warm_start_feedback: bool = True
     # Partials kept across updates (the plan only shifts): a step's partials are recomputed
     # when its (x, u) moved more than this (see solver.derivative_reuse_tolerance); 0 =
     # recompute every step every iteration.

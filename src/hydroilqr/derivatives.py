@@ -144,6 +144,10 @@ class Linearizer:
         if self.Z is not None and steps > 0:
             self.Z, self.A, self.B = self.Z[steps:], self.A[steps:], self.B[steps:]
 
+    def clear(self) -> None:
+        """Forget every cached partial (the next call differentiates all keypoints)."""
+        self.Z = self.A = self.B = None
+
     def _resize(self, N: int) -> None:
         dyn = self.dyn
         nz = dyn.nx + dyn.nu

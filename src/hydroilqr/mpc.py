@@ -73,6 +73,7 @@ class MPCSettings:
     feedback_scale: float = 1.0  # scales K in u = ū − K(x − x̄); 0 = feedforward only
     shrinking_horizon: bool = False  # the horizon ends at the task's end time
     warm_start_tail: str = "last"  # last | guess: controls appended to a shifted warm start
+    warm_start_feedback: bool = True  # off the prediction: roll out the old policy, not ū
     derivative_reuse_tolerance: float = 0.0  # keep partials of steps that moved less
     derivative_steps_per_update: int = 0  # cap on steps differentiated per iteration (0: none)
     line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
@@ -118,6 +119,7 @@ class MPCSettings:
             derivative_interval=m.derivative_interval,
             shrinking_horizon=m.shrinking_horizon,
             warm_start_tail=m.warm_start_tail,
+            warm_start_feedback=m.warm_start_feedback,
             derivative_reuse_tolerance=m.derivative_reuse_tolerance,
             derivative_steps_per_update=m.derivative_steps_per_update,
             line_search_steps=m.line_search_steps,
@@ -236,6 +238,8 @@ class Controller:
         self.N = horizon_steps
         self.shrinking = settings.shrinking_horizon  # the plan ends at the task's end
         self.tail = settings.warm_start_tail
+        self.warm_feedback = settings.warm_start_feedback
+        self.feedback_scale = settings.feedback_scale
         self.iterations = iterations
         self.U = task.initial_guess(horizon_steps)
         self.t_plan = 0.0
@@ -264,7 +268,9 @@ class Controller:
     def update(self, x: np.ndarray, t: float, full: bool = False) -> tuple[Solution | None, bool]:
         """``full``: no reuse and no cap on the partials (the first, converged plan)."""
         dt = self.dyn.dt
-        X0 = None  # the previous plan's prediction, a rollout of the shifted controls
+        X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
+        on_prediction = False
+        U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         if self.plan is not None:
             shift = int(round((t - self.t_plan) / dt))
             shift = min(max(shift, 0), self.U.shape[0])
@@ -282,13 +288,16 @@ class Controller:
                 self.U = np.vstack([self.U[shift:], pad])
             self.linearizer.shift(shift)
             Xp = self.plan.X[shift:]
-            if np.array_equal(Xp[0], x):  # the plant went exactly where the plan said
+            on_prediction = bool(np.array_equal(Xp[0], x))
+            if on_prediction:  # the plant went exactly where the plan said
                 try:
                     tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
                     X0 = np.vstack([Xp, tail])
                 except SimulationError:
-                    X0 = None
-        self.reused_prediction.append(X0 is not None)
+                    X0, on_prediction = None, False
+            elif self.warm_feedback:
+                X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
+        self.reused_prediction.append(on_prediction)
         lin = self.linearizer
         keep = lin.reuse_tolerance, lin.max_steps
         if full:
@@ -304,17 +313,45 @@ class Controller:
                 X0=X0,
             )
         except SimulationError:
-            return self.plan, False
+            return self._failed(U_before)
         finally:
             lin.reuse_tolerance, lin.max_steps = keep
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
         self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
         if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
-            return self.plan, False
+            return self._failed(U_before)
         self.U = sol.U.copy()
         self.t_plan = t
         self.plan = sol
         return sol, True
+
+    def _failed(self, U_before: np.ndarray) -> tuple[Solution | None, bool]:
+        """Undo this update's shift: the old plan (and its time) stays in force. The partials
+        were shifted with it, so they are dropped and taken afresh next time."""
+        self.U = U_before
+        self.linearizer.clear()
+        return self.plan, False
+
+    def _policy_rollout(self, x, Xp, Kp):
+        """The previous plan's policy from the measured state x: u_k = ū_k − K_k (x_k − x̄_k).
+
+        Xp: [N_old + 1 − shift, nx] and Kp: [N_old − shift, nu, nx], the shifted plan; self.U:
+        [N, nu], the shifted controls (with any tail appended, where K = 0). On success sets
+        self.U to the controls applied and returns the states, X: [N + 1, nx]; else None.
+        """
+        N = self.U.shape[0]
+        extra = N - Kp.shape[0]
+        if extra > 0:
+            Kp = np.concatenate([Kp, np.zeros((extra,) + Kp.shape[1:])])
+            Xp = np.concatenate([Xp, np.repeat(Xp[-1:], extra, axis=0)])
+        try:
+            X, U = self.dyn.closed_loop_rollout(
+                x, self.U, Xp[: N + 1], self.feedback_scale * Kp[:N], np.zeros_like(self.U), 0.0
+            )
+        except SimulationError:
+            return None
+        self.U = U
+        return X
 
 
 class Truth:
