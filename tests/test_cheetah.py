@@ -139,3 +139,12 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     assert [r["iterations"] for r in resumed.extra["resolves"]] == [
         r["iterations"] for r in full.extra["resolves"]
     ]
+
+
+def test_resume_refuses_another_runs_checkpoint(tmp_path):
+    from hydroilqr.cli import main
+
+    out = str(tmp_path / "run")
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 0
+    assert main(["solve", "cheetah-trot-0.5", "--smoke", "--resume", out, "--no-replay"]) == 2
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out + "x"]) == 2

@@ -102,6 +102,13 @@ def cmd_solve(args) -> int:
         extra.append(f"solver.threads={args.threads}")
     resume_dir = args.resume
     task = load_task_from_args(args, extra)
+    if resume_dir:
+        if task.config.receding_horizon is None:
+            raise ConfigError(f"--resume: {task.name} is not a receding-horizon task")
+        if not (Path(resume_dir) / "checkpoint.npz").exists():
+            raise ConfigError(f"--resume {resume_dir}: no checkpoint.npz there to continue")
+        if args.out and Path(args.out) != Path(resume_dir):
+            raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
     out = Path(args.out or resume_dir or f"runs/{task.name}")
     out.mkdir(parents=True, exist_ok=True)
     cfg = task.config

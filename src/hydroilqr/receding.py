@@ -8,6 +8,7 @@ continues where it stopped and ends with the same trajectory as an uninterrupted
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import ConfigError
 from .ilqr import IterationInfo, solve
 from .plant import SimulationError
 from .solution import PHASES, Solution
@@ -44,8 +46,15 @@ def solve_receding(
     nx, nu = dyn.nx, dyn.nu
     st = _empty_state(task.x0, task.initial_guess(W), nx, nu)
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
+    run_id = fingerprint(cfg)
     if ck is not None and ck.exists():
         st = _load(ck)
+        if st.get("fingerprint", run_id) != run_id:
+            raise ConfigError(
+                f"{ck.parent}: its checkpoint is from a different run (task, --set or --smoke "
+                "differ); repeat that run's arguments or choose another --out"
+            )
+    st["fingerprint"] = run_id
     while st["done"] < R:
         r = st["done"]
         x0 = st["X"][-1]
@@ -117,9 +126,22 @@ def _empty_state(x0, guess, nx, nu):
     }
 
 
+def fingerprint(cfg) -> str:
+    """What makes two runs the same computation: the resolved task minus the settings that
+    only change speed (threads, worker processes) or other commands (mpc)."""
+    d = cfg.to_dict()
+    for key in ("threads", "autodiff_workers"):
+        d.get("solver", {}).pop(key, None)
+    d.pop("mpc", None)
+    d.pop("base_dir", None)
+    text = json.dumps(d, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def _save(path: Path, st: dict) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
-    meta = {k: st[k] for k in ("done", "costs", "iteration_seconds", "phase_seconds", "resolves")}
+    keys = ("done", "costs", "iteration_seconds", "phase_seconds", "resolves", "fingerprint")
+    meta = {k: st[k] for k in keys if k in st}
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez(
         tmp,
