@@ -99,3 +99,18 @@ def test_mpc_truth_overrides_change_the_plant_only():
     bad = MPCSettings(duration=0.2, truth_overrides=["plant.time_step=0.001"])
     with pytest.raises(ConfigError, match="time step"):
         bad.check(task)
+
+
+def test_feedback_warm_start_without_gains_is_the_open_loop_one():
+    # With K scaled to 0 the old policy is its shifted controls: both warm starts agree.
+    task = Task.load("cartpole-wall")
+    kw = dict(
+        duration=0.2,
+        rate=50.0,
+        horizon=0.2,
+        feedback_scale=0.0,
+        truth_overrides=["plant.gravity=[0, 0, -12]"],
+    )
+    a = run_mpc(task, MPCSettings(warm_start_feedback=True, **kw))
+    b = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
+    np.testing.assert_array_equal(a.X, b.X)

@@ -416,10 +416,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     if settings.derivative_interval > 0:
         task.config.solver.derivative_interval = settings.derivative_interval
     ctrl = Controller(task, N, settings.iterations_per_update, settings)
-    truth = Truth(task, settings.truth_overrides)
-    for p in settings.pushes:  # fail early on an unknown body
-        truth._set_force(p)
-    truth._set_force(None)
+    truth = Truth(task, settings.truth_overrides)  # push bodies checked by settings.check
 
     x = task.x0.copy()
     X, U = [x], []
