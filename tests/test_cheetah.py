@@ -148,3 +148,8 @@ def test_resume_refuses_another_runs_checkpoint(tmp_path):
     assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 0
     assert main(["solve", "cheetah-trot-0.5", "--smoke", "--resume", out, "--no-replay"]) == 2
     assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out + "x"]) == 2
+    # A finished run may be solved again in place; an unfinished one needs --resume.
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 0
+    (tmp_path / "run" / "summary.json").unlink()
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 2
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out, "--no-replay"]) == 0

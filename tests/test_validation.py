@@ -219,3 +219,45 @@ def test_bad_keys_as_subprocesses(tmp_path):
     for name, needle, rc, out, err in results:
         assert rc == 2, (name, rc, err)
         assert_one_line(rc, out, err, needle)
+
+
+@pytest.mark.parametrize(
+    "override,needle",
+    [
+        # A typo after a geometry shorthand names the contact properties, not top-level keys.
+        ("lower_link_collision.hydroelastic_modulu=1e6", "did you mean 'hydroelastic_modulus'"),
+        ("solver.max_iter=3", "did you mean 'max_iterations'"),
+    ],
+)
+def test_override_typo_suggests(tmp_path, capsys, override, needle):
+    path = write_case(tmp_path, BASE)
+    rc = cli.main(["solve", "--task-file", str(path), "--set", override, "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)
+
+
+def test_smoke_typo_is_named_as_smoke(tmp_path, capsys):
+    path = write_case(tmp_path, edit(smoke={"solver.max_iteratons": 1}))
+    rc = cli.main(["solve", "--task-file", str(path), "--smoke", "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "smoke: solver.max_iteratons")
+
+
+def test_extends_across_directories_keeps_base_paths(tmp_path):
+    """A base in another directory keeps resolving its own relative model and guess paths."""
+    from hydroilqr.config import load_task
+
+    base_dir, child_dir = tmp_path / "shared", tmp_path / "mine"
+    base_dir.mkdir()
+    child_dir.mkdir()
+    (base_dir / "robot.urdf").write_text(
+        '<robot name="r"><link name="a"><inertial><mass value="1"/>'
+        '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link></robot>'
+    )
+    (base_dir / "guess.csv").write_text("0\n")
+    base = {"models": [{"file": "robot.urdf"}], "initial_guess": "guess.csv", "num_steps": 3}
+    (base_dir / "base.yaml").write_text(yaml.safe_dump(base))
+    (child_dir / "task.yaml").write_text("extends: ../shared/base.yaml\nname: child\n")
+    cfg = load_task(str(child_dir / "task.yaml"))
+    assert cfg.resolve_path(cfg.models[0].file) == base_dir / "robot.urdf"
+    assert cfg.resolve_path(cfg.initial_guess) == base_dir / "guess.csv"

@@ -91,7 +91,7 @@ def cmd_tasks(args) -> int:
 
 
 def cmd_solve(args) -> int:
-    from . import api, report
+    from . import api, receding, report
 
     extra = []
     if args.derivatives:
@@ -105,11 +105,19 @@ def cmd_solve(args) -> int:
     if resume_dir:
         if task.config.receding_horizon is None:
             raise ConfigError(f"--resume: {task.name} is not a receding-horizon task")
-        if not (Path(resume_dir) / "checkpoint.npz").exists():
-            raise ConfigError(f"--resume {resume_dir}: no checkpoint.npz there to continue")
         if args.out and Path(args.out) != Path(resume_dir):
             raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
+        receding.load_checkpoint(task, resume_dir)  # refuses a foreign or missing checkpoint
     out = Path(args.out or resume_dir or f"runs/{task.name}")
+    ck = out / receding.CHECKPOINT
+    restart = False
+    if task.config.receding_horizon is not None and ck.exists() and not resume_dir:
+        if not receding.finished_run(out):
+            raise ConfigError(
+                f"{out} holds the checkpoint of an unfinished run: pass --resume {out} to "
+                "continue it, or choose another --out"
+            )
+        restart = True
     out.mkdir(parents=True, exist_ok=True)
     cfg = task.config
     dyn = task.dynamics
@@ -122,12 +130,9 @@ def cmd_solve(args) -> int:
     if cfg.receding_horizon is not None:
         from .progress import ResolveProgress
 
-        ck = out / "checkpoint.npz"
-        if ck.exists() and not resume_dir:
-            raise ConfigError(
-                f"{out} holds a checkpoint: pass --resume {out} to continue it, "
-                "or choose another --out"
-            )
+        if restart:
+            console.print(f"{out} holds a finished run: solving it again from the start")
+            ck.unlink()
         with ResolveProgress(cfg.receding_horizon.resolves) as prog:
             sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
     else:

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import math
 import types
 import typing
@@ -333,8 +334,10 @@ def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
     for k, v in data.items():
         key = f"{prefix}.{k}" if prefix else str(k)
         if k not in names or k == "base_dir":
-            valid = ", ".join(sorted(n for n in names if n != "base_dir"))
-            raise ConfigError(f"{key}: unknown key (expected one of: {valid})")
+            valid = sorted(n for n in names if n != "base_dir")
+            close = difflib.get_close_matches(str(k), valid, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise ConfigError(f"{key}: unknown key ({hint}expected one of: {', '.join(valid)})")
         kwargs[k] = _coerce(v, hints[k], key)
     return cls(**kwargs)
 
@@ -348,9 +351,16 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
         if parts[0] in scene_names:
             idx = scene_names.index(parts[0])
             parts = ["scene", str(idx)] + parts[1:]
-        elif parts[0] in geometry or len(parts) == 2:
-            # Shortcut for geometry overrides: tip.hydroelastic_modulus
-            if parts[1] in {f.name for f in dataclasses.fields(ContactProperties)}:
+        elif len(parts) == 2:
+            # Shortcut for geometry overrides: tip.hydroelastic_modulus. A geometry the task
+            # already names, or a near-miss of a contact property, is taken as one too, so a
+            # typo is reported against the contact properties, not the top-level keys.
+            fields = [f.name for f in dataclasses.fields(ContactProperties)]
+            if (
+                parts[0] in geometry
+                or parts[1] in fields
+                or difflib.get_close_matches(parts[1], fields, n=1)
+            ):
                 parts = ["geometry"] + parts
     node: Any = data
     for i, p in enumerate(parts[:-1]):
@@ -436,9 +446,34 @@ def load_raw(path: Path) -> dict[str, Any]:
     # `extends: other.yaml` shares a base file between related tasks.
     base = data.pop("extends", None)
     if base is not None:
-        parent = load_raw((path.parent / str(base)).resolve())
+        base_path = (path.parent / str(base)).resolve()
+        parent = load_raw(base_path)
+        if base_path.parent != path.parent.resolve():
+            _anchor_paths(parent, base_path.parent)
         data = _merge(parent, data)
     return data
+
+
+GUESS_KEYWORDS = ("zeros", "gravity_compensation", "hold")
+
+
+def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
+    """Makes the relative file paths of a task read from ``base_dir`` absolute, so a task that
+    ``extends`` a file in another directory still finds that file's models and guesses."""
+
+    def anchor(p: Any) -> Any:
+        if not isinstance(p, str) or not p or p.startswith("package://") or Path(p).is_absolute():
+            return p
+        return str(base_dir / p)
+
+    for m in data.get("models") or []:
+        if isinstance(m, dict) and "file" in m:
+            m["file"] = anchor(m["file"])
+    if isinstance(data.get("package_map"), dict):
+        data["package_map"] = {k: anchor(v) for k, v in data["package_map"].items()}
+    guess = data.get("initial_guess")
+    if isinstance(guess, str) and guess not in GUESS_KEYWORDS:
+        data["initial_guess"] = anchor(guess)
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -470,8 +505,13 @@ def load_task(
         shrink = data.get("smoke") or _generic_smoke(data)
         if not isinstance(shrink, dict):
             raise ConfigError("smoke: expected a mapping of dotted keys to values")
-        for key, value in shrink.items():
-            _set_dotted(data, key, value)
+        _build_dataclass(TaskConfig, data, "")  # the task's own mistakes, named as such
+        try:
+            for key, value in shrink.items():
+                _set_dotted(data, key, value)
+            _build_dataclass(TaskConfig, data, "")
+        except ConfigError as e:
+            raise ConfigError(f"smoke: {e}") from None
     if isinstance(overrides, dict):
         items = overrides.items()
     else:

@@ -48,12 +48,7 @@ def solve_receding(
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
     run_id = fingerprint(cfg)
     if ck is not None and ck.exists():
-        st = _load(ck)
-        if st.get("fingerprint", run_id) != run_id:
-            raise ConfigError(
-                f"{ck.parent}: its checkpoint is from a different run (task, --set or --smoke "
-                "differ); repeat that run's arguments or choose another --out"
-            )
+        st = load_checkpoint(task, ck.parent)
     st["fingerprint"] = run_id
     while st["done"] < R:
         r = st["done"]
@@ -109,6 +104,32 @@ def solve_receding(
         derivatives=cfg.solver.derivatives,
         extra={"resolves": res, "window_steps": W, "shift_steps": S},
     )
+
+
+def load_checkpoint(task, directory: str | Path) -> dict:
+    """The saved state of an interrupted run of ``task`` in ``directory``; ConfigError if the
+    checkpoint is missing, unreadable or from a different run."""
+    ck = Path(directory) / CHECKPOINT
+    if not ck.exists():
+        raise ConfigError(f"{directory}: no {CHECKPOINT} there to continue")
+    try:
+        st = _load(ck)
+    except Exception as e:  # torn or foreign file
+        raise ConfigError(f"{ck}: not a readable checkpoint ({type(e).__name__})") from None
+    if st.get("fingerprint", fingerprint(task.config)) != fingerprint(task.config):
+        raise ConfigError(
+            f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
+            "differ); repeat that run's arguments or choose another --out"
+        )
+    return st
+
+
+def finished_run(directory: str | Path) -> bool:
+    """True if ``directory`` holds a run that ran to the end: its summary.json was written
+    after its last checkpoint (a rerun in place may start over without losing work)."""
+    d = Path(directory)
+    ck, summary = d / CHECKPOINT, d / "summary.json"
+    return summary.exists() and (not ck.exists() or summary.stat().st_mtime >= ck.stat().st_mtime)
 
 
 def _empty_state(x0, guess, nx, nu):
