@@ -283,3 +283,14 @@ def test_autodiff_in_worker_processes_equals_serial():
     A_ser, B_ser = linearize(dyn, X, U, "autodiff")
     np.testing.assert_array_equal(A_par, A_ser)
     np.testing.assert_array_equal(B_par, B_ser)
+
+
+def test_blown_up_step_is_a_simulation_error(cartpole):
+    """A state that explodes is reported (and rejected by a line search), never returned."""
+    from hydroilqr.plant import SimulationError
+
+    dyn = cartpole.dynamics
+    x = np.zeros(dyn.nx)
+    x[-1] = 1e7  # pole spinning at 1e7 rad/s
+    with pytest.raises(SimulationError, match="diverged"):
+        dyn.step(x, np.zeros(dyn.nu))

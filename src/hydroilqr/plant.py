@@ -33,6 +33,9 @@ from pydrake.systems.framework import DiagramBuilder
 from .config import ConfigError, ContactProperties, SceneObject, TaskConfig
 from .state import StateLayout
 
+# A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
+DIVERGED = 1e6
+
 
 class SimulationError(RuntimeError):
     """A time step failed (contact solver did not converge, or the state became non-finite)."""
@@ -348,8 +351,12 @@ class Dynamics:
             xn = self.plant.EvalUniquePeriodicDiscreteUpdate(self.plant_context).value(0)
         except RuntimeError as e:
             raise SimulationError(str(e).strip().splitlines()[0]) from None
-        if not np.all(np.isfinite(xn)):
-            raise SimulationError("non-finite state after a time step")
+        if not np.all(np.abs(xn) < DIVERGED):  # also catches NaN
+            raise SimulationError(
+                "non-finite state after a time step"
+                if not np.all(np.isfinite(xn))
+                else f"the simulation diverged (a state component above {DIVERGED:g})"
+            )
         return np.array(xn, copy=True)
 
     def rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:

@@ -62,7 +62,10 @@ def write_replay(task, trajectories, t: np.ndarray, path: str | Path, fps: float
             k = int(np.clip(np.searchsorted(t, tf), 0, len(t) - 1))
             context.SetTime(float(tf - t[0] + offset))
             plant.SetPositionsAndVelocities(plant_context, X[k])
-            diagram.ForcedPublish(context)
+            try:
+                diagram.ForcedPublish(context)
+            except RuntimeError:  # a blown-up state (a failed run): show what came before
+                break
         offset += T + 0.5
     vis.StopRecording()
     vis.PublishRecording()
