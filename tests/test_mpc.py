@@ -114,3 +114,40 @@ def test_feedback_warm_start_without_gains_is_the_open_loop_one():
     a = run_mpc(task, MPCSettings(warm_start_feedback=True, **kw))
     b = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
     np.testing.assert_array_equal(a.X, b.X)
+
+
+def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
+    from hydroilqr.mpc import Controller
+    from hydroilqr.solution import Solution
+
+    task = Task.load("cartpole-wall")
+    M, N = 30, 10
+    U = np.arange(M, dtype=float)[:, None]  # control k = k, easy to trace
+    sol = Solution(
+        X=np.zeros((M + 1, 4)),
+        U=U,
+        K=np.zeros((M, 1, 4)),
+        kappa=np.zeros((M, 1)),
+        t=0.01 * np.arange(M + 1),
+        costs=np.zeros(1),
+        iteration_seconds=[],
+        phase_seconds={},
+        converged=True,
+        reason="test",
+        derivatives="forward",
+    )
+    sol.save(tmp_path / "solution.npz")
+    st = MPCSettings(warm_start_plan=str(tmp_path), warm_start_tail="last")
+    st.check(task)
+    ctrl = Controller(task, N, 1, st)
+    np.testing.assert_array_equal(ctrl.U[:, 0], np.arange(N))  # the first plan's guess
+    np.testing.assert_array_equal(ctrl._new_controls(25, 4, task.x0)[:, 0], [25, 26, 27, 28])
+    # Past the plan's end, the tail rule: "last" repeats the plan's last control.
+    np.testing.assert_array_equal(ctrl._new_controls(28, 4, task.x0)[:, 0], [28, 29, 29, 29])
+    with pytest.raises(ConfigError, match="warm_start_plan"):
+        MPCSettings(warm_start_plan=str(tmp_path / "none")).check(task)
+    res = run_mpc(
+        task,
+        MPCSettings(duration=0.1, rate=50.0, horizon=0.1, **{"warm_start_plan": str(tmp_path)}),
+    )
+    assert np.all(np.isfinite(res.X)) and res.stats()["warm_start_plan"] == str(tmp_path)

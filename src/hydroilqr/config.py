@@ -190,6 +190,9 @@ class MPCConfig:
     # plan's feedback policy u = ū − K(x − x̄) rolled out from the measured state (true), or
     # from its shifted controls open loop (false).
     warm_start_feedback: bool = True
+    # A solved run (its directory or solution.npz): its controls, by time step, seed the first
+    # plan and the steps each shifted plan appends (past its end, warm_start_tail applies).
+    warm_start_plan: str = ""
     # Partials kept across updates (the plan only shifts): a step's partials are recomputed
     # when its (x, u) moved more than this (see solver.derivative_reuse_tolerance); 0 =
     # recompute every step every iteration.
@@ -427,22 +430,22 @@ def list_tasks() -> list[str]:
     return sorted(p.stem for p in TASKS_DIR.glob("*.yaml") if not p.stem.startswith("_"))
 
 
-def load_raw(path: Path) -> dict[str, Any]:
+def load_raw(path: Path, what: str = "task file") -> dict[str, Any]:
     try:
         text = path.read_text()
     except OSError as e:
-        raise ConfigError(f"task file {path}: {e.strerror}") from None
+        raise ConfigError(f"{what} {path}: {e.strerror}") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
         problem = getattr(e, "problem", None) or "malformed YAML"
-        raise ConfigError(f"task file {path}:{where}: {problem}") from None
+        raise ConfigError(f"{what} {path}:{where}: {problem}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
-        raise ConfigError(f"task file {path}: expected a mapping at the top level")
+        raise ConfigError(f"{what} {path}: expected a mapping at the top level")
     # `extends: other.yaml` shares a base file between related tasks.
     base = data.pop("extends", None)
     if base is not None:
@@ -499,7 +502,7 @@ def load_task(
     path = task_file(name_or_path)
     data = load_raw(path)
     if config_file:
-        extra = load_raw(Path(config_file))
+        extra = load_raw(Path(config_file), "--config file")
         data = _merge(data, extra)
     if smoke:
         shrink = data.get("smoke") or _generic_smoke(data)

@@ -74,6 +74,9 @@ class MPCSettings:
     shrinking_horizon: bool = False  # the horizon ends at the task's end time
     warm_start_tail: str = "last"  # last | guess: controls appended to a shifted warm start
     warm_start_feedback: bool = True  # off the prediction: roll out the old policy, not ū
+    # A solved run (DIR or DIR/solution.npz) whose controls, by time, seed the first plan and
+    # every shifted plan's new steps (past its end: warm_start_tail); empty = none.
+    warm_start_plan: str = ""
     derivative_reuse_tolerance: float = 0.0  # keep partials of steps that moved less
     derivative_steps_per_update: int = 0  # cap on steps differentiated per iteration (0: none)
     line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
@@ -87,6 +90,8 @@ class MPCSettings:
             raise ConfigError("mpc: rate, horizon and duration must be positive")
         if self.warm_start_tail not in ("last", "guess"):
             raise ConfigError("mpc: warm_start_tail must be last or guess")
+        if self.warm_start_plan:
+            self.plan_controls(task)
         plant = task.dynamics.plant
         for p in self.pushes:
             if not plant.HasBodyNamed(p.body):
@@ -105,6 +110,27 @@ class MPCSettings:
                 f"duration {self.duration:g} s is longer"
             )
 
+    def plan_controls(self, task) -> np.ndarray | None:
+        """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
+        cannot be read or does not fit the task."""
+        if not self.warm_start_plan:
+            return None
+        path = Path(self.warm_start_plan)
+        if path.is_dir():
+            path = path / "solution.npz"
+        try:
+            U = np.asarray(Solution.load(path).U, float)
+        except Exception as e:
+            raise ConfigError(
+                f"mpc.warm_start_plan: cannot read {path} ({type(e).__name__})"
+            ) from None
+        nu = task.dynamics.nu
+        if U.ndim != 2 or U.shape[1] != nu or not np.all(np.isfinite(U)):
+            raise ConfigError(
+                f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
+            )
+        return U
+
     @staticmethod
     def from_task(task, **overrides) -> MPCSettings:
         """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
@@ -120,6 +146,7 @@ class MPCSettings:
             shrinking_horizon=m.shrinking_horizon,
             warm_start_tail=m.warm_start_tail,
             warm_start_feedback=m.warm_start_feedback,
+            warm_start_plan=m.warm_start_plan,
             derivative_reuse_tolerance=m.derivative_reuse_tolerance,
             derivative_steps_per_update=m.derivative_steps_per_update,
             line_search_steps=m.line_search_steps,
@@ -194,6 +221,7 @@ class MPCResult:
                 float(np.mean(self.derivative_steps)) if self.derivative_steps else 0.0
             ),
             "truth_overrides": list(self.settings.truth_overrides),
+            "warm_start_plan": self.settings.warm_start_plan,
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
                 for p in self.settings.pushes
@@ -241,7 +269,8 @@ class Controller:
         self.warm_feedback = settings.warm_start_feedback
         self.feedback_scale = settings.feedback_scale
         self.iterations = iterations
-        self.U = task.initial_guess(horizon_steps)
+        self.U_ref = settings.plan_controls(task)  # controls by time step, or None
+        self.U = self._new_controls(0, horizon_steps, task.x0)
         self.t_plan = 0.0
         self.plan: Solution | None = None
         s = task.config.solver
@@ -280,11 +309,8 @@ class Controller:
                 if shift:
                     self.U = self.U[shift:]
             elif shift:
-                pad = (
-                    self.task.initial_guess(shift, x)
-                    if self.tail == "guess"
-                    else np.tile(self.U[-1], (shift, 1))
-                )
+                k_new = int(round(t / dt)) + self.U.shape[0] - shift  # first appended step
+                pad = self._new_controls(k_new, shift, x)
                 self.U = np.vstack([self.U[shift:], pad])
             self.linearizer.shift(shift)
             Xp = self.plan.X[shift:]
@@ -324,6 +350,20 @@ class Controller:
         self.t_plan = t
         self.plan = sol
         return sol, True
+
+    def _new_controls(self, k0: int, n: int, x: np.ndarray) -> np.ndarray:
+        """Controls for time steps k0 .. k0+n-1 that no plan has yet: the warm-start plan's
+        where it has them, then the tail rule (task guess or the last control). -> [n, nu]"""
+        out = []
+        if self.U_ref is not None and k0 < self.U_ref.shape[0]:
+            out.append(self.U_ref[k0 : k0 + n])
+        m = n - sum(len(a) for a in out)
+        if m > 0:
+            if self.tail == "last" and (out or hasattr(self, "U")):
+                out.append(np.tile(out[-1][-1] if out else self.U[-1], (m, 1)))
+            else:  # "guess", or the very first plan
+                out.append(self.task.initial_guess(m, x))
+        return np.vstack(out)
 
     def _failed(self, U_before: np.ndarray) -> tuple[Solution | None, bool]:
         """Undo this update's shift: the old plan (and its time) stays in force. The partials
@@ -580,6 +620,12 @@ def _setup(p):
         default=1.0,
         help="scale of the iLQR feedback gains between updates (0: feedforward)",
     )
+    p.add_argument(
+        "--warm-start-plan",
+        metavar="DIR",
+        help="a solved run (e.g. from `hydroilqr solve`) whose controls, by time, seed the "
+        "first plan and each shifted plan's new steps (mpc.warm_start_plan)",
+    )
     p.add_argument("--out", required=True)
     p.add_argument("--no-replay", action="store_true")
     p.set_defaults(func=cmd_mpc)
@@ -602,6 +648,7 @@ def cmd_mpc(args) -> int:
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
         truth_overrides=list(args.truth_set),
+        warm_start_plan=args.warm_start_plan,
     )
     settings.check(task)
     out = Path(args.out)
