@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -126,6 +127,42 @@ CASES = [
     ("bad-initial-guess", edit(initial_guess="warm.npz"), "initial_guess"),
     ("unknown-metric", edit(metrics=["default", "speed"]), "metrics"),
     ("unknown-solver-key", edit(solver={"max_iter": 3}), "solver.max_iter"),
+    # Vectors of the wrong length are named, not passed on to Drake.
+    ("short-gravity", edit(plant={"gravity": [0, -9.81]}), "plant.gravity: expected 3 numbers"),
+    (
+        "short-weld-xyz",
+        edit(
+            models=[{"file": PENDULUM, "weld": {"child": "base", "xyz": [0, 0]}}],
+            blocks={},
+            initial_state={},
+            cost={"R": 0.1},
+        ),
+        "models[0].weld.xyz: expected 3 numbers",
+    ),
+    (
+        "short-scene-xyz",
+        edit(scene=[{"name": "floor", "shape": "box", "size": [1, 1, 1], "xyz": [0, 0]}]),
+        "scene[0].xyz: expected 3 numbers",
+    ),
+    (
+        "bad-scene-color",
+        edit(scene=[{"name": "floor", "shape": "box", "color": [0.5, 0.5]}]),
+        "scene[0].color",
+    ),
+    (
+        "sphere-with-size",
+        edit(scene=[{"name": "ball", "shape": "sphere", "size": [0.2, 0.2, 0.2]}]),
+        "scene[0].size: a sphere uses radius",
+    ),
+    (
+        "rigid-cylinder-without-hint",
+        edit(geometry={"lower_link_collision": {"compliance": "rigid"}}),
+        "geometry.lower_link_collision: resolution_hint is required",
+    ),
+    # A one-element list for a two-coordinate block is a mistake, not a broadcast.
+    ("one-element-list", edit(initial_state={"angles": [0.05]}), "initial_state.angles"),
+    ("one-element-nominal", edit(cost__nominal={"angles": [3.14]}), "cost.nominal.angles"),
+    ("duplicate-key", "models: []\nnum_steps: 5\nnum_steps: 6\n", "'num_steps' given twice"),
 ]
 
 
@@ -261,3 +298,39 @@ def test_extends_across_directories_keeps_base_paths(tmp_path):
     cfg = load_task(str(child_dir / "task.yaml"))
     assert cfg.resolve_path(cfg.models[0].file) == base_dir / "robot.urdf"
     assert cfg.resolve_path(cfg.initial_guess) == base_dir / "guess.csv"
+
+
+def test_scalar_weight_still_applies_to_a_whole_block():
+    from hydroilqr.task import Task
+
+    path_spec = edit(initial_state={"angles": 0.05})
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        task = Task.load(str(write_case(Path(d), path_spec)))
+        np.testing.assert_allclose(task.x0[:2], [0.05, 0.05])
+
+
+def test_short_initial_guess_file_is_an_error(tmp_path, capsys):
+    (tmp_path / "U.csv").write_text("0.1\n0.2\n")  # 2 rows, the task has 5 steps
+    path = write_case(tmp_path, edit(initial_guess="U.csv"))
+    rc = cli.main(["solve", "--task-file", str(path), "--no-replay", "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "has 2 rows; the task needs 5")
+    (tmp_path / "U.csv").write_text("0.1\n")  # one row: a constant control
+    from hydroilqr.task import Task
+
+    np.testing.assert_allclose(Task.load(str(path)).initial_guess(5), np.full((5, 1), 0.1))
+
+
+def test_command_line_guess_path_is_relative_to_the_working_directory(tmp_path, monkeypatch):
+    from hydroilqr.task import Task
+
+    task_dir, work = tmp_path / "tasks", tmp_path / "work"
+    task_dir.mkdir()
+    work.mkdir()
+    path = write_case(task_dir, BASE)
+    (work / "U.csv").write_text("0.3\n")
+    monkeypatch.chdir(work)
+    task = Task.load(str(path), overrides=["initial_guess=U.csv"])
+    np.testing.assert_allclose(task.initial_guess(5), np.full((5, 1), 0.3))

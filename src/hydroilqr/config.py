@@ -19,7 +19,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     horizon: 1.0                  # seconds (or num_steps: N)
     blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
     initial_state: {pole_angle: 3.64}
-    initial_guess: zeros          # zeros | gravity_compensation | hold | path/to/U.npz
+    initial_guess: zeros          # zeros | gravity_compensation | hold | U.npz | U.csv
+                                  # (a file: >= N rows, or 1 row = a constant control)
     cost:
       Q: {pole_angle: 1.0}
       R: 0.001                    # scalar, list per actuator, or {actuator_name: w}
@@ -342,7 +343,17 @@ def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise ConfigError(f"{key}: unknown key ({hint}expected one of: {', '.join(valid)})")
         kwargs[k] = _coerce(v, hints[k], key)
-    return cls(**kwargs)
+    obj = cls(**kwargs)
+    if cls is SceneObject:
+        shape_keys = {"box": ["size"], "sphere": ["radius"], "cylinder": ["radius", "length"]}
+        used = shape_keys.get(obj.shape, [])
+        default = SceneObject()
+        for k in ("size", "radius", "length"):
+            # (a saved task lists every field: only a value other than the default is an error)
+            if k in data and k not in used and getattr(obj, k) != getattr(default, k):
+                what = f"uses {' and '.join(used)}" if used else "has no size"
+                raise ConfigError(f"{prefix}.{k}: a {obj.shape} {what}, not {k}")
+    return obj
 
 
 def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
@@ -407,7 +418,7 @@ def with_overrides(cfg: TaskConfig, overrides: list[str]) -> TaskConfig:
     d = cfg.to_dict()
     for text in overrides:
         key, value = parse_override(text)
-        _set_dotted(d, key, value)
+        _set_dotted(d, key, _cwd_path(key, value))
     return task_from_dict(d, cfg.base_dir)
 
 
@@ -430,13 +441,31 @@ def list_tasks() -> list[str]:
     return sorted(p.stem for p in TASKS_DIR.glob("*.yaml") if not p.stem.startswith("_"))
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that rejects a key given twice in one mapping (YAML keeps the last silently)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    f"key {key!r} given twice (first on line {seen[key] + 1})",
+                    key_node.start_mark,
+                )
+            seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep)
+
+
 def load_raw(path: Path, what: str = "task file") -> dict[str, Any]:
     try:
         text = path.read_text()
     except OSError as e:
         raise ConfigError(f"{what} {path}: {e.strerror}") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
@@ -479,6 +508,25 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
         data["initial_guess"] = anchor(guess)
 
 
+def _cwd_path(key: str, value: Any) -> Any:
+    """A relative file path given on the command line is relative to the working directory."""
+    parts = key.split(".")
+    is_path = (
+        key == "initial_guess"
+        or parts[0] == "package_map"
+        or (parts[0] == "models" and parts[-1] == "file")
+    )
+    if (
+        not is_path
+        or not isinstance(value, str)
+        or value in GUESS_KEYWORDS
+        or value.startswith("package://")
+        or Path(value).expanduser().is_absolute()
+    ):
+        return value
+    return str(Path.cwd() / Path(value).expanduser())
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(base)
     for k, v in over.items():
@@ -503,6 +551,7 @@ def load_task(
     data = load_raw(path)
     if config_file:
         extra = load_raw(Path(config_file), "--config file")
+        _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
         data = _merge(data, extra)
     if smoke:
         shrink = data.get("smoke") or _generic_smoke(data)
@@ -520,7 +569,7 @@ def load_task(
     else:
         items = map(parse_override, overrides or [])
     for key, value in items:
-        _set_dotted(data, key, value)
+        _set_dotted(data, key, _cwd_path(key, value))
     data.setdefault("name", path.stem)
     cfg = _build_dataclass(TaskConfig, data, "")
     cfg.base_dir = str(path.resolve().parent)
@@ -552,6 +601,11 @@ def _check_contact(p: ContactProperties, key: str) -> None:
             raise ConfigError(f"{key}.{name}: must be non-negative, got {v}")
 
 
+def _check_length(values: list[float], n: int, key: str) -> None:
+    if len(values) != n:
+        raise ConfigError(f"{key}: expected {n} numbers, got {len(values)}")
+
+
 def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
     if not cfg.models:
@@ -561,6 +615,16 @@ def validate(cfg: TaskConfig) -> None:
             raise ConfigError(f"models[{i}].file: required")
         if not m.file.startswith("package://") and not cfg.resolve_path(m.file).exists():
             raise ConfigError(f"models[{i}].file: no such file {cfg.resolve_path(m.file)}")
+    for i, m in enumerate(cfg.models):
+        for j, w in enumerate(([m.weld] if m.weld is not None else []) + list(m.welds)):
+            wkey = (
+                f"models[{i}].weld"
+                if (m.weld is not None and j == 0)
+                else (f"models[{i}].welds[{j - (m.weld is not None)}]")
+            )
+            _check_length(w.xyz, 3, f"{wkey}.xyz")
+            _check_length(w.rpy, 3, f"{wkey}.rpy")
+    _check_length(cfg.plant.gravity, 3, "plant.gravity")
     if cfg.plant.time_step <= 0:
         raise ConfigError(f"plant.time_step: must be positive, got {cfg.plant.time_step}")
     if cfg.plant.contact_approximation not in APPROXIMATIONS:
@@ -601,6 +665,16 @@ def validate(cfg: TaskConfig) -> None:
             raise ConfigError(f"scene[{i}].shape: expected box, sphere, cylinder or halfspace")
         if o.shape == "box" and (len(o.size) != 3 or min(o.size) <= 0):
             raise ConfigError(f"scene[{i}].size: expected three positive numbers")
+        _check_length(o.xyz, 3, f"scene[{i}].xyz")
+        _check_length(o.rpy, 3, f"scene[{i}].rpy")
+        if len(o.color) not in (3, 4) or not all(0 <= c <= 1 for c in o.color):
+            raise ConfigError(
+                f"scene[{i}].color: expected 3 or 4 numbers in [0, 1] (RGB or RGBA), got {o.color}"
+            )
+        if o.shape in ("sphere", "cylinder") and o.radius <= 0:
+            raise ConfigError(f"scene[{i}].radius: must be positive, got {o.radius}")
+        if o.shape == "cylinder" and o.length <= 0:
+            raise ConfigError(f"scene[{i}].length: must be positive, got {o.length}")
     for section in ("Q", "Qf", "nominal_rate"):
         for k, v in getattr(cfg.cost, section).items():
             vals = v if isinstance(v, list) else [v]

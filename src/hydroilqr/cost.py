@@ -70,14 +70,20 @@ class QuadraticCost:
                     raise ConfigError(
                         f"cost.R.{name}: unknown actuator (known: {', '.join(layout.actuators)})"
                     )
-                r[layout.actuators.index(name)] = float(w)
+                try:
+                    r[layout.actuators.index(name)] = float(w)
+                except (TypeError, ValueError):
+                    raise ConfigError(f"cost.R.{name}: expected a number, got {w!r}") from None
         else:
-            vals = np.atleast_1d(np.asarray(cfg.R, dtype=float))
-            if vals.size == 1:
+            try:
+                vals = np.asarray(cfg.R, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ConfigError(f"cost.R: expected numbers, got {cfg.R!r}") from None
+            if np.ndim(cfg.R) == 0:  # a number applies to every actuator
                 vals = np.full(nu, vals[0])
             if vals.size != nu:
-                want = "1 value" if nu == 1 else f"1 or {nu} values (one per actuator)"
-                raise ConfigError(f"cost.R: expected {want}, got {vals.size}")
+                want = "1 value" if nu == 1 else f"a number or {nu} values (one per actuator)"
+                raise ConfigError(f"cost.R: expected {want}, got a list of {vals.size}")
             r = vals
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ConfigError("cost.R: weights must be finite and non-negative")
@@ -87,11 +93,14 @@ class QuadraticCost:
             b = layout.block(name, f"cost.nominal_rate.{name}")
             if b.kind == "quaternion":
                 raise ConfigError(f"cost.nominal_rate.{name}: not supported for orientations")
-            vals = np.atleast_1d(np.asarray(v, float))
-            if vals.size == 1:
+            vals = np.asarray(v, float).reshape(-1)  # numbers: checked by config.validate
+            if np.ndim(v) == 0:
                 vals = np.full(len(b.coords), vals[0])
             if vals.size != len(b.coords):
-                raise ConfigError(f"cost.nominal_rate.{name}: expected {len(b.coords)} values")
+                raise ConfigError(
+                    f"cost.nominal_rate.{name}: expected a number or {len(b.coords)} values, "
+                    f"got a list of {vals.size}"
+                )
             rate[list(b.coords)] = vals
         if cfg.running_cost_dt:
             q, r = q * dt, r * dt

@@ -58,6 +58,10 @@ class Scene:
 # ------------------------------------------------------------------------------------------
 
 
+# Shapes whose hydroelastic mesh is built from a resolution hint (Drake refuses them without).
+NEEDS_RESOLUTION_HINT = ("sphere", "cylinder", "capsule", "ellipsoid")
+
+
 def _proximity_props(
     p: ContactProperties, old: ProximityProperties | None, shape: str = ""
 ) -> ProximityProperties:
@@ -90,13 +94,18 @@ def _proximity_props(
     if compliance is None:
         if p.hydroelastic_modulus is not None or old_modulus is not None:
             compliance = "compliant"
-        elif old is not None and old.HasGroup("hydroelastic") or shape:
+        elif (old is not None and old.HasGroup("hydroelastic")) or (old is None and shape):
             compliance = "rigid"
     hint = (
         p.resolution_hint
         if p.resolution_hint is not None
         else old_value("hydroelastic", "resolution_hint")
     )
+    if compliance is not None and hint is None and shape in NEEDS_RESOLUTION_HINT:
+        raise ConfigError(
+            f"resolution_hint is required for a {compliance} {shape} (the edge length in m of "
+            f"its hydroelastic mesh, e.g. a fifth of its radius)"
+        )
     if compliance == "compliant":
         modulus = p.hydroelastic_modulus if p.hydroelastic_modulus is not None else old_modulus
         if modulus is None:
@@ -105,7 +114,7 @@ def _proximity_props(
             slab = p.slab_thickness or old_value("hydroelastic", "slab_thickness", 1.0)
             AddCompliantHydroelasticPropertiesForHalfSpace(slab, modulus, props)
         else:
-            AddCompliantHydroelasticProperties(hint if hint else 0.1, modulus, props)
+            AddCompliantHydroelasticProperties(hint if hint else 0.1, modulus, props)  # box: unused
     elif compliance == "rigid":
         if shape == "halfspace" or hint is None:
             AddRigidHydroelasticProperties(props)
@@ -267,7 +276,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         plant.RegisterCollisionGeometry(world, X, _shape(o), name, props)
         if o.shape != "halfspace":
             plant.RegisterVisualGeometry(
-                world, X, _shape(o), name + "_visual", np.asarray(o.color, dtype=float)
+                world, X, _shape(o), name + "_visual", np.asarray([*o.color, 1.0][:4], dtype=float)
             )
 
     # Overrides of the models' collision properties.
@@ -284,7 +293,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                 )
             for gid in hits:
                 old = inspector.GetProximityProperties(gid)
-                shape = "halfspace" if isinstance(inspector.GetShape(gid), HalfSpace) else ""
+                shape = type(inspector.GetShape(gid)).__name__.lower()
                 try:
                     props = _proximity_props(p, old, shape=shape)
                 except ConfigError as e:

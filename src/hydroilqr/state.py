@@ -189,13 +189,16 @@ class StateLayout:
         w = np.full(2 * self.nv, float(default))
         for name, value in spec.items():
             b = self.block(name, f"{key}.{name}")
-            vals = np.atleast_1d(np.asarray(value, dtype=float))
+            try:
+                vals = np.asarray(value, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ConfigError(f"{key}.{name}: expected numbers, got {value!r}") from None
             n = len(b.tangent)
-            if vals.size == 1:
+            if np.ndim(value) == 0:  # a number applies to the whole block; a list must fit it
                 vals = np.full(n, vals[0])
             if vals.size != n:
-                want = "1 value" if n == 1 else f"1 or {n} values"
-                raise ConfigError(f"{key}.{name}: expected {want}, got {vals.size}")
+                want = "1 value" if n == 1 else f"a number or a list of {n} values"
+                raise ConfigError(f"{key}.{name}: expected {want}, got a list of {vals.size}")
             w[list(b.tangent)] = vals
         return w
 
@@ -204,12 +207,16 @@ class StateLayout:
         x = np.array(base, dtype=float)
         for name, value in spec.items():
             b = self.block(name, f"{key}.{name}")
-            vals = np.atleast_1d(np.asarray(value, dtype=float))
+            try:
+                vals = np.asarray(value, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ConfigError(f"{key}.{name}: expected numbers, got {value!r}") from None
             n = len(b.coords)
-            if vals.size == 1 and b.kind != "quaternion":
+            if np.ndim(value) == 0 and b.kind != "quaternion":
                 vals = np.full(n, vals[0])
             if vals.size != n:
-                raise ConfigError(f"{key}.{name}: expected {n} values, got {vals.size}")
+                want = f"{n} values" if b.kind == "quaternion" else f"a number or {n} values"
+                raise ConfigError(f"{key}.{name}: expected {want}, got {vals.size}")
             if not np.all(np.isfinite(vals)):
                 raise ConfigError(f"{key}.{name}: values must be finite")
             if b.kind == "quaternion":

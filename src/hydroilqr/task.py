@@ -80,7 +80,10 @@ class Task:
                 )
 
     def initial_guess(self, N: int, x: np.ndarray | None = None) -> np.ndarray:
-        """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file."""
+        """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file.
+
+        A file (``.npz`` with ``U``, or CSV) holds one row per time step (the first N are used)
+        or a single row, a constant control."""
         dyn = self.dynamics
         x = self.x0 if x is None else x
         kind = self.config.initial_guess
@@ -109,8 +112,15 @@ class Task:
             raise ConfigError(f"initial_guess: could not read {path}: {e}") from None
         if U.ndim != 2 or U.shape[1] != dyn.nu:
             raise ConfigError(f"initial_guess: {path} must hold U with {dyn.nu} columns")
+        if not np.all(np.isfinite(U)):
+            raise ConfigError(f"initial_guess: {path} holds NaN or infinite values")
+        if U.shape[0] == 1:  # one row: a constant control (e.g. standing torques)
+            return np.tile(U[0], (N, 1))
         if U.shape[0] < N:
-            U = np.vstack([U, np.tile(U[-1], (N - U.shape[0], 1))])
+            raise ConfigError(
+                f"initial_guess: {path} has {U.shape[0]} rows; the task needs {N} (one per time "
+                f"step) or 1 (a constant control)"
+            )
         return U[:N].copy()
 
     def problem(self, x0: np.ndarray | None = None, t0: float = 0.0) -> Problem:
