@@ -151,3 +151,42 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
         MPCSettings(duration=0.1, rate=50.0, horizon=0.1, **{"warm_start_plan": str(tmp_path)}),
     )
     assert np.all(np.isfinite(res.X)) and res.stats()["warm_start_plan"] == str(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "settings,needle",
+    [
+        (dict(rate=500.0), "at most one update per time step"),
+        (dict(horizon=0.005), "at least two time steps"),
+        (dict(iterations_per_update=0), "at least 1"),
+        (dict(pushes=[Push(5.0, "cart", np.array([1.0, 0, 0]))]), "outside the run"),
+        (dict(pushes=[Push(0.1, "world", np.array([1.0, 0, 0]))]), "no movable body"),
+        (dict(pushes=[Push(0.1, "cart", np.array([1.0, 0, 0]), -0.1)]), "push-duration"),
+    ],
+)
+def test_mpc_settings_that_cannot_run_are_refused(settings, needle):
+    task = Task.load("cartpole-wall")
+    with pytest.raises(ConfigError, match=needle):
+        MPCSettings(duration=1.0, **settings).check(task)
+
+
+def test_warm_start_plan_of_another_task_is_refused(tmp_path):
+    (tmp_path / "summary.json").write_text(json.dumps({"task": "kinova-forward"}))
+    task = Task.load("cartpole-wall", smoke=True)
+    from hydroilqr.api import solve
+
+    solve(task).save(tmp_path / "solution.npz")
+    with pytest.raises(ConfigError, match="run of task 'kinova-forward'"):
+        MPCSettings(warm_start_plan=str(tmp_path)).check(task)
+
+
+def test_ctrl_c_keeps_the_closed_loop_run_so_far(tmp_path):
+    task = Task.load("cartpole-wall")
+
+    def interrupt(k, total):
+        if k >= 10:
+            raise KeyboardInterrupt
+
+    res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.2), on_update=interrupt)
+    assert res.interrupted and res.stats()["interrupted"]
+    assert res.U.shape[0] == 10 and res.X.shape[0] == 11 and len(res.t) == 11

@@ -58,7 +58,7 @@ def swept(tmp_path_factory):
     ]
     for s in SMALL:
         argv += ["--set", s]
-    assert main(argv) == 0
+    assert main(argv) == 1  # one point failed: the table is written, the exit code says so
     return out, argv
 
 
@@ -91,7 +91,7 @@ def test_resume_computes_only_missing(swept):
     (out / "points" / f"{victim}.json").unlink()  # as if killed before it finished
     (out / "points" / f".{victim}.json.123.tmp").write_text("{torn")  # a torn temp file
     n_log = len(_log(out))
-    assert main(argv) == 0
+    assert main(argv) == 1  # the failed point is kept, and still reported
     new = _log(out)[n_log:]
     assert new == [victim]  # only the missing point was computed; the failed one is kept
     after = {r["id"]: r for r in _rows(out)}
@@ -104,5 +104,9 @@ def test_resume_computes_only_missing(swept):
     res = run_sweep("cartpole-wall", [(KEY, [1e3, -5, 1e6])], out, sets=SMALL, smoke=True)
     assert res["computed"] == 0 and res["skipped"] == 3 and res["failed"] == 1
     # A different sweep in the same directory is refused.
-    with pytest.raises(ConfigError):
+    with pytest.raises(ConfigError, match=r"--set \['num_steps=30', 'solver.max_iterations=3'\]"):
         run_sweep("cartpole-wall", [(KEY, [1e3])], out, sets=["num_steps=20"], smoke=True)
+    # The same sweep on a subset computes nothing and keeps the other points in the table.
+    res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=SMALL, smoke=True)
+    assert res["computed"] == 0 and res["failed"] == 0
+    assert sorted(r["id"] for r in _rows(out)) == sorted(before)

@@ -162,6 +162,10 @@ CASES = [
     # A one-element list for a two-coordinate block is a mistake, not a broadcast.
     ("one-element-list", edit(initial_state={"angles": [0.05]}), "initial_state.angles"),
     ("one-element-nominal", edit(cost__nominal={"angles": [3.14]}), "cost.nominal.angles"),
+    ("line-search-factor", edit(solver={"line_search_factor": 1.5}), "solver.line_search_factor"),
+    ("negative-regularization", edit(solver={"regularization_init": -1}), "regularization_init"),
+    ("negative-num-steps", edit(num_steps=-3), "num_steps"),
+    ("horizon-off-grid", edit(num_steps=None, horizon=0.05), "not a whole number of time steps"),
     ("duplicate-key", "models: []\nnum_steps: 5\nnum_steps: 6\n", "'num_steps' given twice"),
 ]
 

@@ -517,5 +517,5 @@ def setup(p) -> None:
         action="store_true",
         help="skip the derivative-accuracy and thread-scaling sections",
     )
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", default="runs/bench", help="output directory (default runs/bench)")
     p.set_defaults(func=cmd_bench)

@@ -41,10 +41,18 @@ def add_task_args(p: argparse.ArgumentParser, positional: bool = True) -> None:
     p.add_argument("--smoke", action="store_true", help="shrink the task (tests, quick tries)")
 
 
+def task_name_from_args(args) -> str | None:
+    """TASK or --task-file (not both: which one was meant would be a guess)."""
+    task, task_file = getattr(args, "task", None), getattr(args, "task_file", None)
+    if task and task_file:
+        raise ConfigError(f"give a task name or --task-file, not both ({task!r}, {task_file!r})")
+    return task_file or task
+
+
 def load_task_from_args(args, extra_overrides: list[str] | None = None):
     from .task import Task
 
-    name = getattr(args, "task_file", None) or getattr(args, "task", None)
+    name = task_name_from_args(args)
     if not name:
         raise ConfigError("no task given (try `hydroilqr tasks`)")
     overrides = list(args.set or []) + list(extra_overrides or [])
@@ -111,13 +119,19 @@ def cmd_solve(args) -> int:
     out = Path(args.out or resume_dir or f"runs/{task.name}")
     ck = out / receding.CHECKPOINT
     restart = False
-    if task.config.receding_horizon is not None and ck.exists() and not resume_dir:
+    if ck.exists() and not resume_dir:
         if not receding.finished_run(out):
             raise ConfigError(
                 f"{out} holds the checkpoint of an unfinished run: pass --resume {out} to "
                 "continue it, or choose another --out"
             )
         restart = True
+    previous = report.previous_task(out)
+    if previous is not None and previous != task.name:
+        raise ConfigError(
+            f"{out} holds the results of task {previous!r}: choose another --out "
+            "(or delete that directory)"
+        )
     out.mkdir(parents=True, exist_ok=True)
     cfg = task.config
     dyn = task.dynamics
@@ -132,11 +146,20 @@ def cmd_solve(args) -> int:
 
         if restart:
             console.print(f"{out} holds a finished run: solving it again from the start")
-            ck.unlink()
+        if not resume_dir:
+            _clear_previous(out)
         with ResolveProgress(cfg.receding_horizon.resolves) as prog:
-            sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
+            try:
+                sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
+            except KeyboardInterrupt:
+                if ck.exists():
+                    raise KeyboardInterrupt(
+                        f"finished resolves are saved in {ck}: continue with --resume {out}"
+                    ) from None
+                raise
     else:
-        sol = api.solve(task, callbacks=[IterationTable()])
+        _clear_previous(out)
+        sol = api.solve(task, callbacks=[IterationTable()], stop_on_interrupt=True)
     wall = time.perf_counter() - t0
     console.print(
         f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
@@ -156,6 +179,12 @@ def cmd_solve(args) -> int:
         f"wrote {out}/summary.json, solution.npz, convergence.png"
         + ("" if args.no_replay else ", replay.html")
     )
+    if sol.reason == "interrupted":
+        console.print(
+            f"interrupted: {out} holds the best trajectory found before Ctrl+C "
+            f"({sol.iterations} iterations)"
+        )
+        return 130
     if args.view:
         from .replay import write_replay
 
@@ -167,6 +196,23 @@ def cmd_solve(args) -> int:
         except KeyboardInterrupt:
             pass
     return 0
+
+
+def _clear_previous(out: Path) -> None:
+    """Removes what an earlier solve wrote into ``out`` (plots, replay, checkpoint, playbacks of
+    its solution), so the directory never mixes two runs. Other files are left alone."""
+    from . import report
+
+    stale = report.solve_outputs(out)
+    if stale:
+        console.print(f"replacing the previous results in {out} ({len(stale)} files/directories)")
+    for p in stale:
+        if p.is_dir():
+            import shutil
+
+            shutil.rmtree(p)
+        else:
+            p.unlink()
 
 
 def _fmt(v) -> str:
@@ -263,8 +309,9 @@ def main(argv: list[str] | None = None) -> int:
     except SimulationError as e:
         print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
         return 3
-    except KeyboardInterrupt:
-        print("hydroilqr: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        detail = f": {e}" if str(e) else ""
+        print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
     except Exception as e:  # noqa: BLE001 - the promise is one line, never a traceback
         if os.environ.get("HYDROILQR_DEBUG"):

@@ -657,6 +657,30 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
     if cfg.solver.derivative_interval < 1:
         raise ConfigError("solver.derivative_interval: must be >= 1")
+    sv = cfg.solver
+    for name, ok, rule in (
+        ("line_search_factor", 0 < sv.line_search_factor < 1, "between 0 and 1"),
+        ("armijo", 0 <= sv.armijo < 1, "in [0, 1)"),
+        ("line_search_max_steps", sv.line_search_max_steps >= 1, ">= 1"),
+        ("line_search_retries", sv.line_search_retries >= 0, ">= 0"),
+        ("regularization_init", sv.regularization_init >= 0, ">= 0"),
+        ("regularization_min", sv.regularization_min >= 0, ">= 0"),
+        ("regularization_max", sv.regularization_max > sv.regularization_min, "> its min"),
+        ("regularization_factor", sv.regularization_factor > 1, "> 1"),
+        ("relative_cost_tolerance", sv.relative_cost_tolerance >= 0, ">= 0"),
+        ("expected_decrease_tolerance", sv.expected_decrease_tolerance >= 0, ">= 0"),
+        ("threads", sv.threads >= 0, ">= 0 (0 = all cores)"),
+    ):
+        if not ok:
+            raise ConfigError(f"solver.{name}: must be {rule}, got {getattr(sv, name)}")
+    if cfg.num_steps < 0:
+        raise ConfigError(f"num_steps: must be positive (or 0: use horizon), got {cfg.num_steps}")
+    steps = cfg.horizon / cfg.plant.time_step
+    if cfg.num_steps == 0 and abs(steps - round(steps)) > 1e-6 * max(1.0, steps):
+        raise ConfigError(
+            f"horizon: {cfg.horizon:g} s is not a whole number of time steps "
+            f"({cfg.plant.time_step:g} s)"
+        )
     for name, p in cfg.geometry.items():
         _check_contact(p, f"geometry.{name}")
     for i, o in enumerate(cfg.scene):

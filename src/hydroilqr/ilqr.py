@@ -151,6 +151,7 @@ def solve(
     final_gains: bool = True,
     linearizer: Linearizer | None = None,
     X0: np.ndarray | None = None,
+    stop_on_interrupt: bool = False,
 ) -> Solution:
     """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution.
 
@@ -158,6 +159,8 @@ def solve(
     its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
     computed (MPC: the previous plan's prediction); used instead of the initial rollout only
     when ``X0[0]`` equals x0 exactly, since then it *is* that rollout.
+    ``stop_on_interrupt``: Ctrl+C ends the solve with the best trajectory so far (reason
+    "interrupted") instead of raising KeyboardInterrupt.
     """
     s = settings or SolverConfig()
     dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
@@ -196,99 +199,119 @@ def solve(
         derivative_steps.append(lin.last_computed)
         return out
 
-    for it in range(max_it):
-        t_it = time.perf_counter()
-        ph = dict.fromkeys(PHASES, 0.0)
-        if it == 0:
-            ph["rollout"] = rollout_time
-        t = time.perf_counter()
-        try:
-            A, B = partials(X, U)
-        except SimulationError as e:
-            reason = f"derivatives failed: {e}"
-            break
-        quad = cost.quadratize(X, U, t0)
-        ph["derivatives"] = time.perf_counter() - t
-
-        accepted = False
-        eps = 0.0
-        expected = 0.0
-        expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
-        searches = 0
-        while True:
+    interrupted = False
+    try:
+        for it in range(max_it):
+            t_it = time.perf_counter()
+            ph = dict.fromkeys(PHASES, 0.0)
+            if it == 0:
+                ph["rollout"] = rollout_time
             t = time.perf_counter()
-            bp = backward_pass(A, B, quad, mu)
-            ph["backward_pass"] += time.perf_counter() - t
-            if not bp.ok:
+            try:
+                A, B = partials(X, U)
+            except SimulationError as e:
+                reason = f"derivatives failed: {e}"
+                break
+            quad = cost.quadratize(X, U, t0)
+            ph["derivatives"] = time.perf_counter() - t
+
+            accepted = False
+            eps = 0.0
+            expected = 0.0
+            expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
+            searches = 0
+            while True:
+                t = time.perf_counter()
+                bp = backward_pass(A, B, quad, mu)
+                ph["backward_pass"] += time.perf_counter() - t
+                if not bp.ok:
+                    mu = _increase(mu, s)
+                    if mu > s.regularization_max:
+                        break
+                    continue
+                K, kappa = bp.K, bp.kappa
+                expected_full = expected_decrease(bp.dV, 1.0)
+                if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
+                    expected = expected_full
+                    break
+                t = time.perf_counter()
+                eps = 1.0
+                for _ in range(s.line_search_max_steps):
+                    expected = expected_decrease(bp.dV, eps)
+                    try:
+                        Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
+                        with np.errstate(over="ignore", invalid="ignore"):
+                            Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
+                    except SimulationError:
+                        Jn = np.inf
+                    if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
+                        accepted = True
+                        break
+                    eps *= s.line_search_factor
+                ph["line_search"] += time.perf_counter() - t
+                if accepted:
+                    break
+                searches += 1
                 mu = _increase(mu, s)
-                if mu > s.regularization_max:
+                if mu > s.regularization_max or searches > s.line_search_retries:
                     break
-                continue
-            K, kappa = bp.K, bp.kappa
-            expected_full = expected_decrease(bp.dV, 1.0)
-            if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
-                expected = expected_full
-                break
-            t = time.perf_counter()
-            eps = 1.0
-            for _ in range(s.line_search_max_steps):
-                expected = expected_decrease(bp.dV, eps)
-                try:
-                    Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
-                    with np.errstate(over="ignore", invalid="ignore"):
-                        Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
-                except SimulationError:
-                    Jn = np.inf
-                if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
-                    accepted = True
-                    break
-                eps *= s.line_search_factor
-            ph["line_search"] += time.perf_counter() - t
+
+            seconds = time.perf_counter() - t_it
+            iter_seconds.append(seconds)
+            for p in PHASES:
+                phases[p].append(ph[p])
             if accepted:
+                rel = (J - Jn) / max(abs(J), 1e-12)
+                X, U, J = Xn, Un, Jn
+                mu = max(s.regularization_min, mu / s.regularization_factor)
+            costs.append(J)
+            eps_hist.append(eps if accepted else 0.0)
+            mu_hist.append(mu)
+            info = IterationInfo(
+                it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted
+            )
+            for cb in callbacks:
+                cb(info)
+            if not accepted:
+                if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
+                    reason, converged = "expected_decrease", True
+                else:
+                    reason = "line_search_failed"
+                    # A local minimum at the resolution the dynamics allow: report honestly.
                 break
-            searches += 1
-            mu = _increase(mu, s)
-            if mu > s.regularization_max or searches > s.line_search_retries:
+            # Small progress from one shortened step is not convergence (the local model may just
+            # be poor there), so a short step counts only when the last few iterations together
+            # made little progress: the solver has stalled in a local minimum.
+            if rel < s.relative_cost_tolerance and eps >= 1.0:
+                reason, converged = "relative_cost_change", True
                 break
+            w = STALL_WINDOW
+            if (
+                len(costs) > w
+                and (costs[-w - 1] - J) / max(abs(J), 1e-12) < w * s.relative_cost_tolerance
+            ):
+                reason, converged = "stalled", True
+                break
+    except KeyboardInterrupt:
+        if not stop_on_interrupt:
+            raise
+        # Ctrl+C: keep the best trajectory so far, with its statistics made consistent (an
+        # iteration cut off before its bookkeeping is recorded only if its step was taken).
+        interrupted, converged, reason = True, False, "interrupted"
+        n = min(len(iter_seconds), len(costs) - 1, len(eps_hist), len(mu_hist))
+        n = min([n] + [len(v) for v in phases.values()])
+        for lst in (iter_seconds, eps_hist, mu_hist, *phases.values()):
+            del lst[n:]
+        del costs[n + 1 :]
+        if J != costs[-1]:
+            costs.append(J)
+            iter_seconds.append(0.0)
+            eps_hist.append(0.0)
+            mu_hist.append(mu)
+            for v in phases.values():
+                v.append(0.0)
 
-        seconds = time.perf_counter() - t_it
-        iter_seconds.append(seconds)
-        for p in PHASES:
-            phases[p].append(ph[p])
-        if accepted:
-            rel = (J - Jn) / max(abs(J), 1e-12)
-            X, U, J = Xn, Un, Jn
-            mu = max(s.regularization_min, mu / s.regularization_factor)
-        costs.append(J)
-        eps_hist.append(eps if accepted else 0.0)
-        mu_hist.append(mu)
-        info = IterationInfo(
-            it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted
-        )
-        for cb in callbacks:
-            cb(info)
-        if not accepted:
-            if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
-                reason, converged = "expected_decrease", True
-            else:
-                reason = "line_search_failed"
-                # A local minimum at the resolution the dynamics allow: report honestly.
-            break
-        # Small progress from one shortened step is not convergence (the local model may just
-        # be poor there), so a short step counts only when the last few iterations together
-        # made little progress: the solver has stalled in a local minimum.
-        if rel < s.relative_cost_tolerance and eps >= 1.0:
-            reason, converged = "relative_cost_change", True
-            break
-        w = STALL_WINDOW
-        if (
-            len(costs) > w
-            and (costs[-w - 1] - J) / max(abs(J), 1e-12) < w * s.relative_cost_tolerance
-        ):
-            reason, converged = "stalled", True
-            break
-
-    if final_gains and iter_seconds and accepted:
+    if final_gains and iter_seconds and accepted and not interrupted:
         # Gains of eq. (8) around the *final* trajectory (the last backward pass was around
         # the previous one).
         t = time.perf_counter()

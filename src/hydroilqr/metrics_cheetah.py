@@ -152,7 +152,7 @@ def cheetah_metrics(task, sol) -> dict:
     return out
 
 
-@report.plot("cheetah")
+@report.plot("cheetah", files=("velocity.png", "gait.png"))
 def plot_cheetah(task, sol, out: Path) -> None:
     import matplotlib.pyplot as plt
 

@@ -96,7 +96,7 @@ def _body_order(task) -> list[str]:
     return [plant.get_body(BodyIndex(i)).name() for i in range(plant.num_bodies())]
 
 
-@report.plot("kinova")
+@report.plot("kinova", files=("ball.png",))
 def plot_ball(task, sol, out: Path) -> None:
     import matplotlib.pyplot as plt
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydrake.multibody.tree import BodyIndex
 
 from .config import ConfigError, with_overrides
 from .derivatives import Linearizer
@@ -88,15 +89,41 @@ class MPCSettings:
         """Raises ConfigError for settings that cannot run on ``task``."""
         if self.rate <= 0 or self.horizon <= 0 or self.duration <= 0:
             raise ConfigError("mpc: rate, horizon and duration must be positive")
+        dt = task.config.plant.time_step
+        if self.rate > 1.0 / dt * (1 + 1e-9):
+            raise ConfigError(
+                f"mpc rate {self.rate:g} Hz: at most one update per time step "
+                f"({1.0 / dt:g} Hz with plant.time_step {dt:g} s)"
+            )
+        if not self.shrinking_horizon and self.horizon < 2 * dt * (1 - 1e-9):
+            raise ConfigError(
+                f"mpc horizon {self.horizon:g} s: at least two time steps ({2 * dt:g} s)"
+            )
+        if self.iterations_per_update < 1:
+            raise ConfigError("mpc iterations per update: at least 1")
+        if not self.feedback_scale >= 0:
+            raise ConfigError("--feedback-scale: must be >= 0")
+        if self.line_search_steps < 1 or self.line_search_retries < 0:
+            raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
         if self.warm_start_tail not in ("last", "guess"):
             raise ConfigError("mpc: warm_start_tail must be last or guess")
         if self.warm_start_plan:
             self.plan_controls(task)
         plant = task.dynamics.plant
         for p in self.pushes:
-            if not plant.HasBodyNamed(p.body):
-                raise ConfigError(f"--push: no body named {p.body!r}")
-        dt = task.config.plant.time_step
+            if not plant.HasBodyNamed(p.body) or p.body == plant.world_body().name():
+                movable = sorted(
+                    plant.get_body(BodyIndex(b)).name() for b in range(1, plant.num_bodies())
+                )
+                raise ConfigError(
+                    f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
+                )
+            if not p.duration > 0:
+                raise ConfigError(f"--push-duration: must be positive, got {p.duration:g}")
+            if not 0 <= p.time < self.duration:
+                raise ConfigError(
+                    f"--push at {p.time:g} s: outside the run (0 to {self.duration:g} s)"
+                )
         if self.truth_overrides:
             truth = with_overrides(task.config, self.truth_overrides)
             if truth.plant.time_step != dt:
@@ -119,7 +146,8 @@ class MPCSettings:
         if path.is_dir():
             path = path / "solution.npz"
         try:
-            U = np.asarray(Solution.load(path).U, float)
+            plan = Solution.load(path)
+            U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
         except Exception as e:
             raise ConfigError(
                 f"mpc.warm_start_plan: cannot read {path} ({type(e).__name__})"
@@ -128,6 +156,21 @@ class MPCSettings:
         if U.ndim != 2 or U.shape[1] != nu or not np.all(np.isfinite(U)):
             raise ConfigError(
                 f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
+            )
+        summary = path.parent / "summary.json"
+        if summary.exists():  # a run of another task with as many actuators is still wrong
+            from .report import previous_task
+
+            other = previous_task(path.parent)
+            if other is not None and other != task.name:
+                raise ConfigError(
+                    f"mpc.warm_start_plan: {path.parent} is a run of task {other!r}, "
+                    f"not {task.name!r}"
+                )
+        dt = task.config.plant.time_step
+        if t.size > 1 and abs((t[1] - t[0]) - dt) > 1e-9:
+            raise ConfigError(
+                f"mpc.warm_start_plan: {path} has time step {t[1] - t[0]:g} s, the task {dt:g} s"
             )
         return U
 
@@ -178,6 +221,7 @@ class MPCResult:
     derivative_steps: list[int] = field(default_factory=list)  # differentiated, per update
     reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
     phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
+    interrupted: bool = False  # stopped by Ctrl+C before the end
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -207,6 +251,7 @@ class MPCResult:
             "realtime_factor": sim / self.wall_seconds if self.wall_seconds > 0 else None,
             "wall_seconds": self.wall_seconds,
             "simulation_failure": self.failure or None,
+            "interrupted": self.interrupted,
             "feedback_scale": self.settings.feedback_scale,
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
@@ -490,40 +535,49 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     t_plan = 0.0
     first = True
     failure = ""
-    while k < total:
-        t_now = k * dt
-        if not first:
-            t0 = time.perf_counter()
-            new_plan, ok = ctrl.update(x, t_now)
-            w = time.perf_counter() - t0
-            failures += 0 if ok else 1
-            solve_s.append(w)
-            iters.append(new_plan.iterations if (ok and new_plan) else 0)
-            upd_t.append(t_now)
-            if settings.realtime:
-                # The old policy keeps running while the controller thinks.
-                try:
-                    advance(int(math.ceil(w / dt)), plan, t_plan)
-                except SimulationError as e:
-                    failure = f"t = {k * dt:.3f} s: {e}"
-                    break
-            if ok:
-                plan, t_plan = new_plan, t_now
-        else:
-            solve_s.append(0.0)
-            iters.append(plan.iterations)
-            upd_t.append(0.0)
-            first = False
-        # Run to the next update time (one period after this update began; in real-time
-        # mode the latency already simulated counts towards it).
-        k_update = int(round(t_now / dt))
-        try:
-            advance(max(0, k_update + period_steps - k), plan, t_plan)
-        except SimulationError as e:
-            failure = f"t = {k * dt:.3f} s: {e}"
-            break
-        if on_update is not None:
-            on_update(k, total)
+    interrupted = False
+    try:
+        while k < total:
+            t_now = k * dt
+            if not first:
+                t0 = time.perf_counter()
+                new_plan, ok = ctrl.update(x, t_now)
+                w = time.perf_counter() - t0
+                failures += 0 if ok else 1
+                solve_s.append(w)
+                iters.append(new_plan.iterations if (ok and new_plan) else 0)
+                upd_t.append(t_now)
+                if settings.realtime:
+                    # The old policy keeps running while the controller thinks.
+                    try:
+                        advance(int(math.ceil(w / dt)), plan, t_plan)
+                    except SimulationError as e:
+                        failure = f"t = {k * dt:.3f} s: {e}"
+                        break
+                if ok:
+                    plan, t_plan = new_plan, t_now
+            else:
+                solve_s.append(0.0)
+                iters.append(plan.iterations)
+                upd_t.append(0.0)
+                first = False
+            # Run to the next update time (one period after this update began; in real-time
+            # mode the latency already simulated counts towards it).
+            k_update = int(round(t_now / dt))
+            try:
+                advance(max(0, k_update + period_steps - k), plan, t_plan)
+            except SimulationError as e:
+                failure = f"t = {k * dt:.3f} s: {e}"
+                break
+            if on_update is not None:
+                on_update(k, total)
+    except KeyboardInterrupt:  # Ctrl+C: stop here and keep the run so far
+        interrupted = True
+        if not U:
+            raise  # nothing simulated yet: nothing to keep
+        del X[len(U) + 1 :]
+        n = min(len(upd_t), len(solve_s), len(iters))
+        del upd_t[n:], solve_s[n:], iters[n:]
     wall = time.perf_counter() - wall0
     # The first (pre-start) solve is reported separately and not counted in the percentiles.
     return MPCResult(
@@ -540,6 +594,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         ctrl.derivative_steps[1:],
         ctrl.reused_prediction[1:],
         ctrl.phases[1:],
+        interrupted,
     )
 
 
@@ -626,8 +681,8 @@ def _setup(p):
         help="a solved run (e.g. from `hydroilqr solve`) whose controls, by time, seed the "
         "first plan and each shifted plan's new steps (mpc.warm_start_plan)",
     )
-    p.add_argument("--out", required=True)
-    p.add_argument("--no-replay", action="store_true")
+    p.add_argument("--out", help="output directory (default runs/TASK-mpc)")
+    p.add_argument("--no-replay", action="store_true", help="skip writing mpc.html")
     p.set_defaults(func=cmd_mpc)
 
 
@@ -651,7 +706,7 @@ def cmd_mpc(args) -> int:
         warm_start_plan=args.warm_start_plan,
     )
     settings.check(task)
-    out = Path(args.out)
+    out = Path(args.out or f"runs/{task.name}-mpc")
     out.mkdir(parents=True, exist_ok=True)
     horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
     console.print(
@@ -704,6 +759,9 @@ def cmd_mpc(args) -> int:
     console.print(
         f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
     )
+    if res.interrupted:
+        console.print(f"interrupted at t = {res.t[-1]:.3f} s: {out} holds the run up to then")
+        return 130
     if res.failure:
         raise SimulationError(
             f"the controlled plant failed at {res.failure} (results up to then are in {out})"

@@ -436,7 +436,10 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
     ctx = plant.CreateDefaultContext()
     plant.SetPositionsAndVelocities(ctx, x0)
     M = plant.CalcMassMatrix(ctx)
-    h = 1.0 / st.rate
+    # The loop acts on truth time steps: its period is 1/rate rounded up to a whole number of
+    # them (a rate above 1/truth_time_step runs once per step).
+    dt = st.truth_time_step
+    h = dt * max(1, math.ceil(1.0 / (st.rate * dt) - 1e-9))
     per = {}
     warnings = []
     for name, j in _joint_velocity_indices(plant, joints).items():
@@ -445,10 +448,11 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
         per[name] = {"inertia": m, "damping_per_step": ratio}
         if ratio >= 2.0:
             warnings.append(
-                f"{name}: (Kd·h + Kp·h²)/M = {ratio:.2f} ≥ 2 at {st.rate:g} Hz (inertia {m:.3g}): "
-                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate"
+                f"{name}: (Kd·h + Kp·h²)/M = {ratio:.2f} ≥ 2 at {1.0 / h:g} Hz (inertia {m:.3g}): "
+                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate "
+                "(at most 1/--truth-time-step)"
             )
-    return {"pd_loop": per, "warnings": warnings}
+    return {"pd_loop": per, "pd_loop_rate_hz": 1.0 / h, "warnings": warnings}
 
 
 def _joint_velocity_indices(plant, joints) -> dict:

@@ -23,11 +23,15 @@ import numpy as np  # noqa: E402
 from . import metrics as metrics_mod  # noqa: E402
 
 PLOTS: dict[str, Callable] = {}
+PLOT_FILES: set[str] = set()  # every file name a registered plot writes
 
 
-def plot(name: str):
+def plot(name: str, files: tuple[str, ...]):
+    """Registers fn(task, sol, out) as the plots of metric ``name``; it writes ``files``."""
+
     def deco(fn):
         PLOTS[name] = fn
+        PLOT_FILES.update(files)
         return fn
 
     return deco
@@ -95,3 +99,30 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
 
         write_replay(task, sol.X, sol.t, out / "replay.html")
     return summary
+
+
+# Files and directories a solve (and playbacks of its solution) write into a run directory.
+SOLVE_FILES = ("summary.json", "solution.npz", "convergence.png", "replay.html", "checkpoint.npz")
+
+
+def previous_task(out: Path) -> str | None:
+    """Name of the task whose results ``out`` holds (None: no earlier solve there)."""
+    path = Path(out) / "summary.json"
+    if not path.exists():
+        return None
+    try:
+        return str(json.loads(path.read_text()).get("task"))
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def solve_outputs(out: Path) -> list[Path]:
+    """What earlier solves wrote into ``out``: standard files, task plots and playbacks."""
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    metrics_mod.load_plugins()
+    names = set(SOLVE_FILES) | PLOT_FILES
+    found = [out / n for n in sorted(names) if (out / n).exists()]
+    found += sorted(p for p in out.glob("playback-*") if (p / "playback.json").exists())
+    return found

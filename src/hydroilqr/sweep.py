@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import add_task_args, console, register
+from .cli import add_task_args, console, register, task_name_from_args
 from .config import ConfigError, parse_override, task_file
 
 POINT_COLUMNS = (
@@ -644,6 +644,7 @@ def run_sweep(
     for s in sets or []:
         k, v = parse_override(s)
         overrides[k] = v
+    user_set = sorted(f"{k}={v}" for k, v in overrides.items())
     # One thread per solve: the cluster already runs one worker process per core.
     if not any(k == "solver.threads" for k in overrides):
         overrides["solver.threads"] = 1
@@ -662,7 +663,7 @@ def run_sweep(
         "task_arg": task_arg,
         "config_file": cfg_arg,
         "smoke": bool(smoke),
-        "set": sorted(f"{k}={v}" for k, v in overrides.items()),
+        "set": user_set,  # as given (solver.threads=1 is added unless set)
         "params": [{"key": k, "values": v} for k, v in params],
     }
     spec_file = out / "sweep_spec.json"
@@ -672,14 +673,16 @@ def run_sweep(
         except ValueError:
             old = None
         if old is not None:
+            if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in user_set:
+                old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
             same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
             new = {k: spec.get(k) for k in same}
             old_keys = [p["key"] for p in old.get("params", [])]
             if same != new or old_keys != keys:
                 raise ConfigError(
-                    f"{out} holds a different sweep ({old.get('task')}, "
-                    f"{', '.join(old_keys)}, set {old.get('set')}, smoke {old.get('smoke')}): "
-                    "choose another --out"
+                    f"{out} holds a different sweep (task {old.get('task')}, --param "
+                    f"{', '.join(old_keys)}, --set {old.get('set') or 'none'}, smoke "
+                    f"{old.get('smoke')}): choose another --out"
                 )
     _atomic_text(spec_file, json.dumps(spec, indent=1))
 
@@ -693,8 +696,19 @@ def run_sweep(
         else:
             todo.append(i)
 
+    # Points of earlier runs of this sweep with other values stay in the table (a sweep is
+    # extended, or re-run on a subset, without losing what it already computed).
+    earlier = {}
+    for f in sorted(points_dir.glob("*.json")):
+        if f.stem in ids or f.name.startswith("."):
+            continue
+        r = load_point(points_dir, f.stem)
+        if r is not None and all(f"param:{k}" in r for k in keys):
+            earlier[f.stem] = r
+    earlier_rows = sorted(earlier.values(), key=lambda r: [float(r[f"param:{k}"]) for k in keys])
+
     def ordered() -> list[dict]:
-        return [rows[pid] for pid in ids if pid in rows]
+        return [rows[pid] for pid in ids if pid in rows] + earlier_rows
 
     n_failed0 = sum(r.get("status") != "ok" for r in rows.values())
     console.print(
@@ -776,14 +790,17 @@ def run_sweep(
     write_tables(out, spec, keys, all_rows, len(points) - len(all_rows))
     wrote = ["sweep.csv", "sweep.json"]
     if plots and all_rows:
-        grid_values = [v for _, v in params]
+        grid_values = [
+            sorted({r[f"param:{k}"] for r in all_rows}, key=float) if earlier_rows else v
+            for k, v in params
+        ]
         plot_sweep(out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
         wrote.append("sweep.png")
         if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
             out / "snapshots.png", points_dir, task_cfg, keys, all_rows
         ):
             wrote.append("snapshots.png")
-    failed = sum(r.get("status") != "ok" for r in all_rows)
+    failed = sum(rows[pid].get("status") != "ok" for pid in ids if pid in rows)
     versions = {r.get("code") for r in all_rows if r.get("code")}
     if len(versions) > 1:
         console.print(
@@ -791,14 +808,15 @@ def run_sweep(
             f"versions ({', '.join(sorted(versions))}); see the code column"
         )
     console.print(
-        f"{len(all_rows)} points ({computed} computed now, "
-        f"{len(all_rows) - computed} from earlier runs), {failed} failed; "
-        f"wrote {', '.join(wrote)} in {out}"
+        f"{len(points)} points ({computed} computed now, "
+        f"{len(points) - computed} from earlier runs), {failed} failed"
+        + (f"; the table also keeps {len(earlier_rows)} points of earlier runs" if earlier else "")
+        + f"; wrote {', '.join(wrote)} in {out}"
     )
     return {
         "rows": all_rows,
         "computed": computed,
-        "skipped": len(all_rows) - computed,
+        "skipped": len(points) - computed,
         "failed": failed,
     }
 
@@ -809,9 +827,10 @@ def run_sweep(
 
 
 def cmd_sweep(args) -> int:
-    task = getattr(args, "task_file", None) or args.task
+    task = task_name_from_args(args)
     if not task:
         raise ConfigError("no task given (try `hydroilqr tasks`)")
+    out = args.out or f"runs/{Path(task).stem}-sweep"
     keys, specs = args.param or [], args.values or []
     if len(keys) != len(specs):
         raise ConfigError("give one --values after each --param")
@@ -821,7 +840,7 @@ def cmd_sweep(args) -> int:
     res = run_sweep(
         task,
         params,
-        args.out,
+        out,
         sets=args.set,
         config_file=args.config,
         smoke=args.smoke,
@@ -829,7 +848,16 @@ def cmd_sweep(args) -> int:
         workers=args.workers,
         retry_failed=args.retry_failed,
     )
-    return 0 if res["rows"] else 1
+    if res["failed"]:
+        import sys
+
+        print(
+            f"hydroilqr: {res['failed']} of the sweep's points failed (their errors are in the "
+            "error column of sweep.csv; --retry-failed recomputes them)",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
 
 
 @register("sweep", "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)")
@@ -859,5 +887,5 @@ def setup(p) -> None:
         action="store_true",
         help="on resume, also recompute points recorded as failed",
     )
-    p.add_argument("--out", required=True, help="output directory (resumable)")
+    p.add_argument("--out", help="output directory, resumable (default runs/TASK-sweep)")
     p.set_defaults(func=cmd_sweep)

@@ -1,0 +1,99 @@
+"""A run directory: Ctrl+C keeps the best-so-far, re-runs replace old results, never mix runs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import yaml
+
+from hydroilqr import Solution, cli
+
+ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
+TASK = {
+    "name": "runs-acrobot",
+    "models": [{"file": ACROBOT}],
+    "plant": {"time_step": 0.02},
+    "num_steps": 20,
+    "blocks": {"angles": ["shoulder", "elbow"]},
+    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 50.0}, "nominal": {"angles": 1.0}},
+    "solver": {"max_iterations": 30},
+}
+
+
+def write_task(tmp_path, **changes):
+    path = tmp_path / "task.yaml"
+    path.write_text(yaml.safe_dump({**TASK, **changes}))
+    return path
+
+
+def test_ctrl_c_during_a_solve_writes_the_best_so_far(tmp_path, monkeypatch, capsys):
+    seen = []
+
+    def interrupt_at_third(self, info):
+        seen.append(info.cost)
+        if info.iteration == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli.IterationTable, "__call__", interrupt_at_third)
+    out = tmp_path / "out"
+    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    assert rc == 130
+    sol = Solution.load(out / "solution.npz")
+    summary = json.loads((out / "summary.json").read_text())
+    assert sol.reason == summary["reason"] == "interrupted" and not sol.converged
+    # Three iterations were recorded; the saved trajectory is the one whose cost is last.
+    assert len(sol.costs) == 4 and len(sol.iteration_seconds) == 3
+    assert sol.costs[-1] == seen[-1] < sol.costs[0]
+    assert "interrupted" in capsys.readouterr().out
+
+
+def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_path, capsys):
+    out = tmp_path / "out"
+    (out / "playback-ilqr").mkdir(parents=True)
+    (out / "playback-ilqr" / "playback.json").write_text("{}")
+    (out / "gait.png").write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    (out / "summary.json").write_text(json.dumps({"task": "cheetah-trot-1.0"}))
+    task = write_task(tmp_path, solver={"max_iterations": 2})
+    rc = cli.main(["solve", str(task), "--out", str(out), "--no-replay"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "holds the results of task 'cheetah-trot-1.0'" in err
+    (out / "summary.json").write_text(json.dumps({"task": TASK["name"]}))
+    assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) == 0
+    assert not (out / "gait.png").exists() and not (out / "playback-ilqr").exists()
+    assert (out / "notes.txt").read_text() == "mine"  # not ours: left alone
+    assert json.loads((out / "summary.json").read_text())["task"] == TASK["name"]
+
+
+def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):
+    rc = cli.main(["solve", "cartpole-wall", "--task-file", str(write_task(tmp_path))])
+    assert rc == 2 and "not both" in capsys.readouterr().err
+
+
+def test_interrupted_ilqr_statistics_are_consistent():
+    """stop_on_interrupt: every per-iteration list has one entry per recorded iteration."""
+    from hydroilqr.config import SolverConfig
+    from hydroilqr.ilqr import solve as ilqr_solve
+    from hydroilqr.task import Task
+
+    calls = []
+
+    def stop(info):
+        calls.append(info)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        task = Task.load(str(write_task(Path(d))))
+    sol = ilqr_solve(
+        task.problem(), task.initial_guess(20), SolverConfig(), [stop], stop_on_interrupt=True
+    )
+    n = len(sol.costs) - 1
+    assert sol.reason == "interrupted" and n >= 2
+    assert len(sol.iteration_seconds) == len(sol.eps) == len(sol.mu) == n
+    assert all(len(v) == n for v in sol.phase_seconds.values())
+    np.testing.assert_allclose(task.cost.total(sol.X, sol.U, 0.0), sol.costs[-1])
