@@ -9,7 +9,7 @@ import pytest
 from hydroilqr import report
 from hydroilqr.api import solve
 from hydroilqr.config import ConfigError
-from hydroilqr.playback import PlaybackSettings, load_run, playback
+from hydroilqr.playback import PlaybackSettings, advisories, load_run, playback
 from hydroilqr.task import Task
 
 
@@ -96,3 +96,16 @@ def test_settings_are_validated():
         PlaybackSettings(policy="lqr").validate()
     with pytest.raises(ConfigError):
         PlaybackSettings(update_period=-1).validate()
+
+
+def test_playback_warns_about_underactuation_and_slowed_ilqr(run_dir):
+    task, sol, _ = load_run(run_dir)
+    pd = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002))
+    assert any("unactuated joints (pole_pin)" in w for w in pd.metrics["warnings"])
+    # The PD+ loop runs on truth steps: a 1 kHz request with 2 ms steps runs at 500 Hz.
+    assert pd.metrics["pd_loop_rate_hz"] == pytest.approx(500.0)
+    # (Slowed down, the iLQR policy diverges on this plan: the warning is known beforehand.)
+    plant = task.dynamics.plant
+    assert "speed 0.5" in advisories(plant, PlaybackSettings(policy="ilqr", speed=0.5))[0]
+    same = playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0, truth_time_step=0.002))
+    assert not same.metrics["warnings"]

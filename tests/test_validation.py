@@ -338,3 +338,10 @@ def test_command_line_guess_path_is_relative_to_the_working_directory(tmp_path, 
     monkeypatch.chdir(work)
     task = Task.load(str(path), overrides=["initial_guess=U.csv"])
     np.testing.assert_allclose(task.initial_guess(5), np.full((5, 1), 0.3))
+
+
+def test_check_validates_the_smoke_section(tmp_path, capsys):
+    path = write_case(tmp_path, edit(smoke={"solver.max_iterations": -1}))
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "solver.max_iterations")

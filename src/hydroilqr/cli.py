@@ -223,6 +223,10 @@ def cmd_check(args) -> int:
     from .check import check_task
 
     task = load_task_from_args(args)
+    if not args.smoke:  # the task's `smoke:` section must work too (tests rely on it)
+        from .task import Task
+
+        Task.load(task_name_from_args(args), list(args.set or []), args.config, True).validate()
     check_task(task, console)
     return 0
 

@@ -37,6 +37,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pydrake.multibody.tree import JointIndex
 
 from . import cli
 from .config import APPROXIMATIONS, TASKS_DIR, ConfigError, task_from_dict, with_overrides
@@ -420,8 +421,10 @@ def playback(
         wall_seconds=0.0,
     )
     result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
+    result.metrics["warnings"] = advisories(truth.plant, settings)
     if settings.policy == "pd":
-        result.metrics.update(_pd_check(truth, plan.X[0], joint_names, settings))
+        pd = _pd_check(truth, plan.X[0], joint_names, settings)
+        result.metrics.update({**pd, "warnings": result.metrics["warnings"] + pd["warnings"]})
     result.wall_seconds = time.perf_counter() - wall0
     result.metrics["wall_seconds"] = result.wall_seconds
     return result
@@ -453,6 +456,35 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
                 "(at most 1/--truth-time-step)"
             )
     return {"pd_loop": per, "pd_loop_rate_hz": 1.0 / h, "warnings": warnings}
+
+
+def advisories(plant, settings: PlaybackSettings) -> list[str]:
+    """Warnings about a policy that cannot do what the plan needs (known before running)."""
+    out = []
+    if settings.policy == "pd":
+        passive = _passive_joints(plant, actuated_joints(plant)[1])
+        if passive:
+            out.append(
+                f"unactuated joints ({', '.join(passive)}): PD+ tracks only the actuated ones "
+                "and nothing steers these; an underactuated task needs --policy ilqr"
+            )
+    elif abs(settings.speed - 1.0) > 1e-12:
+        out.append(
+            f"--policy ilqr at speed {settings.speed:g}: the plan's controls and gains K hold "
+            "only at its own timing (speed 1); at another speed they do not reproduce the "
+            "plan (use --policy pd to slow a plan down)"
+        )
+    return out
+
+
+def _passive_joints(plant, actuated: list[str]) -> list[str]:
+    """Names of the 1-DoF joints without an actuator (e.g. the cart-pole's pole pin)."""
+    out = []
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        if j.num_velocities() == 1 and j.name() not in actuated:
+            out.append(j.name())
+    return out
 
 
 def _joint_velocity_indices(plant, joints) -> dict:
@@ -679,6 +711,9 @@ def cmd_playback(args) -> int:
         f"(plan dt={task.config.plant.time_step:g} "
         f"contact={task.config.plant.contact_approximation}) -> {out}"
     )
+    early = advisories(task.dynamics.plant, settings)
+    for w in early:
+        con.print(f"[yellow]warning:[/yellow] {w}")
     r = playback(task, sol, settings)
     data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
     ob = data["object"]
@@ -694,17 +729,8 @@ def cmd_playback(args) -> int:
         f"saturated commands {100 * data['saturated_fraction']:.1f}%"
     )
     for w in data.get("warnings", []):
-        con.print(f"[yellow]warning:[/yellow] {w}")
-    if (
-        settings.policy == "pd"
-        and ob["kind"] == "joint"
-        and unit == "rad"
-        and ob["final_gap"] > 0.5
-    ):
-        con.print(
-            "[yellow]note:[/yellow] PD+ has no feedback on unactuated joints, so an "
-            "underactuated system like the cart-pole falls; try --policy ilqr"
-        )
+        if w not in early:
+            con.print(f"[yellow]warning:[/yellow] {w}")
     con.print(
         f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
         + ("" if args.no_replay else ", playback.html")
