@@ -297,3 +297,47 @@ def test_blown_up_step_is_a_simulation_error(cartpole):
     x[-1] = 1e7  # pole spinning at 1e7 rad/s
     with pytest.raises(SimulationError, match="diverged"):
         dyn.step(x, np.zeros(dyn.nu))
+
+
+def test_cost_reference_tracks_a_solved_run(tmp_path):
+    from hydroilqr.config import ConfigError
+
+    task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
+    sol = solve(task)
+    sol.save(tmp_path / "solution.npz")
+    tracked = Task.load("cartpole-wall", [f"cost.reference={tmp_path}"])
+    np.testing.assert_allclose(tracked.cost.nominal(sol.t), sol.X)
+    # Between samples: linear in time; after the end: the last state held.
+    mid = tracked.cost.nominal(np.array([0.5 * (sol.t[3] + sol.t[4])]))[0]
+    np.testing.assert_allclose(mid, 0.5 * (sol.X[3] + sol.X[4]))
+    np.testing.assert_allclose(tracked.cost.nominal(np.array([9.0]))[0], sol.X[-1])
+    # Only the listed blocks follow the reference; the others keep the task's nominal.
+    part = Task.load(
+        "cartpole-wall",
+        [f"cost.reference={tmp_path}", "cost.reference_blocks=[pole_angle]"],
+    )
+    x = part.cost.nominal(sol.t)
+    pole = part.dynamics.layout.block("pole_angle").coords[0]
+    cart = part.dynamics.layout.block("cart_position").coords[0]
+    np.testing.assert_allclose(x[:, pole], sol.X[:, pole])
+    np.testing.assert_allclose(x[:, cart], 0.0)
+    # The solve against the reference from the same start has (near) zero state error.
+    assert tracked.cost.breakdown(sol.X, sol.U)["Q.pole_angle"] < 1e-20
+    with pytest.raises(ConfigError, match="cost.reference"):
+        _ = Task.load("cartpole-wall", [f"cost.reference={tmp_path / 'none'}"]).cost
+
+
+def test_cost_reference_quaternions_are_renormalized():
+    from hydroilqr.cost import QuadraticCost
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    layout = task.dynamics.layout
+    X = np.tile(task.x0, (2, 1))
+    q = list(layout.quaternions[0].coords)
+    a = 0.8
+    X[1, q] = [np.cos(a / 2), 0, 0, np.sin(a / 2)]
+    cost = task.cost
+    assert isinstance(cost, QuadraticCost)
+    cost.set_reference(np.array([0.0, 1.0]), X, [])
+    mid = cost.nominal(np.array([0.5]))[0, q]
+    assert abs(np.linalg.norm(mid) - 1.0) < 1e-12

@@ -28,6 +28,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       nominal: {pole_angle: 3.14159}
       nominal_rate: {}            # x_nom(t) = nominal + rate * t (per block)
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
+      reference: ''               # a solved run to track (its states are the nominal)
+      reference_blocks: []        # blocks taken from the reference (empty: all)
     solver: {max_iterations: 100, derivatives: central}
     receding_horizon: null        # {window_steps, shift_steps, resolves}
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
@@ -128,6 +130,11 @@ class CostConfig:
     # Multiply the running weights Q and R by the time step (as the paper's public code does:
     # running cost dt·(x̃ᵀQx̃ + uᵀRu), terminal cost x̃ᵀQ_f x̃ unscaled).
     running_cost_dt: bool = False
+    # A solved run (its directory or solution.npz) to track: its states, interpolated in time,
+    # are the nominal of the blocks in reference_blocks (empty: every block); after its end
+    # the last state is held. Other blocks keep nominal / nominal_rate.
+    reference: str = ""
+    reference_blocks: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -506,13 +513,16 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     guess = data.get("initial_guess")
     if isinstance(guess, str) and guess not in GUESS_KEYWORDS:
         data["initial_guess"] = anchor(guess)
+    cost = data.get("cost")
+    if isinstance(cost, dict) and isinstance(cost.get("reference"), str):
+        cost["reference"] = anchor(cost["reference"])
 
 
 def _cwd_path(key: str, value: Any) -> Any:
     """A relative file path given on the command line is relative to the working directory."""
     parts = key.split(".")
     is_path = (
-        key == "initial_guess"
+        key in ("initial_guess", "cost.reference", "mpc.warm_start_plan")
         or parts[0] == "package_map"
         or (parts[0] == "models" and parts[-1] == "file")
     )

@@ -5,7 +5,9 @@
 ``⊖`` is the tangent-space difference of ``state.StateLayout`` (rotation-vector error on
 quaternion blocks), so Q and Q_f are diagonal over the tangent space (size 2 nv) and given
 per named block in the task file. The nominal may move linearly in time,
-``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed).
+``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed),
+or follow a solved run (``cost.reference``: its states X_ref(t), linearly interpolated in time
+with quaternions renormalized, held after its end) on some or all blocks.
 
 ``quadratize`` returns the derivatives iLQR needs in Drake's coordinates: with
 ``r = x ⊖ x_nom`` and ``Jr = ∂r/∂x``, ``l_x = 2 Jrᵀ Q r`` and ``l_xx = 2 Jrᵀ Q Jr``
@@ -59,7 +61,8 @@ class QuadraticCost:
         self.terms = terms or {}
 
     @staticmethod
-    def from_config(layout: StateLayout, cfg: CostConfig, dt: float) -> QuadraticCost:
+    def from_config(layout: StateLayout, cfg: CostConfig, dt: float, resolve=None) -> QuadraticCost:
+        """``resolve(path) -> Path`` locates ``cfg.reference`` (default: as given)."""
         q = layout.tangent_vector(cfg.Q, "cost.Q")
         qf = layout.tangent_vector(cfg.Qf, "cost.Qf")
         nu = len(layout.actuators)
@@ -108,12 +111,41 @@ class QuadraticCost:
         for section in ("Q", "Qf"):
             for name in getattr(cfg, section):
                 terms[f"{section}.{name}"] = (section, layout.block(name).tangent)
-        return QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms)
+        cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms)
+        if cfg.reference:
+            cost.set_reference(*_load_reference(layout, cfg, resolve), cfg.reference_blocks)
+        elif cfg.reference_blocks:
+            raise ConfigError("cost.reference_blocks: given without cost.reference")
+        return cost
+
+    def set_reference(self, t: np.ndarray, X: np.ndarray, blocks: list[str]) -> None:
+        """Track X: [M, nx] at times t: [M] on ``blocks`` (all if empty)."""
+        names = blocks or list(self.layout.primitives)
+        mask = np.zeros(self.layout.nx, bool)
+        for name in names:
+            mask[list(self.layout.block(name, f"cost.reference_blocks.{name}").coords)] = True
+        self.ref_t, self.ref_X, self.ref_mask = np.asarray(t, float), np.asarray(X, float), mask
 
     # ------------------------------------------------------------------------------------
+    ref_t: np.ndarray | None = None
+    ref_X: np.ndarray | None = None
+    ref_mask: np.ndarray | None = None
+
     def nominal(self, t: np.ndarray) -> np.ndarray:
         """x_nom at times t: [T] -> [T, nx]."""
-        return self.x_nom[None, :] + np.asarray(t)[:, None] * self.rate[None, :]
+        t = np.asarray(t, float)
+        x = self.x_nom[None, :] + t[:, None] * self.rate[None, :]
+        if self.ref_X is not None:
+            # Linear interpolation in time (held at the ends); quaternions renormalized.
+            ref = np.stack(
+                [np.interp(t, self.ref_t, self.ref_X[:, j]) for j in range(self.layout.nx)],
+                axis=1,
+            )
+            for b in self.layout.quaternions:
+                c = list(b.coords)
+                ref[:, c] /= np.linalg.norm(ref[:, c], axis=1, keepdims=True)
+            x[:, self.ref_mask] = ref[:, self.ref_mask]
+        return x
 
     def times(self, N: int, t0: float) -> np.ndarray:
         return t0 + self.dt * np.arange(N + 1)
@@ -170,3 +202,25 @@ class QuadraticCost:
         iu = np.arange(U.shape[1])
         luu[:, iu, iu] = 2.0 * self.r
         return Quadratization(lx, lxx, lu, luu)
+
+
+def _load_reference(layout: StateLayout, cfg: CostConfig, resolve) -> tuple[np.ndarray, np.ndarray]:
+    from pathlib import Path
+
+    from .solution import Solution
+
+    path = resolve(cfg.reference) if resolve else Path(cfg.reference)
+    if path.is_dir():
+        path = path / "solution.npz"
+    try:
+        sol = Solution.load(path)
+    except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
+        raise ConfigError(f"cost.reference: cannot read {path} ({type(e).__name__})") from None
+    X, t = np.asarray(sol.X, float), np.asarray(sol.t, float)
+    if X.ndim != 2 or X.shape[1] != layout.nx or t.shape != (X.shape[0],):
+        raise ConfigError(
+            f"cost.reference: {path} holds states of shape {X.shape}, not [M, {layout.nx}]"
+        )
+    if not np.all(np.isfinite(X)):
+        raise ConfigError(f"cost.reference: {path} holds NaN or infinite states")
+    return t, X

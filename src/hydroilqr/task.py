@@ -53,7 +53,10 @@ class Task:
     @functools.cached_property
     def cost(self) -> QuadraticCost:
         return QuadraticCost.from_config(
-            self.dynamics.layout, self.config.cost, self.config.plant.time_step
+            self.dynamics.layout,
+            self.config.cost,
+            self.config.plant.time_step,
+            self.config.resolve_path,
         )
 
     @functools.cached_property
