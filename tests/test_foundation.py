@@ -341,3 +341,14 @@ def test_cost_reference_quaternions_are_renormalized():
     cost.set_reference(np.array([0.0, 1.0]), X, [])
     mid = cost.nominal(np.array([0.5]))[0, q]
     assert abs(np.linalg.norm(mid) - 1.0) < 1e-12
+
+
+def test_short_accepted_steps_raise_the_regularization():
+    task = Task.load("kinova-forward", ["num_steps=20", "solver.max_iterations=6"])
+    sol = solve(task)
+    mu0 = task.config.solver.regularization_init
+    mus = [mu0, *sol.mu]
+    short = [i for i, e in enumerate(sol.eps) if 0 < e < task.config.solver.short_step]
+    assert task.config.solver.short_step == 0.1 and short, sol.eps
+    for i in short:  # an accepted step of 1/16 or less: μ went up, not down
+        assert mus[i + 1] > mus[i]

@@ -155,6 +155,9 @@ class SolverConfig:
     regularization_min: float = 1e-9
     regularization_max: float = 1e10
     regularization_factor: float = 10.0
+    # After an accepted step shorter than this (line-search ε < short_step), μ grows by
+    # regularization_factor instead of shrinking; 0 = always shrink after a success.
+    short_step: float = 0.0
     derivative_interval: int = 1  # >1: exact derivatives every k steps, interpolated between
     # With derivative_interval > 1: also exact at both sides of every change of the set of
     # touching geometry pairs (contact made or broken), interpolated only within a contact mode.
@@ -677,6 +680,7 @@ def validate(cfg: TaskConfig) -> None:
         ("regularization_min", sv.regularization_min >= 0, ">= 0"),
         ("regularization_max", sv.regularization_max > sv.regularization_min, "> its min"),
         ("regularization_factor", sv.regularization_factor > 1, "> 1"),
+        ("short_step", 0 <= sv.short_step <= 1, "in [0, 1]"),
         ("relative_cost_tolerance", sv.relative_cost_tolerance >= 0, ">= 0"),
         ("expected_decrease_tolerance", sv.expected_decrease_tolerance >= 0, ">= 0"),
         ("threads", sv.threads >= 0, ">= 0 (0 = all cores)"),

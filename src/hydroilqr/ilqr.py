@@ -263,7 +263,12 @@ def solve(
             if accepted:
                 rel = (J - Jn) / max(abs(J), 1e-12)
                 X, U, J = Xn, Un, Jn
-                mu = max(s.regularization_min, mu / s.regularization_factor)
+                if eps < s.short_step:
+                    # The quadratic model only held for a short step: regularize more (a trust
+                    # region that shrinks while the model is poor) instead of less.
+                    mu = min(s.regularization_max, mu * s.regularization_factor)
+                else:
+                    mu = max(s.regularization_min, mu / s.regularization_factor)
             costs.append(J)
             eps_hist.append(eps if accepted else 0.0)
             mu_hist.append(mu)
