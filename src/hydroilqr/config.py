@@ -156,8 +156,9 @@ class SolverConfig:
     regularization_max: float = 1e10
     regularization_factor: float = 10.0
     # After an accepted step shorter than this (line-search ε < short_step), μ grows by
-    # regularization_factor instead of shrinking; 0 = always shrink after a success.
-    short_step: float = 0.0
+    # regularization_factor instead of shrinking (a trust region that shrinks while the
+    # quadratic model only holds for short steps); 0 = always shrink after a success.
+    short_step: float = 0.1
     derivative_interval: int = 1  # >1: exact derivatives every k steps, interpolated between
     # With derivative_interval > 1: also exact at both sides of every change of the set of
     # touching geometry pairs (contact made or broken), interpolated only within a contact mode.
