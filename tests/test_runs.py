@@ -63,7 +63,12 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) == 0
     assert not (out / "gait.png").exists() and not (out / "playback-ilqr").exists()
     assert (out / "notes.txt").read_text() == "mine"  # not ours: left alone
-    assert json.loads((out / "summary.json").read_text())["task"] == TASK["name"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["task"] == TASK["name"]
+    # Provenance: contact-rich results move with last-bit differences, so every result says
+    # what produced it.
+    env = summary["environment"]
+    assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
 
 
 def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):

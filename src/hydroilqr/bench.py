@@ -458,6 +458,7 @@ def run_bench(
 
 def _write(out: Path, rows, iterations, threads) -> dict:
     from .derivatives import num_threads
+    from .report import environment
 
     doc = {
         "iterations": iterations,
@@ -467,6 +468,7 @@ def _write(out: Path, rows, iterations, threads) -> dict:
         "paper": PAPER,
         "fast": FAST,
         "tasks": {r["task"]: r for r in rows},
+        "environment": environment(),
     }
     (out / "bench.json").write_text(json.dumps(doc, indent=1))
     plot(rows, out / "iterations.png")

@@ -727,7 +727,12 @@ def cmd_mpc(args) -> int:
         task_metrics = metrics.compute(task, sol)
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
-    data = {"task": task.name, **stats, "metrics": task_metrics}
+    data = {
+        "task": task.name,
+        **stats,
+        "metrics": task_metrics,
+        "environment": report.environment(),
+    }
     report.write_json(out / "mpc.json", data)
     np.savez_compressed(
         out / "mpc.npz",

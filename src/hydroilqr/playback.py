@@ -659,7 +659,10 @@ def write_outputs(
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    from .report import environment
+
     data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
+    data["environment"] = environment()
     write_json(out / "playback.json", data)
     write_reference_csv(r, out / "reference.csv")
     np.savez_compressed(

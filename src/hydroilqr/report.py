@@ -2,7 +2,8 @@
 
 solution.npz    X, U, K, kappa, t (+ statistics)          -> Solution.load
 summary.json    task, converged, iterations, final_cost, iteration_seconds,
-                phase_seconds, derivatives, metrics, config (the fully resolved task)
+                phase_seconds, derivatives, metrics, config (the fully resolved task),
+                environment (code commit, package versions, CPU)
 convergence.png cost against iteration (log scale)
 replay.html     self-contained Meshcat replay with contact surfaces/forces
 plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
@@ -88,6 +89,7 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
         # Directory the config's relative paths resolve against (rebuild with
         # config.task_from_dict(summary["config"], summary["base_dir"])).
         "base_dir": task.config.base_dir,
+        "environment": environment(),
     }
     write_json(out / "summary.json", summary)
     plot_convergence(sol, out / "convergence.png", task.name)
@@ -126,3 +128,62 @@ def solve_outputs(out: Path) -> list[Path]:
     found = [out / n for n in sorted(names) if (out / n).exists()]
     found += sorted(p for p in out.glob("playback-*") if (p / "playback.json").exists())
     return found
+
+
+def code_version() -> str:
+    """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
+    a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
+    import subprocess
+
+    here = Path(__file__).parent
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=here,
+            text=True,
+            capture_output=True,
+            timeout=10,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "."],
+            cwd=here,
+            text=True,
+            capture_output=True,
+            timeout=10,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return head + ("-dirty" if head and dirty else "")
+
+
+def environment() -> dict:
+    """What produced a result: code commit, package versions, CPU. Contact-rich solves are
+    sensitive to last-bit floating-point differences, so a number is only comparable with
+    numbers from the same environment."""
+    import importlib.metadata as md
+    import os
+    import platform
+
+    def version(pkg: str) -> str | None:
+        try:
+            return md.version(pkg)
+        except md.PackageNotFoundError:
+            return None
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(
+                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
+            )
+    except OSError:
+        pass
+    return {
+        "code": code_version(),
+        "python": platform.python_version(),
+        "drake": version("drake"),
+        "numpy": version("numpy"),
+        "scipy": version("scipy"),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+    }

@@ -254,32 +254,6 @@ def _atomic_text(path: Path, text: str) -> None:
     _atomic_bytes(path, text.encode())
 
 
-def code_version() -> str:
-    """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
-    a resumed sweep may mix points computed by different code."""
-    import subprocess
-
-    here = Path(__file__).parent
-    try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", "."],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return head + ("-dirty" if head and dirty else "")
-
-
 def save_point(points_dir: Path, result: dict) -> None:
     """npz first, then the json (the json's presence marks the point done)."""
     row = result["row"]
@@ -319,7 +293,7 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
 def write_tables(
     out: Path, spec: dict, param_keys: list[str], rows: list[dict], pending: int
 ) -> None:
-    from .report import json_safe
+    from .report import environment, json_safe
 
     trs = table_rows(param_keys, rows)
     cols = columns(param_keys, rows)
@@ -340,6 +314,7 @@ def write_tables(
         },
         "columns": cols,
         "points": trs,
+        "environment": environment(),  # of this process (points: see their code column)
     }
     _atomic_text(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
 
@@ -719,6 +694,8 @@ def run_sweep(
     )
     computed = 0
     log = out / "computed.log"
+    from .report import code_version
+
     code = code_version()
     if todo:
         client, cluster = _open_client(scheduler, workers)
