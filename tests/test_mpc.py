@@ -190,3 +190,9 @@ def test_ctrl_c_keeps_the_closed_loop_run_so_far(tmp_path):
     res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.2), on_update=interrupt)
     assert res.interrupted and res.stats()["interrupted"]
     assert res.U.shape[0] == 10 and res.X.shape[0] == 11 and len(res.t) == 11
+
+
+def test_push_on_a_body_welded_to_the_world_is_refused():
+    task = Task.load("kinova-forward", smoke=True)
+    with pytest.raises(ConfigError, match="no movable body named 'base_link'"):
+        MPCSettings(duration=1.0, pushes=[Push(0.1, "base_link", np.zeros(3))]).check(task)

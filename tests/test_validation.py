@@ -166,6 +166,14 @@ CASES = [
     ("negative-regularization", edit(solver={"regularization_init": -1}), "regularization_init"),
     ("negative-num-steps", edit(num_steps=-3), "num_steps"),
     ("horizon-off-grid", edit(num_steps=None, horizon=0.05), "not a whole number of time steps"),
+    ("unknown-shape", edit(scene=[{"name": "f", "shape": "cone"}]), "scene[0].shape: expected"),
+    ("name-as-path", edit(name="../../escape"), "name: '../../escape'"),
+    (
+        "duplicate-scene-names",
+        edit(scene=[{"name": "f", "shape": "box"}, {"name": "f", "shape": "box"}]),
+        "two objects are named 'f'",
+    ),
+    ("horizon-and-num-steps", edit(horizon=1.0), "give horizon or num_steps, not both"),
     ("duplicate-key", "models: []\nnum_steps: 5\nnum_steps: 6\n", "'num_steps' given twice"),
 ]
 
@@ -345,3 +353,66 @@ def test_check_validates_the_smoke_section(tmp_path, capsys):
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "solver.max_iterations")
+
+
+def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
+    """Velocity blocks (`shoulder.v`) and floating-body blocks (`ball.position`) by --set."""
+    from hydroilqr.task import Task
+
+    path = write_case(tmp_path, BASE)
+    task = Task.load(
+        str(path), ["cost.Q.shoulder.v=0.5", "initial_state.elbow=0.2", "cost.Qf.elbow.v=2"]
+    )
+    assert task.config.cost.Q == {"angles": 1.0, "shoulder.v": 0.5}  # merged, not replaced
+    assert task.config.cost.Qf["elbow.v"] == 2
+    v = task.dynamics.layout.block("shoulder.v").tangent[0]
+    assert task.cost.q[v] == 0.5
+
+
+def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
+    from hydroilqr.task import Task
+
+    path = write_case(tmp_path, BASE)  # num_steps: 5
+    assert Task.load(str(path), ["horizon=0.2"]).config.steps == 10
+
+
+def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
+    """A collision name matches every geometry of that name, a body name all of the body's;
+    a body name that is also another body's collision name is ambiguous; BODY/NAME picks one."""
+    from hydroilqr.plant import _geometry_hits
+
+    geoms = {1: ("Sphere", "arm"), 2: ("Sphere", "base"), 3: ("arm", "base"), 4: ("Box", "arm")}
+    assert _geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
+    assert _geometry_hits("base/Sphere", geoms) == [2]
+    from hydroilqr.config import ConfigError
+
+    with pytest.raises(ConfigError, match="ambiguous"):
+        _geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
+    assert _geometry_hits("Box", geoms) == [4]
+
+
+def test_out_that_is_a_file_or_another_tasks_directory(tmp_path, capsys):
+    path = write_case(tmp_path, BASE)
+    (tmp_path / "afile").write_text("x")
+    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "afile"), "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "exists and is not a directory")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "mpc.json").write_text('{"task": "cartpole-wall"}')
+    rc = cli.main(["mpc", str(path), "--duration", "0.1", "--out", str(other), "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "holds the results of task 'cartpole-wall'")
+
+
+def test_bench_block_must_be_positive(capsys):
+    rc = cli.main(["bench", "cartpole-wall", "--smoke", "--block", "0", "--out", "/nonexistent"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "--block")
+
+
+def test_smoke_section_cannot_change_itself(tmp_path, capsys):
+    path = write_case(tmp_path, edit(smoke={"smoke.num_steps": 3}))
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "the smoke section cannot change itself")

@@ -447,7 +447,9 @@ def run_bench(
     accuracy: bool = True,
 ) -> dict:
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    from .report import output_dir
+
+    out = output_dir(out)
     rows = []
     for name in names:
         rows.append(bench_task(name, iterations, threads, smoke, sets, fast, block, accuracy))
@@ -478,6 +480,8 @@ def _write(out: Path, rows, iterations, threads) -> dict:
 def cmd_bench(args) -> int:
     if args.iterations < 1:
         raise ConfigError("--iterations: must be at least 1")
+    if args.block < 1:
+        raise ConfigError("--block: must be at least 1")
     run_bench(
         args.task,
         args.out,

@@ -116,7 +116,7 @@ def cmd_solve(args) -> int:
         if args.out and Path(args.out) != Path(resume_dir):
             raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
         receding.load_checkpoint(task, resume_dir)  # refuses a foreign or missing checkpoint
-    out = Path(args.out or resume_dir or f"runs/{task.name}")
+    out = Path(args.out or resume_dir or f"runs/{task.name}{'-smoke' if args.smoke else ''}")
     ck = out / receding.CHECKPOINT
     restart = False
     if ck.exists() and not resume_dir:
@@ -126,13 +126,7 @@ def cmd_solve(args) -> int:
                 "continue it, or choose another --out"
             )
         restart = True
-    previous = report.previous_task(out)
-    if previous is not None and previous != task.name:
-        raise ConfigError(
-            f"{out} holds the results of task {previous!r}: choose another --out "
-            "(or delete that directory)"
-        )
-    out.mkdir(parents=True, exist_ok=True)
+    report.output_dir(out, task.name)
     cfg = task.config
     dyn = task.dynamics
     console.print(
@@ -257,7 +251,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
     p.add_argument("--max-iterations", type=int)
     p.add_argument("--threads", type=int, help="threads for batched derivatives (0 = all)")
-    p.add_argument("--out", help="output directory (default runs/TASK)")
+    p.add_argument("--out", help="output directory (default runs/TASK, runs/TASK-smoke)")
     p.add_argument("--resume", metavar="DIR", help="continue an interrupted receding-horizon run")
     p.add_argument("--view", action="store_true", help="serve a live Meshcat page")
     p.add_argument("--no-replay", action="store_true", help="skip writing replay.html")
@@ -297,12 +291,15 @@ def _load_plugins() -> None:
 def main(argv: list[str] | None = None) -> int:
     import logging
 
-    from .plant import SimulationError
-
     # Drake's INFO lines (e.g. "Meshcat listening ...") are noise for a command-line user;
     # warnings and errors still show.
     logging.getLogger("drake").setLevel(logging.WARNING)
-    _load_plugins()
+    try:
+        _load_plugins()  # imports Drake: Ctrl+C here is an interruption like any other
+        from .plant import SimulationError
+    except KeyboardInterrupt:
+        print("hydroilqr: interrupted", file=sys.stderr)
+        return 130
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -14,7 +14,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       - {name: ground, shape: box, size: [25, 25, 1], xyz: [0, 0, -0.5],
          compliance: compliant, hydroelastic_modulus: 5e6, dissipation: 0, friction: 0.5}
     geometry:                     # overrides of the model's collision properties
-      tip: {hydroelastic_modulus: 2e6}      # by collision name or body name
+      tip: {hydroelastic_modulus: 2e6}      # by body name, collision name (every geometry
+                                            # of that name) or BODY/COLLISION_NAME
     plant: {time_step: 0.01, contact_approximation: sap}
     horizon: 1.0                  # seconds (or num_steps: N)
     blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
@@ -57,6 +58,9 @@ from typing import Any
 import yaml
 
 TASKS_DIR = Path(__file__).parent / "tasks"
+
+
+SHAPES = ("box", "sphere", "cylinder", "halfspace")
 
 
 class ConfigError(ValueError):
@@ -355,6 +359,10 @@ def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
             raise ConfigError(f"{key}: unknown key ({hint}expected one of: {', '.join(valid)})")
         kwargs[k] = _coerce(v, hints[k], key)
     obj = cls(**kwargs)
+    if cls is SceneObject and obj.shape not in SHAPES:
+        raise ConfigError(
+            f"{prefix}.shape: expected {', '.join(SHAPES[:-1])} or {SHAPES[-1]}, got {obj.shape!r}"
+        )
     if cls is SceneObject:
         shape_keys = {"box": ["size"], "sphere": ["radius"], "cylinder": ["radius", "length"]}
         used = shape_keys.get(obj.shape, [])
@@ -367,12 +375,44 @@ def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
     return obj
 
 
+# Sections whose keys are names from the model (state blocks such as ``theta.v`` or
+# ``body.position``, actuators, geometries), which may themselves contain dots.
+_NAME_MAPS = (
+    ("cost", "Q"),
+    ("cost", "Qf"),
+    ("cost", "R"),
+    ("cost", "nominal"),
+    ("cost", "nominal_rate"),
+    ("initial_state",),
+    ("blocks",),
+)
+
+
+def _group_free_keys(parts: list[str]) -> list[str]:
+    """Rejoins a model name that a dotted key split: ``cost.Q.theta.v`` sets block ``theta.v``
+    of ``cost.Q``; ``geometry.a.b.friction`` sets ``friction`` of geometry ``a.b``."""
+    for prefix in _NAME_MAPS:
+        n = len(prefix)
+        if tuple(parts[:n]) == prefix and len(parts) > n + 1:
+            return [*prefix, ".".join(parts[n:])]
+    if parts[0] == "geometry" and len(parts) > 3:
+        return ["geometry", ".".join(parts[1:-1]), parts[-1]]
+    return parts
+
+
 def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     parts = key.split(".")
     top = {f.name for f in dataclasses.fields(TaskConfig)}
     if parts[0] not in top:
         geometry = data.get("geometry") or {}
         scene_names = [o.get("name") for o in (data.get("scene") or []) if isinstance(o, dict)]
+        if parts[0] in scene_names and parts[0] in geometry:
+            raise ConfigError(
+                f"{key}: {parts[0]!r} names both a scene object and a geometry entry; write "
+                f"scene.{scene_names.index(parts[0])}.{'.'.join(parts[1:])} or geometry.{key}"
+            )
+        if scene_names.count(parts[0]) > 1:
+            raise ConfigError(f"{key}: several scene objects are named {parts[0]!r}")
         if parts[0] in scene_names:
             idx = scene_names.index(parts[0])
             parts = ["scene", str(idx)] + parts[1:]
@@ -387,6 +427,7 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
                 or difflib.get_close_matches(parts[1], fields, n=1)
             ):
                 parts = ["geometry"] + parts
+    parts = _group_free_keys(parts)
     node: Any = data
     for i, p in enumerate(parts[:-1]):
         where = ".".join(parts[: i + 1])
@@ -563,6 +604,8 @@ def load_task(
     """
     path = task_file(name_or_path)
     data = load_raw(path)
+    if data.get("horizon") is not None and data.get("num_steps"):
+        raise ConfigError(f"{path.name}: give horizon or num_steps, not both")
     if config_file:
         extra = load_raw(Path(config_file), "--config file")
         _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
@@ -573,7 +616,9 @@ def load_task(
             raise ConfigError("smoke: expected a mapping of dotted keys to values")
         _build_dataclass(TaskConfig, data, "")  # the task's own mistakes, named as such
         try:
-            for key, value in shrink.items():
+            for key, value in list(shrink.items()):
+                if key.split(".")[0] == "smoke":
+                    raise ConfigError(f"{key}: the smoke section cannot change itself")
                 _set_dotted(data, key, value)
             _build_dataclass(TaskConfig, data, "")
         except ConfigError as e:
@@ -582,6 +627,10 @@ def load_task(
         items = overrides.items()
     else:
         items = map(parse_override, overrides or [])
+    items = list(items)
+    keys = {k for k, _ in items}
+    if "horizon" in keys and "num_steps" not in keys:
+        data["num_steps"] = 0  # a horizon given on the command line wins over num_steps
     for key, value in items:
         _set_dotted(data, key, _cwd_path(key, value))
     data.setdefault("name", path.stem)
@@ -624,6 +673,15 @@ def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
     if not cfg.models:
         raise ConfigError("models: at least one model file is required")
+    if not all(c.isalnum() or c in "-_.@+" for c in cfg.name) or cfg.name.startswith("."):
+        raise ConfigError(
+            f"name: {cfg.name!r} is used as a directory name (runs/NAME): letters, digits "
+            "and - _ . @ + only"
+        )
+    scene_names = [o.name for o in cfg.scene if o.name]
+    for n in scene_names:
+        if scene_names.count(n) > 1:
+            raise ConfigError(f"scene: two objects are named {n!r}")
     for i, m in enumerate(cfg.models):
         if not m.file:
             raise ConfigError(f"models[{i}].file: required")

@@ -110,10 +110,15 @@ class MPCSettings:
         if self.warm_start_plan:
             self.plan_controls(task)
         plant = task.dynamics.plant
+        welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
         for p in self.pushes:
-            if not plant.HasBodyNamed(p.body) or p.body == plant.world_body().name():
+            if not plant.HasBodyNamed(p.body) or p.body in welded:
                 movable = sorted(
-                    plant.get_body(BodyIndex(b)).name() for b in range(1, plant.num_bodies())
+                    n
+                    for n in (
+                        plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())
+                    )
+                    if n not in welded
                 )
                 raise ConfigError(
                     f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
@@ -706,8 +711,8 @@ def cmd_mpc(args) -> int:
         warm_start_plan=args.warm_start_plan,
     )
     settings.check(task)
-    out = Path(args.out or f"runs/{task.name}-mpc")
-    out.mkdir(parents=True, exist_ok=True)
+    default = f"runs/{task.name}{'-smoke' if args.smoke else ''}-mpc"
+    out = report.output_dir(args.out or default, task.name)
     horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
     console.print(
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "

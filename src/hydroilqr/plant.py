@@ -136,6 +136,24 @@ def _shape(o: SceneObject):
     return HalfSpace()
 
 
+def _geometry_hits(key: str, geoms: dict) -> list:
+    """Geometries a ``geometry:`` key names: a body (all its collision geometries), every
+    collision geometry of that name (e.g. all fingertips), or one ``BODY/GEOMETRY``. A key that
+    is a body name and also a collision name elsewhere is an error (which was meant?)."""
+    if "/" in key:
+        body, name = key.split("/", 1)
+        return [g for g, (n, b) in geoms.items() if n == name and b == body]
+    by_body = [g for g, (n, b) in geoms.items() if b == key]
+    by_name = [g for g, (n, b) in geoms.items() if n == key]
+    where = sorted({geoms[g][1] for g in by_body + by_name})
+    if by_body and len(where) > 1:
+        raise ConfigError(
+            f"geometry.{key}: ambiguous, it names geometry on bodies {', '.join(where)}; "
+            f"write BODY/{key} (e.g. {where[0]}/{key})"
+        )
+    return by_body or by_name
+
+
 def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
     """GeometryId value -> (collision name without model scope, body name)."""
     inspector = scene_graph.model_inspector()
@@ -284,7 +302,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         geoms = collision_geometries(plant, scene_graph)
         inspector = scene_graph.model_inspector()
         for key, p in task.geometry.items():
-            hits = [g for g, (n, b) in geoms.items() if key in (n, b)]
+            hits = _geometry_hits(key, geoms)
             if not hits:
                 known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
                 raise ConfigError(
@@ -476,8 +494,11 @@ class Dynamics:
             if self.task.plant.contact_surface_representation == "polygon"
             else Rep.kTriangle
         )
-        if self.task.plant.contact_model == "hydroelastic":
+        model = self.task.plant.contact_model
+        if model == "hydroelastic":
             return query.ComputeContactSurfaces(rep), []
+        if model == "point":  # the plant computes point contact only, whatever the geometry
+            return [], query.ComputePointPairPenetration()
         return query.ComputeContactSurfacesWithFallback(rep)
 
     def contact_pairs(self, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:

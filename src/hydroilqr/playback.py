@@ -705,7 +705,9 @@ def cmd_playback(args) -> int:
         object=args.object,
     )
     settings.validate()
-    out = Path(args.out or Path(args.dir) / f"playback-{args.policy}")
+    from .report import output_dir
+
+    out = output_dir(args.out or Path(args.dir) / f"playback-{args.policy}", task.name)
     con = cli.console
     truth_contact = settings.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
     con.print(

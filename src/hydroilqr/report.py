@@ -107,15 +107,45 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
 SOLVE_FILES = ("summary.json", "solution.npz", "convergence.png", "replay.html", "checkpoint.npz")
 
 
+# Files that mark a directory as holding some task's results (each has a "task" field).
+RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json")
+
+
 def previous_task(out: Path) -> str | None:
-    """Name of the task whose results ``out`` holds (None: no earlier solve there)."""
-    path = Path(out) / "summary.json"
-    if not path.exists():
-        return None
+    """Name of the task whose results ``out`` holds (None: no results there)."""
+    for marker in RESULT_MARKERS:
+        path = Path(out) / marker
+        if not path.exists():
+            continue
+        try:
+            task = json.loads(path.read_text()).get("task")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if task:
+            return str(task)
+    return None
+
+
+def output_dir(out: str | Path, task_name: str | None = None) -> Path:
+    """``out`` ready to write into: created if missing; ConfigError if it is a file or holds
+    another task's results (results are never mixed or overwritten across tasks)."""
+    from .config import ConfigError
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a directory")
+    if task_name is not None:
+        previous = previous_task(out)
+        if previous is not None and previous != task_name:
+            raise ConfigError(
+                f"{out} holds the results of task {previous!r}: choose another --out "
+                "(or delete that directory)"
+            )
     try:
-        return str(json.loads(path.read_text()).get("task"))
-    except (OSError, ValueError, AttributeError):
-        return None
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"--out {out}: {e.strerror}") from None
+    return out
 
 
 def solve_outputs(out: Path) -> list[Path]:

@@ -632,6 +632,9 @@ def run_sweep(
 
     out = Path(out)
     points_dir = out / "points"
+    from .report import output_dir
+
+    output_dir(out, task_cfg.name)
     points_dir.mkdir(parents=True, exist_ok=True)
     spec = {
         "task": task_cfg.name,
