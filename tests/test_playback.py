@@ -109,3 +109,12 @@ def test_playback_warns_about_underactuation_and_slowed_ilqr(run_dir):
     assert "speed 0.5" in advisories(plant, PlaybackSettings(policy="ilqr", speed=0.5))[0]
     same = playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0, truth_time_step=0.002))
     assert not same.metrics["warnings"]
+
+
+def test_playback_settings_that_cannot_fit_the_plan(run_dir):
+    task, _, _ = load_run(run_dir)
+    with pytest.raises(ConfigError, match="coarser than the plan's time step"):
+        PlaybackSettings(truth_time_step=0.05).check_against(task)
+    with pytest.raises(ConfigError, match="--truth-set solver.max_iterations"):
+        PlaybackSettings(truth_overrides=["solver.max_iterations=1"]).check_against(task)
+    PlaybackSettings(truth_overrides=["tip.friction=0.3"]).check_against(task)  # a shorthand

@@ -465,6 +465,23 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key.strip(), value
 
 
+# What a "real" (simulated) system may differ in from the controller's model: --truth-set.
+TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant")
+
+
+def check_truth_overrides(overrides: list[str]) -> None:
+    """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...)."""
+    top = {f.name for f in dataclasses.fields(TaskConfig)}
+    for text in overrides:
+        key, _ = parse_override(text)
+        first = key.split(".")[0]
+        if first in top and first not in TRUTH_SECTIONS:
+            raise ConfigError(
+                f"--truth-set {key}: the simulated plant only uses {', '.join(TRUTH_SECTIONS)} "
+                "(and geometry/scene shorthands)"
+            )
+
+
 def with_overrides(cfg: TaskConfig, overrides: list[str]) -> TaskConfig:
     """A copy of a loaded task with ``key=value`` overrides applied (validated again)."""
     d = cfg.to_dict()

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from pydrake.multibody.tree import BodyIndex
 
-from .config import ConfigError, with_overrides
+from .config import ConfigError, check_truth_overrides, with_overrides
 from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
@@ -130,6 +130,7 @@ class MPCSettings:
                     f"--push at {p.time:g} s: outside the run (0 to {self.duration:g} s)"
                 )
         if self.truth_overrides:
+            check_truth_overrides(self.truth_overrides)
             truth = with_overrides(task.config, self.truth_overrides)
             if truth.plant.time_step != dt:
                 raise ConfigError(

@@ -40,7 +40,14 @@ import numpy as np
 from pydrake.multibody.tree import JointIndex
 
 from . import cli
-from .config import APPROXIMATIONS, TASKS_DIR, ConfigError, task_from_dict, with_overrides
+from .config import (
+    APPROXIMATIONS,
+    TASKS_DIR,
+    ConfigError,
+    check_truth_overrides,
+    task_from_dict,
+    with_overrides,
+)
 from .plant import Dynamics, SimulationError
 from .solution import Solution
 from .state import quat_conj, quat_mul
@@ -71,6 +78,16 @@ class PlaybackSettings:
     clip_torques: bool = True  # saturate at the actuators' effort limits
     scale_velocity_reference: bool = True  # v̄_J = s · v_plan (pd policy)
     object: str | None = None  # state block compared planned vs actual (None: automatic)
+
+    def check_against(self, task) -> None:
+        """Settings that cannot fit ``task``'s plan (ConfigError)."""
+        check_truth_overrides(self.truth_overrides)
+        dt = task.config.plant.time_step
+        if self.truth_time_step > dt * (1 + 1e-9):
+            raise ConfigError(
+                f"playback truth-time-step {self.truth_time_step:g} s: coarser than the plan's "
+                f"time step ({dt:g} s); the 'real' system must be simulated at least as finely"
+            )
 
     def validate(self) -> None:
         for name in ("speed", "rate", "update_period", "truth_time_step"):
@@ -226,9 +243,10 @@ def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
             raise ConfigError(
                 f"playback object: {requested} is an orientation; give a position block"
             )
-        return ObjectSpec(
-            requested, "joint", b.coords, unit="m" if requested.endswith("position") else ""
-        )
+        unit = "m" if requested.endswith("position") else ""
+        if plant.HasJointNamed(requested) and plant.GetJointByName(requested).num_positions() == 1:
+            unit = "m" if plant.GetJointByName(requested).type_name() == "prismatic" else "rad"
+        return ObjectSpec(requested, "joint", b.coords, unit=unit)
     for b in layout.quaternions:
         base = b.name[: -len(".orientation")]
         pos = layout.primitives[f"{base}.position"]
@@ -705,6 +723,7 @@ def cmd_playback(args) -> int:
         object=args.object,
     )
     settings.validate()
+    settings.check_against(task)
     from .report import output_dir
 
     out = output_dir(args.out or Path(args.dir) / f"playback-{args.policy}", task.name)
