@@ -168,7 +168,9 @@ def cmd_solve(args) -> int:
     report.write_json(out / "summary.json", summary)
     m = summary["metrics"]
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
-    console.print("metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()))
+    console.print(
+        "metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()), soft_wrap=True
+    )
     console.print(
         f"wrote {out}/summary.json, solution.npz, convergence.png"
         + ("" if args.no_replay else ", replay.html")

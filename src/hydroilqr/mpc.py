@@ -765,7 +765,8 @@ def cmd_mpc(args) -> int:
         "metrics: "
         + ", ".join(
             f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in shown.items()
-        )
+        ),
+        soft_wrap=True,  # one line: a terminal wraps it, a log keeps it whole
     )
     console.print(
         f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
