@@ -301,6 +301,7 @@ def bench_task(
         probe = probe_derivatives(tasks[1], U0, threads)
         tasks[1].config.solver.derivatives = probe["choice"]
         cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
+    name = tasks[0].name  # the task's own name, also when given as a file
     console.print(
         f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
         f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
