@@ -16,7 +16,9 @@ Forward pass (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k − x̄_k). The predic
 step of size ε is ΔJ(ε) = −ε Σ κᵀQ_u + ½ ε² Σ κᵀ Q_uu κ; a step is accepted when the actual
 decrease is at least ``armijo`` times the predicted one. A rollout that fails (contact solver
 not converging, non-finite state) is a rejected step. When no ε works, μ grows and the
-backward pass is repeated; μ shrinks after successful steps.
+backward pass is repeated; μ shrinks after a successful step, unless the step was shorter than
+``short_step`` (the quadratic model held only for a short step: μ grows, a shrinking trust
+region).
 
 After convergence, u_k = ū_k − K_k (x_k − x̄_k) (eq. 8) is the local feedback policy.
 """
@@ -266,7 +268,7 @@ def solve(
                 if eps < s.short_step:
                     # The quadratic model only held for a short step: regularize more (a trust
                     # region that shrinks while the model is poor) instead of less.
-                    mu = min(s.regularization_max, mu * s.regularization_factor)
+                    mu = min(s.regularization_max, _increase(mu, s))
                 else:
                     mu = max(s.regularization_min, mu / s.regularization_factor)
             costs.append(J)
