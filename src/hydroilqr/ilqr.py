@@ -268,7 +268,10 @@ def solve(
                 if eps < s.short_step:
                     # The quadratic model only held for a short step: regularize more (a trust
                     # region that shrinks while the model is poor) instead of less.
-                    mu = min(s.regularization_max, _increase(mu, s))
+                    mu = min(
+                        s.regularization_max,
+                        max(mu, s.regularization_min) * s.regularization_factor,
+                    )
                 else:
                     mu = max(s.regularization_min, mu / s.regularization_factor)
             costs.append(J)
