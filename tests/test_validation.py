@@ -416,3 +416,10 @@ def test_smoke_section_cannot_change_itself(tmp_path, capsys):
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "the smoke section cannot change itself")
+
+
+def test_smoke_values_are_validated_as_smoke(tmp_path, capsys):
+    path = write_case(tmp_path, edit(smoke={"num_steps": -1}))
+    rc = cli.main(["solve", str(path), "--smoke", "--no-replay", "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "smoke: num_steps")

@@ -637,7 +637,9 @@ def load_task(
                 if key.split(".")[0] == "smoke":
                     raise ConfigError(f"{key}: the smoke section cannot change itself")
                 _set_dotted(data, key, value)
-            _build_dataclass(TaskConfig, data, "")
+            shrunk = _build_dataclass(TaskConfig, data, "")
+            shrunk.base_dir = str(path.resolve().parent)
+            validate(shrunk)
         except ConfigError as e:
             raise ConfigError(f"smoke: {e}") from None
     if isinstance(overrides, dict):
