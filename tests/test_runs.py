@@ -102,3 +102,10 @@ def test_interrupted_ilqr_statistics_are_consistent():
     assert len(sol.iteration_seconds) == len(sol.eps) == len(sol.mu) == n
     assert all(len(v) == n for v in sol.phase_seconds.values())
     np.testing.assert_allclose(task.cost.total(sol.X, sol.U, 0.0), sol.costs[-1])
+
+
+def test_a_solve_that_never_steps_says_why(tmp_path, capsys):
+    # Zero state weights: the zero guess is already optimal, so no step is ever taken.
+    task = write_task(tmp_path, cost={"R": 0.01}, solver={"max_iterations": 3})
+    assert cli.main(["solve", str(task), "--out", str(tmp_path / "o"), "--no-replay"]) == 0
+    assert "no step was taken" in capsys.readouterr().out

@@ -175,6 +175,13 @@ def cmd_solve(args) -> int:
         f"wrote {out}/summary.json, solution.npz, convergence.png"
         + ("" if args.no_replay else ", replay.html")
     )
+    if cfg.receding_horizon is None and sol.eps and not any(e > 0 for e in sol.eps):
+        console.print(
+            "[yellow]note:[/yellow] no step was taken: the initial guess is already stationary "
+            "for the model the solver sees. If the cost depends on a contact that never happens "
+            "along it, there is no gradient to follow: try a guess that makes contact, or a "
+            "hydroelastic margin on the geometry that should touch"
+        )
     if sol.reason == "interrupted":
         console.print(
             f"interrupted: {out} holds the best trajectory found before Ctrl+C "
