@@ -796,7 +796,12 @@ def validate(cfg: TaskConfig) -> None:
             vals = v if isinstance(v, list) else [v]
             for x in vals:
                 if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
-                    raise ConfigError(f"cost.{section}.{k}: expected numbers, got {v!r}")
+                    try:
+                        bad = not math.isfinite(float(x))  # "inf", "nan" given as words
+                    except (TypeError, ValueError):
+                        bad = False
+                    what = "finite numbers" if bad or isinstance(x, float) else "numbers"
+                    raise ConfigError(f"cost.{section}.{k}: expected {what}, got {v!r}")
                 if section != "nominal_rate" and x < 0:
                     raise ConfigError(f"cost.{section}.{k}: weights must be non-negative, got {x}")
     rh = cfg.receding_horizon
