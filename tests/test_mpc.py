@@ -196,3 +196,23 @@ def test_push_on_a_body_welded_to_the_world_is_refused():
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="no movable body named 'base_link'"):
         MPCSettings(duration=1.0, pushes=[Push(0.1, "base_link", np.zeros(3))]).check(task)
+
+
+def test_a_passed_deadline_cuts_the_line_search_short():
+    import time
+
+    from hydroilqr.ilqr import solve as ilqr_solve
+
+    task = Task.load("cartpole-wall", ["num_steps=30"])
+    sol = ilqr_solve(
+        task.problem(),
+        task.initial_guess(30),
+        task.config.solver,
+        deadline=time.perf_counter() - 1.0,
+    )
+    assert sol.reason == "deadline" and not sol.converged and len(sol.costs) == 2
+    assert sol.costs[-1] == sol.costs[0] and np.any(sol.K != 0)  # fresh gains, no step
+    # In the loop: updates past the deadline keep their warm start and the loop goes on.
+    res = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
+    assert res.past_deadline == res.stats()["updates_past_deadline"] > 0
+    assert np.all(np.isfinite(res.X)) and res.U.shape[0] == 20

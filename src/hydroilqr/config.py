@@ -219,6 +219,9 @@ class MPCConfig:
     # failed search keeps the previous plan (shifted); it is not an error.
     line_search_steps: int = 3
     line_search_retries: int = 0
+    # > 0: an update starts no line-search trial after this fraction of the control period
+    # (it keeps the warm start, with fresh gains): late updates return in time. 0 = off.
+    deadline: float = 0.0
 
 
 @dataclass
@@ -738,6 +741,10 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("solver.fd_epsilon: must be positive")
     if cfg.solver.autodiff_workers < 0:
         raise ConfigError("solver.autodiff_workers: must be >= 0 (0 = one per core)")
+    if not 0 <= cfg.mpc.deadline <= 1:
+        raise ConfigError(
+            f"mpc.deadline: a fraction of the control period in [0, 1], got {cfg.mpc.deadline}"
+        )
     if cfg.mpc.warm_start_tail not in ("last", "guess"):
         raise ConfigError("mpc.warm_start_tail: expected last or guess")
     if not cfg.mpc.derivative_reuse_tolerance >= 0 or cfg.mpc.derivative_steps_per_update < 0:

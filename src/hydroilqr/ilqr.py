@@ -154,6 +154,7 @@ def solve(
     linearizer: Linearizer | None = None,
     X0: np.ndarray | None = None,
     stop_on_interrupt: bool = False,
+    deadline: float | None = None,
 ) -> Solution:
     """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution.
 
@@ -163,6 +164,9 @@ def solve(
     when ``X0[0]`` equals x0 exactly, since then it *is* that rollout.
     ``stop_on_interrupt``: Ctrl+C ends the solve with the best trajectory so far (reason
     "interrupted") instead of raising KeyboardInterrupt.
+    ``deadline``: a ``time.perf_counter()`` value; no line-search trial starts after it (the
+    iteration then keeps its trajectory, with the gains of its backward pass). For real-time
+    MPC: an update that runs late returns in time.
     """
     s = settings or SolverConfig()
     dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
@@ -222,6 +226,7 @@ def solve(
             expected = 0.0
             expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
             searches = 0
+            late = False  # the deadline passed before a step was found
             while True:
                 t = time.perf_counter()
                 bp = backward_pass(A, B, quad, mu)
@@ -239,6 +244,9 @@ def solve(
                 t = time.perf_counter()
                 eps = 1.0
                 for _ in range(s.line_search_max_steps):
+                    if deadline is not None and time.perf_counter() > deadline:
+                        late = True
+                        break
                     expected = expected_decrease(bp.dV, eps)
                     try:
                         Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
@@ -251,7 +259,7 @@ def solve(
                         break
                     eps *= s.line_search_factor
                 ph["line_search"] += time.perf_counter() - t
-                if accepted:
+                if accepted or late:
                     break
                 searches += 1
                 mu = _increase(mu, s)
@@ -283,7 +291,9 @@ def solve(
             for cb in callbacks:
                 cb(info)
             if not accepted:
-                if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
+                if late:
+                    reason = "deadline"
+                elif expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
                     reason, converged = "expected_decrease", True
                 else:
                     reason = "line_search_failed"

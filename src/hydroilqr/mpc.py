@@ -84,6 +84,7 @@ class MPCSettings:
     line_search_retries: int = 0  # backward pass + line search again with a larger μ
     # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
     truth_overrides: list[str] = field(default_factory=list)
+    deadline: float = 0.0  # > 0: no line-search trial after this fraction of the period
 
     def check(self, task) -> None:
         """Raises ConfigError for settings that cannot run on ``task``."""
@@ -200,6 +201,7 @@ class MPCSettings:
             derivative_steps_per_update=m.derivative_steps_per_update,
             line_search_steps=m.line_search_steps,
             line_search_retries=m.line_search_retries,
+            deadline=m.deadline,
         )
         for k, v in overrides.items():
             if v is not None:
@@ -228,6 +230,7 @@ class MPCResult:
     reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
     phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
     interrupted: bool = False  # stopped by Ctrl+C before the end
+    past_deadline: int = 0  # updates whose line search mpc.deadline cut short
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -258,6 +261,8 @@ class MPCResult:
             "wall_seconds": self.wall_seconds,
             "simulation_failure": self.failure or None,
             "interrupted": self.interrupted,
+            "deadline_fraction": self.settings.deadline,
+            "updates_past_deadline": self.past_deadline,
             "feedback_scale": self.settings.feedback_scale,
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
@@ -338,6 +343,7 @@ class Controller:
         self.derivative_steps: list[int] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one
         self.phases: list[dict[str, float]] = []  # seconds per solver phase, per update
+        self.past_deadline = 0  # updates whose line search the deadline cut short
         # Updates search a few step sizes only; the first plan uses the task's settings.
         self.solver_update = dataclasses.replace(
             s,
@@ -345,8 +351,11 @@ class Controller:
             line_search_retries=max(0, settings.line_search_retries),
         )
 
-    def update(self, x: np.ndarray, t: float, full: bool = False) -> tuple[Solution | None, bool]:
-        """``full``: no reuse and no cap on the partials (the first, converged plan)."""
+    def update(
+        self, x: np.ndarray, t: float, full: bool = False, deadline: float | None = None
+    ) -> tuple[Solution | None, bool]:
+        """``full``: no reuse and no cap on the partials (the first, converged plan).
+        ``deadline``: a ``time.perf_counter()`` value after which no line-search trial starts."""
         dt = self.dyn.dt
         X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
         on_prediction = False
@@ -388,6 +397,7 @@ class Controller:
                 final_gains=False,
                 linearizer=lin,
                 X0=X0,
+                deadline=deadline,
             )
         except SimulationError:
             return self._failed(U_before)
@@ -395,6 +405,7 @@ class Controller:
             lin.reuse_tolerance, lin.max_steps = keep
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
         self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
+        self.past_deadline += sol.reason == "deadline"
         if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
             return self._failed(U_before)
         self.U = sol.U.copy()
@@ -547,7 +558,8 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
             t_now = k * dt
             if not first:
                 t0 = time.perf_counter()
-                new_plan, ok = ctrl.update(x, t_now)
+                late = t0 + settings.deadline / settings.rate if settings.deadline > 0 else None
+                new_plan, ok = ctrl.update(x, t_now, deadline=late)
                 w = time.perf_counter() - t0
                 failures += 0 if ok else 1
                 solve_s.append(w)
@@ -601,6 +613,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
         ctrl.reused_prediction[1:],
         ctrl.phases[1:],
         interrupted,
+        ctrl.past_deadline,
     )
 
 
