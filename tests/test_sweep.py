@@ -110,3 +110,11 @@ def test_resume_computes_only_missing(swept):
     res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=SMALL, smoke=True)
     assert res["computed"] == 0 and res["failed"] == 0
     assert sorted(r["id"] for r in _rows(out)) == sorted(before)
+
+
+def test_negative_values_after_values_flag():
+    from hydroilqr.cli import _join_negative_values
+
+    argv = ["sweep", "t", "--param", "k", "--values", "-5,1e6", "--param", "j", "--values", "1,2"]
+    assert _join_negative_values(argv)[4:6] == ["--values=-5,1e6", "--param"]
+    assert _join_negative_values(argv)[-2:] == ["--values", "1,2"]

@@ -297,6 +297,20 @@ def _load_plugins() -> None:
                 raise
 
 
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--values -5,1e6`` -> ``--values=-5,1e6`` (argparse takes "-5,1e6" for an option)."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        if argv[i] == "--values" and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"--values={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     import logging
 
@@ -310,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         print("hydroilqr: interrupted", file=sys.stderr)
         return 130
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
     try:
         return int(args.func(args) or 0)
     except ConfigError as e:
