@@ -379,16 +379,16 @@ def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
 def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
     """A collision name matches every geometry of that name, a body name all of the body's;
     a body name that is also another body's collision name is ambiguous; BODY/NAME picks one."""
-    from hydroilqr.plant import _geometry_hits
+    from hydroilqr.plant import geometry_hits
 
     geoms = {1: ("Sphere", "arm"), 2: ("Sphere", "base"), 3: ("arm", "base"), 4: ("Box", "arm")}
-    assert _geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
-    assert _geometry_hits("base/Sphere", geoms) == [2]
+    assert geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
+    assert geometry_hits("base/Sphere", geoms) == [2]
     from hydroilqr.config import ConfigError
 
     with pytest.raises(ConfigError, match="ambiguous"):
-        _geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
-    assert _geometry_hits("Box", geoms) == [4]
+        geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
+    assert geometry_hits("Box", geoms) == [4]
 
 
 def test_out_that_is_a_file_or_another_tasks_directory(tmp_path, capsys):

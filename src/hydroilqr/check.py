@@ -187,12 +187,12 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         )
     console.print(t)
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
-    from .plant import _geometry_hits
+    from .plant import geometry_hits
 
     names = dyn.geometry_names()
     out["geometry_overrides"] = {}
     for key in task.config.geometry:
-        hits = [f"{names[g][1]}/{names[g][0]}" for g in _geometry_hits(key, names)]
+        hits = [f"{names[g][1]}/{names[g][0]}" for g in geometry_hits(key, names)]
         out["geometry_overrides"][key] = hits
         several = len({h.split("/")[0] for h in hits}) > 1
         console.print(

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -211,8 +212,6 @@ def _clear_previous(out: Path) -> None:
         console.print(f"replacing the previous results in {out} ({len(stale)} files/directories)")
     for p in stale:
         if p.is_dir():
-            import shutil
-
             shutil.rmtree(p)
         else:
             p.unlink()

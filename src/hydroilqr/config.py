@@ -710,12 +710,9 @@ def validate(cfg: TaskConfig) -> None:
         if not m.file.startswith("package://") and not cfg.resolve_path(m.file).exists():
             raise ConfigError(f"models[{i}].file: no such file {cfg.resolve_path(m.file)}")
     for i, m in enumerate(cfg.models):
-        for j, w in enumerate(([m.weld] if m.weld is not None else []) + list(m.welds)):
-            wkey = (
-                f"models[{i}].weld"
-                if (m.weld is not None and j == 0)
-                else (f"models[{i}].welds[{j - (m.weld is not None)}]")
-            )
+        welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
+        welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
+        for wkey, w in welds:
             _check_length(w.xyz, 3, f"{wkey}.xyz")
             _check_length(w.rpy, 3, f"{wkey}.rpy")
     _check_length(cfg.plant.gravity, 3, "plant.gravity")
@@ -784,8 +781,6 @@ def validate(cfg: TaskConfig) -> None:
         _check_contact(p, f"geometry.{name}")
     for i, o in enumerate(cfg.scene):
         _check_contact(o, f"scene[{i}]")
-        if o.shape not in ("box", "sphere", "cylinder", "halfspace"):
-            raise ConfigError(f"scene[{i}].shape: expected box, sphere, cylinder or halfspace")
         if o.shape == "box" and (len(o.size) != 3 or min(o.size) <= 0):
             raise ConfigError(f"scene[{i}].size: expected three positive numbers")
         _check_length(o.xyz, 3, f"scene[{i}].xyz")

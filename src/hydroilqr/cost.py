@@ -137,10 +137,13 @@ class QuadraticCost:
         x = self.x_nom[None, :] + t[:, None] * self.rate[None, :]
         if self.ref_X is not None:
             # Linear interpolation in time (held at the ends); quaternions renormalized.
-            ref = np.stack(
-                [np.interp(t, self.ref_t, self.ref_X[:, j]) for j in range(self.layout.nx)],
-                axis=1,
-            )
+            rt = self.ref_t
+            tc = np.clip(t, rt[0], rt[-1])
+            i = np.clip(np.searchsorted(rt, tc, side="right") - 1, 0, max(len(rt) - 2, 0))
+            j = np.minimum(i + 1, len(rt) - 1)
+            span = rt[j] - rt[i]
+            w = np.divide(tc - rt[i], span, out=np.zeros_like(tc), where=span > 0)[:, None]
+            ref = (1.0 - w) * self.ref_X[i] + w * self.ref_X[j]
             for b in self.layout.quaternions:
                 c = list(b.coords)
                 ref[:, c] /= np.linalg.norm(ref[:, c], axis=1, keepdims=True)
@@ -205,17 +208,11 @@ class QuadraticCost:
 
 
 def _load_reference(layout: StateLayout, cfg: CostConfig, resolve) -> tuple[np.ndarray, np.ndarray]:
-    from pathlib import Path
+    from .solution import load_run_solution
 
-    from .solution import Solution
-
-    path = resolve(cfg.reference) if resolve else Path(cfg.reference)
-    if path.is_dir():
-        path = path / "solution.npz"
-    try:
-        sol = Solution.load(path)
-    except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
-        raise ConfigError(f"cost.reference: cannot read {path} ({type(e).__name__})") from None
+    sol, path = load_run_solution(
+        resolve(cfg.reference) if resolve else cfg.reference, "cost.reference"
+    )
     X, t = np.asarray(sol.X, float), np.asarray(sol.t, float)
     if X.ndim != 2 or X.shape[1] != layout.nx or t.shape != (X.shape[0],):
         raise ConfigError(

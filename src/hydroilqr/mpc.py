@@ -38,7 +38,7 @@ from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
 from .plant import Dynamics, SimulationError
-from .solution import PHASES, Solution
+from .solution import PHASES, Solution, load_run_solution
 
 
 @dataclass
@@ -114,13 +114,8 @@ class MPCSettings:
         welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
         for p in self.pushes:
             if not plant.HasBodyNamed(p.body) or p.body in welded:
-                movable = sorted(
-                    n
-                    for n in (
-                        plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())
-                    )
-                    if n not in welded
-                )
+                names = [plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())]
+                movable = sorted(set(names) - welded)
                 raise ConfigError(
                     f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
                 )
@@ -149,31 +144,20 @@ class MPCSettings:
         cannot be read or does not fit the task."""
         if not self.warm_start_plan:
             return None
-        path = Path(self.warm_start_plan)
-        if path.is_dir():
-            path = path / "solution.npz"
-        try:
-            plan = Solution.load(path)
-            U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
-        except Exception as e:
-            raise ConfigError(
-                f"mpc.warm_start_plan: cannot read {path} ({type(e).__name__})"
-            ) from None
+        plan, path = load_run_solution(self.warm_start_plan, "mpc.warm_start_plan")
+        U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
         nu = task.dynamics.nu
         if U.ndim != 2 or U.shape[1] != nu or not np.all(np.isfinite(U)):
             raise ConfigError(
                 f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
             )
-        summary = path.parent / "summary.json"
-        if summary.exists():  # a run of another task with as many actuators is still wrong
-            from .report import previous_task
+        from .report import previous_task
 
-            other = previous_task(path.parent)
-            if other is not None and other != task.name:
-                raise ConfigError(
-                    f"mpc.warm_start_plan: {path.parent} is a run of task {other!r}, "
-                    f"not {task.name!r}"
-                )
+        other = previous_task(path.parent)  # another task with as many actuators is wrong too
+        if other is not None and other != task.name:
+            raise ConfigError(
+                f"mpc.warm_start_plan: {path.parent} is a run of task {other!r}, not {task.name!r}"
+            )
         dt = task.config.plant.time_step
         if t.size > 1 and abs((t[1] - t[0]) - dt) > 1e-9:
             raise ConfigError(
@@ -558,8 +542,8 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
             t_now = k * dt
             if not first:
                 t0 = time.perf_counter()
-                late = t0 + settings.deadline / settings.rate if settings.deadline > 0 else None
-                new_plan, ok = ctrl.update(x, t_now, deadline=late)
+                deadline = t0 + settings.deadline / settings.rate if settings.deadline else None
+                new_plan, ok = ctrl.update(x, t_now, deadline=deadline)
                 w = time.perf_counter() - t0
                 failures += 0 if ok else 1
                 solve_s.append(w)

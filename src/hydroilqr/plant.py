@@ -136,7 +136,7 @@ def _shape(o: SceneObject):
     return HalfSpace()
 
 
-def _geometry_hits(key: str, geoms: dict) -> list:
+def geometry_hits(key: str, geoms: dict) -> list:
     """Geometries a ``geometry:`` key names: a body (all its collision geometries), every
     collision geometry of that name (e.g. all fingertips), or one ``BODY/GEOMETRY``. A key that
     is a body name and also a collision name elsewhere is an error (which was meant?)."""
@@ -302,7 +302,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         geoms = collision_geometries(plant, scene_graph)
         inspector = scene_graph.model_inspector()
         for key, p in task.geometry.items():
-            hits = _geometry_hits(key, geoms)
+            hits = geometry_hits(key, geoms)
             if not hits:
                 known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
                 raise ConfigError(

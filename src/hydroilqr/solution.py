@@ -11,6 +11,20 @@ import numpy as np
 PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
 
 
+def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
+    """The Solution of a solved run given as its directory or its solution.npz, and the file's
+    path; ConfigError naming ``key`` (the option that pointed there) if it cannot be read."""
+    from .config import ConfigError
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "solution.npz"
+    try:
+        return Solution.load(path), path
+    except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
+        raise ConfigError(f"{key}: cannot read {path} ({type(e).__name__})") from None
+
+
 @dataclass
 class Solution:
     """An iLQR solution.
