@@ -293,7 +293,7 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
 def write_tables(
     out: Path, spec: dict, param_keys: list[str], rows: list[dict], pending: int
 ) -> None:
-    from .report import environment, json_safe
+    from .report import json_safe
 
     trs = table_rows(param_keys, rows)
     cols = columns(param_keys, rows)
@@ -314,7 +314,6 @@ def write_tables(
         },
         "columns": cols,
         "points": trs,
-        "environment": environment(),  # of this process (points: see their code column)
     }
     _atomic_text(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
 
@@ -632,7 +631,7 @@ def run_sweep(
 
     out = Path(out)
     points_dir = out / "points"
-    from .report import output_dir
+    from .report import environment, output_dir
 
     output_dir(out, task_cfg.name)
     points_dir.mkdir(parents=True, exist_ok=True)
@@ -643,6 +642,7 @@ def run_sweep(
         "smoke": bool(smoke),
         "set": user_set,  # as given (solver.threads=1 is added unless set)
         "params": [{"key": k, "values": v} for k, v in params],
+        "environment": environment(),  # of this process (points: see their code column)
     }
     spec_file = out / "sweep_spec.json"
     if spec_file.exists():
