@@ -71,6 +71,24 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
 
 
+def test_a_failed_resolve_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):
+    """Old results go only when the new solve has a trajectory to write in their place."""
+    out = tmp_path / "out"
+    task = write_task(tmp_path, solver={"max_iterations": 2})
+    assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) == 0
+    (out / "playback-pd").mkdir()
+    (out / "playback-pd" / "playback.json").write_text("{}")
+    before = (out / "solution.npz").read_bytes()
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("the simulation diverged")
+
+    monkeypatch.setattr("hydroilqr.api.solve", fail)
+    assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) != 0
+    assert (out / "solution.npz").read_bytes() == before
+    assert (out / "summary.json").exists() and (out / "playback-pd" / "playback.json").exists()
+
+
 def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):
     rc = cli.main(["solve", "cartpole-wall", "--task-file", str(write_task(tmp_path))])
     assert rc == 2 and "not both" in capsys.readouterr().err
@@ -109,3 +127,16 @@ def test_a_solve_that_never_steps_says_why(tmp_path, capsys):
     task = write_task(tmp_path, cost={"R": 0.01}, solver={"max_iterations": 3})
     assert cli.main(["solve", str(task), "--out", str(tmp_path / "o"), "--no-replay"]) == 0
     assert "no step was taken" in capsys.readouterr().out
+
+
+def test_a_run_directory_loads_as_a_solution_and_playback_wants_the_directory(tmp_path, capsys):
+    out = tmp_path / "out"
+    task = write_task(tmp_path, solver={"max_iterations": 2})
+    assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) == 0
+    assert Solution.load(out).X.shape == Solution.load(out / "solution.npz").X.shape
+    capsys.readouterr()
+    assert cli.main(["playback", str(out / "summary.json")]) == 2
+    assert "give the run directory" in capsys.readouterr().err
+    (out / "solution.npz").write_text("not an npz")
+    assert cli.main(["playback", str(out)]) == 2
+    assert "cannot read" in capsys.readouterr().err

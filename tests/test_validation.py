@@ -175,6 +175,14 @@ CASES = [
     ),
     ("horizon-and-num-steps", edit(horizon=1.0), "give horizon or num_steps, not both"),
     ("duplicate-key", "models: []\nnum_steps: 5\nnum_steps: 6\n", "'num_steps' given twice"),
+    ("extends-itself", "extends: task.yaml\nnum_steps: 5\n", "loops back on itself"),
+    ("extends-a-list", "extends: [a.yaml, b.yaml]\n", "extends: expected one file name"),
+    (
+        "unknown-contact-model",
+        edit(plant={"time_step": 0.02, "contact_model": "strict"}),
+        "plant.contact_model: expected one of",
+    ),
+    ("missing-package-dir", edit(package_map={"mine": "no_such_dir"}), "package_map.mine"),
 ]
 
 
@@ -423,3 +431,28 @@ def test_smoke_values_are_validated_as_smoke(tmp_path, capsys):
     rc = cli.main(["solve", str(path), "--smoke", "--no-replay", "--out", str(tmp_path / "o")])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "smoke: num_steps")
+
+
+def test_empty_guess_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "empty.csv").write_text("")
+    path = write_case(tmp_path, edit(initial_guess="empty.csv"))
+    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "empty.csv is empty")
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        ["--duration", "nan"],
+        ["--rate", "inf"],
+        ["--threads", "-2"],
+        ["--push", "nan:lower_link:1,0,0"],
+        ["--push-duration", "nan", "--push", "0.01:lower_link:1,0,0"],
+    ],
+)
+def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):
+    path = write_case(tmp_path, BASE)
+    rc = cli.main(["mpc", str(path), "--out", str(tmp_path / "o"), "--no-replay", *option])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, option[0].lstrip("-").split("-")[0])

@@ -29,6 +29,7 @@ from .plant import SimulationError, hydroelastic_kind
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
+DEEP_OVERLAP = 0.005  # m: an initial overlap this deep is reported with a failed rollout
 BLOWUP_SPEED = 100.0
 
 
@@ -121,6 +122,15 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         f"({cfg.plant.contact_model}, {cfg.plant.contact_surface_representation})  "
         f"derivatives={cfg.solver.derivatives}"
     )
+
+    plant = dyn.plant
+    free = [plant.get_body(i).name() for i in plant.GetFloatingBaseBodies()]
+    out["floating_bodies"] = sorted(free)
+    if free:
+        console.print(
+            f"  floating bodies (6-DoF; a robot base meant to be fixed needs `weld:`): "
+            f"{', '.join(sorted(free))}"
+        )
 
     # ---------------------------------------------------------------- state layout
     t = Table(title="state blocks (names for blocks / initial_state / cost)", title_justify="left")
@@ -253,7 +263,17 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     try:
         X = dyn.rollout(x0, U)
     except SimulationError as e:
-        raise SimulationError(f"rollout of the initial guess ({cfg.initial_guess}): {e}") from None
+        deep = [p for p in pairs if p["distance"] is not None and p["distance"] < -DEEP_OVERLAP]
+        hint = (
+            f" (at x0 {deep[0]['a']} and {deep[0]['b']} overlap by "
+            f"{-1e3 * deep[0]['distance']:.3g} mm: check initial_state; a free body not named "
+            "there starts at the world origin)"
+            if deep
+            else ""
+        )
+        raise SimulationError(
+            f"rollout of the initial guess ({cfg.initial_guess}): {e}{hint}"
+        ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
     out.update(

@@ -139,10 +139,17 @@ def cmd_solve(args) -> int:
     if cfg.receding_horizon is not None:
         from .progress import ResolveProgress
 
+        rh = cfg.receding_horizon
+        console.print(
+            f"receding horizon: {rh.resolves} windows of {rh.window_steps} steps, each keeps "
+            f"{rh.shift_steps}: {rh.resolves * rh.shift_steps} steps "
+            f"({rh.resolves * rh.shift_steps * dyn.dt:g} s; horizon and num_steps are not used)"
+        )
+
         if restart:
+            # The old results stay until the new run has finished; only its checkpoint goes.
             console.print(f"{out} holds a finished run: solving it again from the start")
-        if not resume_dir:
-            _clear_previous(out)
+            ck.unlink()
         with ResolveProgress(cfg.receding_horizon.resolves) as prog:
             try:
                 sol = api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
@@ -153,7 +160,6 @@ def cmd_solve(args) -> int:
                     ) from None
                 raise
     else:
-        _clear_previous(out)
         sol = api.solve(task, callbacks=[IterationTable()], stop_on_interrupt=True)
     wall = time.perf_counter() - t0
     console.print(
@@ -164,6 +170,9 @@ def cmd_solve(args) -> int:
         from .replay import meshcat_instance
 
         console.print(f"live view: {meshcat_instance().web_url()}")
+    # An earlier solve's results are replaced only now that this one has a trajectory: a
+    # failed or killed solve leaves them as they were.
+    _clear_previous(out, keep=(receding.CHECKPOINT,))
     summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
     summary["wall_seconds"] = wall
     report.write_json(out / "summary.json", summary)
@@ -176,12 +185,14 @@ def cmd_solve(args) -> int:
         f"wrote {out}/summary.json, solution.npz, convergence.png"
         + ("" if args.no_replay else ", replay.html")
     )
-    if cfg.receding_horizon is None and sol.eps and not any(e > 0 for e in sol.eps):
+    if cfg.receding_horizon is None and sol.reason != "interrupted" and sol.iterations <= 1:
+        moved = "no step was taken" if not any(e > 0 for e in sol.eps) else "one step was taken"
         console.print(
-            "[yellow]note:[/yellow] no step was taken: the initial guess is already stationary "
+            f"[yellow]note:[/yellow] {moved}: the initial guess is already (nearly) stationary "
             "for the model the solver sees. If the cost depends on a contact that never happens "
-            "along it, there is no gradient to follow: try a guess that makes contact, or a "
-            "hydroelastic margin on the geometry that should touch"
+            "along it, or on an object that static friction holds still, there is no gradient "
+            "to follow: try a guess that makes contact or pushes harder (docs/guide.md, "
+            "section 3)"
         )
     if sol.reason == "interrupted":
         console.print(
@@ -202,12 +213,13 @@ def cmd_solve(args) -> int:
     return 0
 
 
-def _clear_previous(out: Path) -> None:
+def _clear_previous(out: Path, keep: tuple[str, ...] = ()) -> None:
     """Removes what an earlier solve wrote into ``out`` (plots, replay, checkpoint, playbacks of
-    its solution), so the directory never mixes two runs. Other files are left alone."""
+    its solution), so the directory never mixes two runs. Other files, and the names in
+    ``keep`` (this run's own checkpoint), are left alone."""
     from . import report
 
-    stale = report.solve_outputs(out)
+    stale = [p for p in report.solve_outputs(out) if p.name not in keep]
     if stale:
         console.print(f"replacing the previous results in {out} ({len(stale)} files/directories)")
     for p in stale:

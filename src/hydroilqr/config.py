@@ -32,7 +32,10 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       reference: ''               # a solved run to track (its states are the nominal)
       reference_blocks: []        # blocks taken from the reference (empty: all)
     solver: {max_iterations: 100, derivatives: central}
-    receding_horizon: null        # {window_steps, shift_steps, resolves}
+    receding_horizon: null        # {window_steps: W, shift_steps: S, resolves: R, max_iterations}:
+                                  # R windows of W steps, each keeps its first S steps, so the
+                                  # trajectory has R*S steps (horizon / num_steps are not used);
+                                  # max_iterations: per window after the first one
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
@@ -453,7 +456,11 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     elif isinstance(node, dict):
         node[parts[-1]] = value
     else:
-        raise ConfigError(f"{key}: cannot set a value inside a non-section")
+        parent = ".".join(parts[:-1])
+        raise ConfigError(
+            f"{key}: {parent} is a single value here; set it as a mapping instead: "
+            f"--set '{parent}={{{parts[-1]}: ...}}'"
+        )
 
 
 def parse_override(text: str) -> tuple[str, Any]:
@@ -531,7 +538,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep)
 
 
-def load_raw(path: Path, what: str = "task file") -> dict[str, Any]:
+def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    if path.resolve() in _chain:
+        loop = " -> ".join(p.name for p in (*_chain, path.resolve()))
+        raise ConfigError(f"{what} {path}: `extends` loops back on itself ({loop})")
     try:
         text = path.read_text()
     except OSError as e:
@@ -550,8 +560,10 @@ def load_raw(path: Path, what: str = "task file") -> dict[str, Any]:
     # `extends: other.yaml` shares a base file between related tasks.
     base = data.pop("extends", None)
     if base is not None:
-        base_path = (path.parent / str(base)).resolve()
-        parent = load_raw(base_path)
+        if not isinstance(base, str):
+            raise ConfigError(f"{what} {path}: extends: expected one file name, got {base!r}")
+        base_path = (path.parent / base).resolve()
+        parent = load_raw(base_path, _chain=(*_chain, path.resolve()))
         if base_path.parent != path.parent.resolve():
             _anchor_paths(parent, base_path.parent)
         data = _merge(parent, data)
@@ -670,6 +682,7 @@ def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
 
 
 APPROXIMATIONS = ("sap", "similar", "lagged", "tamsi")
+CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
 DERIVATIVES = ("autodiff", "forward", "central")
 
 
@@ -722,6 +735,11 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError(
             f"plant.contact_approximation: expected one of {', '.join(APPROXIMATIONS)}, "
             f"got {cfg.plant.contact_approximation!r}"
+        )
+    if cfg.plant.contact_model not in CONTACT_MODELS:
+        raise ConfigError(
+            f"plant.contact_model: expected one of {', '.join(CONTACT_MODELS)}, "
+            f"got {cfg.plant.contact_model!r}"
         )
     if cfg.plant.contact_surface_representation not in ("polygon", "triangle"):
         raise ConfigError("plant.contact_surface_representation: expected polygon or triangle")

@@ -185,7 +185,9 @@ def solve(
         try:
             X = dyn.rollout(x0, U)
         except SimulationError as e:
-            raise SimulationError(f"initial rollout failed: {e}") from None
+            raise SimulationError(
+                f"initial rollout failed: {e} (`hydroilqr check` reports initial overlaps)"
+            ) from None
     J = cost.total(X, U, t0)
     rollout_time = time.perf_counter() - t_start
     costs = [J]

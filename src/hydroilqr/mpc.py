@@ -50,12 +50,15 @@ class Push:
 
     @staticmethod
     def parse(text: str, duration: float) -> Push:
+        if not (math.isfinite(duration) and duration > 0):
+            raise ConfigError(f"--push-duration {duration:g}: must be a positive number")
         try:
             t, body, f = text.split(":")
             force = np.array([float(v) for v in f.split(",")])
-            if force.size != 3 or not np.all(np.isfinite(force)):
+            t = float(t)
+            if force.size != 3 or not np.all(np.isfinite(force)) or not math.isfinite(t):
                 raise ValueError
-            return Push(float(t), body, force, duration)
+            return Push(t, body, force, duration)
         except ValueError:
             raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
 
@@ -88,8 +91,10 @@ class MPCSettings:
 
     def check(self, task) -> None:
         """Raises ConfigError for settings that cannot run on ``task``."""
-        if self.rate <= 0 or self.horizon <= 0 or self.duration <= 0:
-            raise ConfigError("mpc: rate, horizon and duration must be positive")
+        if not all(math.isfinite(v) and v > 0 for v in (self.rate, self.horizon, self.duration)):
+            raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
+        if self.threads < 0:
+            raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
         dt = task.config.plant.time_step
         if self.rate > 1.0 / dt * (1 + 1e-9):
             raise ConfigError(

@@ -236,7 +236,10 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         raise ConfigError(f"plant: {str(e).splitlines()[0]}") from None
     parser = Parser(plant)
     for name, path in task.package_map.items():
-        parser.package_map().Add(name, str(task.resolve_path(path)))
+        where = task.resolve_path(path)
+        if not where.is_dir():
+            raise ConfigError(f"package_map.{name}: {where} is not a directory")
+        parser.package_map().Add(name, str(where))
     for i, m in enumerate(task.models):
         try:
             if m.file.startswith("package://"):

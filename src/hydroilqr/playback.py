@@ -49,7 +49,7 @@ from .config import (
     with_overrides,
 )
 from .plant import Dynamics, SimulationError
-from .solution import Solution
+from .solution import Solution, load_run_solution
 from .state import quat_conj, quat_mul
 
 #: Default "real" contact approximation for each planner approximation (always a different one).
@@ -165,6 +165,8 @@ def load_run(run_dir: str | Path):
 
     run_dir = Path(run_dir)
     summary_path, sol_path = run_dir / "summary.json", run_dir / "solution.npz"
+    if run_dir.is_file():
+        raise ConfigError(f"{run_dir}: a file; give the run directory that holds summary.json")
     if not run_dir.is_dir():
         raise ConfigError(f"{run_dir}: no such directory")
     for p in (summary_path, sol_path):
@@ -188,10 +190,7 @@ def load_run(run_dir: str | Path):
             err = err or e
     if task is None:
         raise ConfigError(f"{summary_path}: cannot rebuild the task: {err}")
-    try:
-        sol = Solution.load(sol_path)
-    except Exception as e:  # noqa: BLE001 - one line for the user
-        raise ConfigError(f"{sol_path}: unreadable: {e}") from None
+    sol, _ = load_run_solution(sol_path, str(run_dir))
     return task, sol, summary
 
 

@@ -208,6 +208,12 @@ def environment() -> dict:
             )
     except OSError:
         pass
+    # Vector instructions decide which BLAS kernels run (last bits of every matrix product).
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as feats
+    except ImportError:  # another numpy layout: not recorded
+        feats = {}
+    simd = [k for k in ("AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD") if feats.get(k)]
     return {
         "code": code_version(),
         "python": platform.python_version(),
@@ -215,5 +221,6 @@ def environment() -> dict:
         "numpy": version("numpy"),
         "scipy": version("scipy"),
         "cpu": cpu,
+        "cpu_features": simd,
         "cores": os.cpu_count(),
     }

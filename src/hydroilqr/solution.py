@@ -94,6 +94,10 @@ class Solution:
 
     @staticmethod
     def load(path: str | Path) -> Solution:
+        """From a file written by ``save``, or a run directory holding solution.npz."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "solution.npz"
         with np.load(path, allow_pickle=False) as d:
             meta = json.loads(str(d["meta"]))
             return Solution(

@@ -11,6 +11,7 @@ task.initial_guess(N)  # [N, nu]
 from __future__ import annotations
 
 import functools
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -110,9 +111,13 @@ class Task:
                 with np.load(path) as d:
                     U = np.asarray(d["U"], float)
             else:
-                U = np.loadtxt(path, delimiter=",", ndmin=2)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # an empty file is reported below
+                    U = np.loadtxt(path, delimiter=",", ndmin=2)
         except Exception as e:
             raise ConfigError(f"initial_guess: could not read {path}: {e}") from None
+        if U.size == 0:
+            raise ConfigError(f"initial_guess: {path} is empty")
         if U.ndim != 2 or U.shape[1] != dyn.nu:
             raise ConfigError(f"initial_guess: {path} must hold U with {dyn.nu} columns")
         if not np.all(np.isfinite(U)):
