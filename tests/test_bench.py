@@ -34,12 +34,13 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
         assert m["p10_s"] <= m["median_s"] <= m["p90_s"]
         assert set(m["phase_share"]) == {"rollout", "derivatives", "backward_pass", "line_search"}
         assert abs(sum(m["phase_share"].values()) - 1.0) < 1e-9
-        assert m["final_cost"] <= m["initial_cost"]
+        assert m["final_cost"] < m["initial_cost"]
         assert "max_faces" in m["polygons"]
     assert "tamsi" in " ".join(r["configs"]["paper"])
     # Exact derivative modes agree with AutoDiff where AutoDiff is exact.
     acc = r["accuracy"]
     assert acc["central"]["max"]["free"] < 1e-4
+    # (in contact only if the smoke run touches the wall; test_foundation checks contact steps)
     assert acc["central"]["max"].get("compliant-rigid", 0.0) < 1e-4
     assert set(r["threads"]["seconds"]) >= {"1"}
 

@@ -203,7 +203,7 @@ def test_quaternion_difference_jacobian():
     np.testing.assert_allclose(layout.diff(xq, ident)[:3], [0, 0, 2 * np.sin(a / 2)])
 
 
-def test_cartpole_smoke_solve_uses_the_wall(tmp_path):
+def test_cartpole_smoke_solve_reaches_into_the_wall(tmp_path):
     from hydroilqr import metrics
 
     task = Task.load("cartpole-wall", smoke=True)

@@ -98,6 +98,25 @@ def test_mpc_warm_start_tail_from_guess():
     np.testing.assert_array_equal(ctrl.U[6:], task.initial_guess(4, plan.X[4]))
 
 
+def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
+    """A guess file is a time series: the steps a shifted plan appends get their own rows."""
+    from hydroilqr.mpc import Controller
+
+    base = Task.load("cheetah-trot-1.0", smoke=True)
+    rows = base.initial_guess(1)[0] + 0.01 * np.arange(30)[:, None]  # row k differs from k+1
+    guess = tmp_path / "guess.csv"
+    np.savetxt(guess, rows, delimiter=",")
+    task = Task.load("cheetah-trot-1.0", smoke=True, overrides=[f"initial_guess={guess}"])
+    np.testing.assert_array_equal(task.initial_guess(3, start=28), rows[[28, 29, 29]])
+    settings = MPCSettings.from_task(task, horizon=0.05, iterations_per_update=1)
+    ctrl = Controller(task, 10, 1, settings)
+    plan, ok = ctrl.update(task.x0, 0.0, full=True)
+    assert ok
+    ctrl.iterations = 0
+    ctrl.update(plan.X[4], 4 * task.dynamics.dt)
+    np.testing.assert_array_equal(ctrl.U[6:], rows[10:14])
+
+
 def test_shrinking_horizon_longer_than_task_is_a_config_error():
     from hydroilqr.config import ConfigError
 

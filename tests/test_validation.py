@@ -183,6 +183,11 @@ CASES = [
         "plant.contact_model: expected one of",
     ),
     ("missing-package-dir", edit(package_map={"mine": "no_such_dir"}), "package_map.mine"),
+    (
+        "shift-longer-than-window",
+        edit(receding_horizon={"window_steps": 2, "shift_steps": 4, "resolves": 1}),
+        "receding_horizon.shift_steps",
+    ),
 ]
 
 

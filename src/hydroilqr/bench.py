@@ -152,6 +152,7 @@ def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
 
 
 def polygons(dyn, X: np.ndarray) -> dict:
+    """Contact polygon counts (max, mean, per state) along X: [T, nx]."""
     states = [contact_state(dyn, x) for x in X]
     faces = [f for f, _ in states]
     return {

@@ -201,10 +201,11 @@ def cmd_solve(args) -> int:
         )
         return 130
     if args.view:
-        from .replay import write_replay
+        if args.no_replay:  # the replay (published to the live page as it is written) is due
+            from .replay import write_replay
 
-        write_replay(task, sol.X, sol.t, out / "replay.html")
-        console.print("serving the live view; press Ctrl+C to stop")
+            write_replay(task, sol.X, sol.t, out / "replay.html")
+        console.print("serving the replay on the live page above; press Ctrl+C to stop")
         try:
             while True:
                 time.sleep(1)
@@ -273,7 +274,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="threads for batched derivatives (0 = all)")
     p.add_argument("--out", help="output directory (default runs/TASK, runs/TASK-smoke)")
     p.add_argument("--resume", metavar="DIR", help="continue an interrupted receding-horizon run")
-    p.add_argument("--view", action="store_true", help="serve a live Meshcat page")
+    p.add_argument(
+        "--view",
+        action="store_true",
+        help="after the solve, play the result on a local Meshcat page until Ctrl+C",
+    )
     p.add_argument("--no-replay", action="store_true", help="skip writing replay.html")
     p.set_defaults(func=cmd_solve)
 

@@ -827,6 +827,13 @@ def validate(cfg: TaskConfig) -> None:
     rh = cfg.receding_horizon
     if rh is not None and (rh.window_steps < 1 or rh.shift_steps < 1 or rh.resolves < 1):
         raise ConfigError("receding_horizon: window_steps, shift_steps, resolves must be >= 1")
+    if rh is not None and rh.shift_steps > rh.window_steps:
+        raise ConfigError(
+            f"receding_horizon.shift_steps: {rh.shift_steps} is more than the window's "
+            f"{rh.window_steps} steps (each window keeps its first shift_steps)"
+        )
+    if rh is not None and rh.max_iterations < 1:
+        raise ConfigError("receding_horizon.max_iterations: must be >= 1")
 
 
 def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:

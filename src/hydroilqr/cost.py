@@ -165,10 +165,11 @@ class QuadraticCost:
         return c
 
     def total(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> float:
+        """Cost (3a) of X: [N+1, nx], U: [N, nu] starting at time t0."""
         return float(np.sum(self.stage_costs(X, U, t0)))
 
     def breakdown(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> dict[str, float]:
-        """Value of each named term (Q.<block>, Qf.<block>, R)."""
+        """Value of each named term (Q.<block>, Qf.<block>, R). X: [N+1, nx], U: [N, nu]."""
         N = U.shape[0]
         R = self.layout.diff(X, self.nominal(self.times(N, t0)))
         out = {}
@@ -182,6 +183,8 @@ class QuadraticCost:
         return out
 
     def quadratize(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> Quadratization:
+        """Gradients and Gauss-Newton Hessians of the cost along X: [N+1, nx], U: [N, nu]:
+        lx [N+1, nx], lu [N, nu], lxx [N+1, nx, nx], luu [N, nu, nu] (in x coordinates)."""
         N = U.shape[0]
         Xn = self.nominal(self.times(N, t0))
         R = self.layout.diff(X, Xn)  # [N+1, 2nv]

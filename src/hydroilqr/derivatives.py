@@ -218,7 +218,7 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
 
 
 def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
-    """The set of touching geometry pairs at x (a geometry query, no contact solve)."""
+    """The set of touching geometry pairs at x: [nx] (a geometry query, no contact solve)."""
     surfaces, points = dyn.contact_query(x)
     pairs = {frozenset((s.id_M(), s.id_N())) for s in surfaces}
     pairs |= {frozenset((p.id_A, p.id_B)) for p in points}
@@ -226,7 +226,7 @@ def contact_signature(dyn: Dynamics, x: np.ndarray) -> frozenset:
 
 
 def contact_events(dyn: Dynamics, X: np.ndarray) -> set[int]:
-    """Steps k and k+1 wherever the touching pairs differ between X[k] and X[k+1]."""
+    """Steps k and k+1 wherever the touching pairs differ between X[k] and X[k+1]. X: [T, nx]."""
     sig = [contact_signature(dyn, x) for x in X]
     out: set[int] = set()
     for k in range(len(sig) - 1):

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -133,15 +133,6 @@ class Problem:
     cost: QuadraticCost
     x0: np.ndarray
     t0: float = 0.0
-
-
-@dataclass
-class _State:
-    X: np.ndarray
-    U: np.ndarray
-    cost: float
-    mu: float
-    history: list = field(default_factory=list)
 
 
 def solve(
@@ -297,6 +288,9 @@ def solve(
                     reason = "deadline"
                 elif expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
                     reason, converged = "expected_decrease", True
+                elif not bp.ok:
+                    # Q_uu stayed indefinite up to solver.regularization_max: no descent step.
+                    reason = "regularization_max"
                 else:
                     reason = "line_search_failed"
                     # A local minimum at the resolution the dynamics allow: report honestly.
@@ -363,5 +357,10 @@ def solve(
     )
 
 
+# After a failure μ grows to at least this, whatever regularization_min is: from a tiny μ
+# (1e-9) the factor alone would take many rejected backward passes and line searches.
+MU_RESTART = 1e-6
+
+
 def _increase(mu: float, s: SolverConfig) -> float:
-    return max(mu * s.regularization_factor, 1e-6)
+    return max(mu * s.regularization_factor, MU_RESTART)

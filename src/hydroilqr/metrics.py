@@ -63,7 +63,8 @@ def geometry_ids(dyn, name: str) -> list:
 
 
 def signed_distance(dyn, x: np.ndarray, ids_a: list, ids_b: list) -> float:
-    """Smallest signed distance between two sets of geometries at state x (negative = overlap)."""
+    """Smallest signed distance between two sets of geometries at state x: [nx] (negative =
+    overlap)."""
     dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
     query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
     best = np.inf

@@ -412,8 +412,8 @@ class Controller:
         if m > 0:
             if self.tail == "last" and (out or hasattr(self, "U")):
                 out.append(np.tile(out[-1][-1] if out else self.U[-1], (m, 1)))
-            else:  # "guess", or the very first plan
-                out.append(self.task.initial_guess(m, x))
+            else:  # "guess", or the very first plan: the guess's rows for these time steps
+                out.append(self.task.initial_guess(m, x, start=k0 + n - m))
         return np.vstack(out)
 
     def _failed(self, U_before: np.ndarray) -> tuple[Solution | None, bool]:

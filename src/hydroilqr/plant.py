@@ -402,7 +402,7 @@ class Dynamics:
         return X
 
     def closed_loop_rollout(self, x0, Ubar, Xbar, K, kappa, eps):
-        """Forward pass of iLQR (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k ⊖ x̄_k).
+        """Forward pass of iLQR (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k − x̄_k).
 
         x0: [nx], Ubar: [N, nu], Xbar: [N+1, nx], K: [N, nu, nx], kappa: [N, nu].
         Returns X: [N+1, nx], U: [N, nu]. Feedback acts on the coordinate difference (K is
@@ -455,8 +455,8 @@ class Dynamics:
         return -np.linalg.pinv(B) @ tau_g
 
     def hold_torques(self, x: np.ndarray, iterations: int = 8) -> np.ndarray:
-        """u that best holds x still for one step: argmin_u ||v_{k+1}(x, u)||² (Gauss-Newton,
-        forward differences). Useful for standing robots where contact carries the weight."""
+        """u: [nu] that best holds x: [nx] still for one step: argmin_u ||v_{k+1}(x, u)||²
+        (Gauss-Newton, forward differences). For standing robots whose contacts carry them."""
         u = self.gravity_compensation(x)
         nq = self.nq
         for _ in range(iterations):
@@ -486,7 +486,7 @@ class Dynamics:
         return self._geometry_names
 
     def contact_query(self, x: np.ndarray) -> tuple[list, list]:
-        """(hydroelastic contact surfaces, point pairs) at x: a geometry query, no contact
+        """(hydroelastic contact surfaces, point pairs) at x: [nx]: a geometry query, no contact
         solve, so it is cheap and works for any state and contact solver."""
         from pydrake.geometry import HydroelasticContactRepresentation as Rep
 
@@ -505,7 +505,7 @@ class Dynamics:
         return query.ComputeContactSurfacesWithFallback(rep)
 
     def contact_pairs(self, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:
-        """Touching pairs at x: (geometry A, body A, geometry B, body B, polygons); point
+        """Touching pairs at x: [nx]: (geometry A, body A, geometry B, body B, polygons); point
         contacts have 0 polygons."""
         names = self.geometry_names()
         surfaces, points = self.contact_query(x)
@@ -520,7 +520,7 @@ class Dynamics:
         return out
 
     def contact_surfaces(self, x: np.ndarray) -> list[tuple[str, str, int]]:
-        """Touching pairs at x: (geometry A name, geometry B name, polygons)."""
+        """Touching pairs at x: [nx]: (geometry A name, geometry B name, polygons)."""
         return [(ga, gb, n) for ga, _, gb, _, n in self.contact_pairs(x)]
 
 

@@ -40,8 +40,6 @@ def solve_receding(
     cfg = task.config
     rh = cfg.receding_horizon
     W, S, R = rh.window_steps, rh.shift_steps, rh.resolves
-    if S > W:
-        raise ValueError("receding_horizon.shift_steps must not exceed window_steps")
     dyn = task.dynamics
     nx, nu = dyn.nx, dyn.nu
     st = _empty_state(task.x0, task.initial_guess(W), nx, nu)
@@ -57,8 +55,10 @@ def solve_receding(
         max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
         t_start = time.perf_counter()
         try:
+            # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
+            # trajectory (one more linearization per window), as playback --policy ilqr needs.
             sol = solve(
-                task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it, final_gains=False
+                task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it, final_gains=True
             )
         except SimulationError as e:
             raise SimulationError(f"resolve {r}: {e}") from None
@@ -102,7 +102,14 @@ def solve_receding(
         converged=all(r_["converged"] for r_ in res) if res else False,
         reason=f"{sum(r_['converged'] for r_ in res)}/{len(res)} windows converged",
         derivatives=cfg.solver.derivatives,
-        extra={"resolves": res, "window_steps": W, "shift_steps": S},
+        # costs are the windows' iteration costs one after another (final_cost: the last
+        # window's); trajectory_cost is the task's cost (3a) of the stitched trajectory.
+        extra={
+            "resolves": res,
+            "window_steps": W,
+            "shift_steps": S,
+            "trajectory_cost": float(task.cost.total(st["X"], st["U"], 0.0)),
+        },
     )
 
 

@@ -65,7 +65,8 @@ def plot_convergence(sol, path: Path, title: str) -> None:
     fig, ax = plt.subplots(figsize=(5, 3.2))
     c = np.asarray(sol.costs, float)
     ax.semilogy(np.arange(len(c)), np.maximum(c, 1e-300), "o-", ms=3)
-    ax.set_xlabel("iteration")
+    windows = "resolves" in sol.extra  # receding horizon: one window's costs after another
+    ax.set_xlabel("iteration (all windows, each with its own cost)" if windows else "iteration")
     ax.set_ylabel("cost")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)

@@ -57,6 +57,7 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate of quaternions q: [..., 4] (w, x, y, z)."""
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
@@ -248,7 +249,7 @@ class StateLayout:
         return out
 
     def diff_jacobian(self, X: np.ndarray, Xref: np.ndarray) -> np.ndarray:
-        """∂(X ⊖ Xref)/∂X. X: [T, nx] -> [T, 2 nv, nx] (identity outside quaternion blocks)."""
+        """∂(X ⊖ Xref)/∂X. X, Xref: [T, nx] -> [T, 2 nv, nx] (identity outside quaternions)."""
         T = X.shape[0]
         Xref = np.broadcast_to(Xref, X.shape)
         J = np.zeros((T, 2 * self.nv, self.nx))

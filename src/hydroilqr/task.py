@@ -83,11 +83,13 @@ class Task:
                     f"metrics: unknown metric {name!r} (known: {', '.join(metrics_mod.METRICS)})"
                 )
 
-    def initial_guess(self, N: int, x: np.ndarray | None = None) -> np.ndarray:
+    def initial_guess(self, N: int, x: np.ndarray | None = None, start: int = 0) -> np.ndarray:
         """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file.
 
-        A file (``.npz`` with ``U``, or CSV) holds one row per time step (the first N are used)
-        or a single row, a constant control."""
+        x: [nx] the state the computed kinds hold (default x0). A file (``.npz`` with ``U``, or
+        CSV) holds one row per time step, of which rows ``start .. start+N-1`` are used (past
+        its end the last row is held; from ``start = 0`` it must cover N steps), or a single
+        row, a constant control."""
         dyn = self.dynamics
         x = self.x0 if x is None else x
         kind = self.config.initial_guess
@@ -124,12 +126,12 @@ class Task:
             raise ConfigError(f"initial_guess: {path} holds NaN or infinite values")
         if U.shape[0] == 1:  # one row: a constant control (e.g. standing torques)
             return np.tile(U[0], (N, 1))
-        if U.shape[0] < N:
+        if start == 0 and U.shape[0] < N:
             raise ConfigError(
                 f"initial_guess: {path} has {U.shape[0]} rows; the task needs {N} (one per time "
                 f"step) or 1 (a constant control)"
             )
-        return U[:N].copy()
+        return U[np.minimum(np.arange(start, start + N), U.shape[0] - 1)].copy()
 
     def problem(self, x0: np.ndarray | None = None, t0: float = 0.0) -> Problem:
         return Problem(self.dynamics, self.cost, self.x0 if x0 is None else x0, t0)
