@@ -68,3 +68,16 @@ def test_fast_derivative_paths_match_exact_ones():
     for k in sorted(events | set(range(0, N, 4)) | {N - 1}):
         np.testing.assert_array_equal(Ai[k], A1[k])
         np.testing.assert_array_equal(Bi[k], B1[k])
+
+
+def test_bench_refuses_a_task_twice_and_another_commands_directory(tmp_path, capsys):
+    rc = main(["bench", "cartpole-wall", "cartpole-wall", "--smoke", "--out", str(tmp_path)])
+    assert rc == 2 and "both task 'cartpole-wall'" in capsys.readouterr().err
+    (tmp_path / "solve").mkdir()
+    (tmp_path / "solve" / "summary.json").write_text('{"task": "kinova-forward"}')
+    rc = main(["bench", "cartpole-wall", "--smoke", "--out", str(tmp_path / "solve")])
+    assert rc == 2 and "holds the results of task 'kinova-forward'" in capsys.readouterr().err
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "bench.json").write_text('{"task": "bench"}')
+    rc = main(["solve", "cartpole-wall", "--smoke", "--out", str(tmp_path / "b")])
+    assert rc == 2 and "holds a bench's results" in capsys.readouterr().err

@@ -454,6 +454,7 @@ def test_empty_guess_file_is_one_line(tmp_path, capsys):
         ["--threads", "-2"],
         ["--push", "nan:lower_link:1,0,0"],
         ["--push-duration", "nan", "--push", "0.01:lower_link:1,0,0"],
+        ["--push-duration", "0.2"],
     ],
 )
 def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):

@@ -314,12 +314,13 @@ def _load_plugins() -> None:
 
 
 def _join_negative_values(argv: list[str]) -> list[str]:
-    """``--values -5,1e6`` -> ``--values=-5,1e6`` (argparse takes "-5,1e6" for an option)."""
+    """``--values -5,1e6`` -> ``--values=-5,1e6`` (argparse takes "-5,1e6" for an option);
+    the same for ``--push -1:cart:...``."""
     out: list[str] = []
     i = 0
     while i < len(argv):
-        if argv[i] == "--values" and i + 1 < len(argv) and argv[i + 1].startswith("-"):
-            out.append(f"--values={argv[i + 1]}")
+        if argv[i] in ("--values", "--push") and i + 1 < len(argv) and argv[i + 1].startswith("-"):
+            out.append(f"{argv[i]}={argv[i + 1]}")
             i += 2
         else:
             out.append(argv[i])

@@ -192,6 +192,10 @@ class MPCSettings:
             line_search_retries=m.line_search_retries,
             deadline=m.deadline,
         )
+        if s.shrinking_horizon:
+            # The task's default duration cannot outlast the task itself (e.g. under --smoke,
+            # which shortens the task); an explicit duration that does is refused in check().
+            s.duration = min(s.duration, task.steps * task.config.plant.time_step)
         for k, v in overrides.items():
             if v is not None:
                 setattr(s, k, v)
@@ -633,12 +637,21 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
         b = layout.block(name)
         for j, c in enumerate(b.coords):
             ax.plot(res.t, res.X[:, c], label=f"{name}[{j}]" if len(b.coords) > 1 else name)
-            ax.plot(res.t, xn[:, c], "--", color="gray", lw=0.8)
-        ax.set_ylabel(name)
-        ax.legend(fontsize=7, loc="best")
-    for p in res.settings.pushes:
+            ax.plot(
+                res.t, xn[:, c], "--", color="gray", lw=0.8, label="nominal" if j == 0 else None
+            )
+        ax.set_ylabel(f"{name}\n(model units)")
+    for i, p in enumerate(res.settings.pushes):
         for ax in axes:
-            ax.axvspan(p.time, p.time + p.duration, color="red", alpha=0.15)
+            ax.axvspan(
+                p.time,
+                p.time + p.duration,
+                color="red",
+                alpha=0.15,
+                label="push" if i == 0 else None,
+            )
+    for ax in axes[:-1]:
+        ax.legend(fontsize=7, loc="best")
     ax = axes[-1]
     ax.plot(res.update_times, 1e3 * np.array(res.solve_seconds), ".", ms=3, label="solve time")
     ax.axhline(1e3 / res.settings.rate, color="k", ls="--", lw=0.8, label="control period")
@@ -665,8 +678,14 @@ def _setup(p):
         action="store_true",
         help="simulated time advances by the controller's wall time (latency felt)",
     )
-    p.add_argument("--push", action="append", default=[], metavar="TIME:BODY:FX,FY,FZ")
-    p.add_argument("--push-duration", type=float, default=0.1)
+    p.add_argument(
+        "--push",
+        action="append",
+        default=[],
+        metavar="TIME:BODY:FX,FY,FZ",
+        help="apply a force (N, world frame) to BODY from TIME s on (repeatable)",
+    )
+    p.add_argument("--push-duration", type=float, help="seconds each push lasts (default 0.1)")
     p.add_argument(
         "--truth-set",
         action="append",
@@ -676,7 +695,11 @@ def _setup(p):
         "ball.friction=0.3 (repeatable)",
     )
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
-    p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
+    p.add_argument(
+        "--derivatives",
+        choices=["autodiff", "forward", "central"],
+        help="derivative method of the controller (default: mpc.derivatives, else the task's)",
+    )
     p.add_argument(
         "--feedback-scale",
         type=float,
@@ -698,6 +721,9 @@ def cmd_mpc(args) -> int:
     from . import metrics, report
     from .cli import console, load_task_from_args
 
+    if args.push_duration is not None and not args.push:
+        raise ConfigError("--push-duration: given without --push")
+    push_duration = 0.1 if args.push_duration is None else args.push_duration
     task = load_task_from_args(args)
     settings = MPCSettings.from_task(
         task,
@@ -706,7 +732,7 @@ def cmd_mpc(args) -> int:
         horizon=args.horizon,
         iterations_per_update=args.iterations_per_update,
         realtime=args.realtime,
-        pushes=[Push.parse(s, args.push_duration) for s in args.push],
+        pushes=[Push.parse(s, push_duration) for s in args.push],
         threads=args.threads,
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
@@ -755,6 +781,8 @@ def cmd_mpc(args) -> int:
         from .replay import write_replay
 
         write_replay(task, res.X, res.t, out / "mpc.html")
+    elif (out / "mpc.html").exists():
+        (out / "mpc.html").unlink()  # an earlier run's replay would pass for this one's
     s = stats["solve_seconds"]
     console.print(
         f"rate {stats['achieved_rate_hz']:.1f} Hz, solve p50 {1e3 * s['p50']:.1f} ms, "

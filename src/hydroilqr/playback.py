@@ -442,6 +442,12 @@ def playback(
     if settings.policy == "pd":
         pd = _pd_check(truth, plan.X[0], joint_names, settings)
         result.metrics.update({**pd, "warnings": result.metrics["warnings"] + pd["warnings"]})
+    sat = result.metrics["saturated_fraction"]
+    if sat > SATURATION_WARNING:
+        result.metrics["warnings"].append(
+            f"{100 * sat:.0f}% of the commands hit the effort limits: the playback cannot apply "
+            "what the controller asks (lower --kp/--kd, or a slower --speed for PD+)"
+        )
     result.wall_seconds = time.perf_counter() - wall0
     result.metrics["wall_seconds"] = result.wall_seconds
     return result
@@ -475,6 +481,9 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
     return {"pd_loop": per, "pd_loop_rate_hz": 1.0 / h, "warnings": warnings}
 
 
+SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning
+
+
 def advisories(plant, settings: PlaybackSettings) -> list[str]:
     """Warnings about a policy that cannot do what the plan needs (known before running)."""
     out = []
@@ -484,6 +493,12 @@ def advisories(plant, settings: PlaybackSettings) -> list[str]:
             out.append(
                 f"unactuated joints ({', '.join(passive)}): PD+ tracks only the actuated ones "
                 "and nothing steers these; an underactuated task needs --policy ilqr"
+            )
+        if settings.rate * settings.truth_time_step > 1 + 1e-9:
+            out.append(
+                f"--rate {settings.rate:g} Hz: the PD+ loop runs at most once per truth step, "
+                f"so at {1.0 / settings.truth_time_step:g} Hz (a finer --truth-time-step "
+                "allows more)"
             )
     elif abs(settings.speed - 1.0) > 1e-12:
         out.append(

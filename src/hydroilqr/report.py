@@ -109,7 +109,7 @@ SOLVE_FILES = ("summary.json", "solution.npz", "convergence.png", "replay.html",
 
 
 # Files that mark a directory as holding some task's results (each has a "task" field).
-RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json")
+RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json", "bench.json")
 
 
 def previous_task(out: Path) -> str | None:
@@ -138,9 +138,11 @@ def output_dir(out: str | Path, task_name: str | None = None) -> Path:
     if task_name is not None:
         previous = previous_task(out)
         if previous is not None and previous != task_name:
+            what = (
+                "a bench's results" if previous == "bench" else f"the results of task {previous!r}"
+            )
             raise ConfigError(
-                f"{out} holds the results of task {previous!r}: choose another --out "
-                "(or delete that directory)"
+                f"{out} holds {what}: choose another --out (or delete that directory)"
             )
     try:
         out.mkdir(parents=True, exist_ok=True)

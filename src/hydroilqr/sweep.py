@@ -295,7 +295,13 @@ def write_tables(
 ) -> None:
     from .report import json_safe
 
-    trs = table_rows(param_keys, rows)
+    # Sorted by the swept values (points of earlier runs and of an extended grid interleave).
+    trs = sorted(
+        table_rows(param_keys, rows),
+        key=lambda r: tuple(
+            (r[k] is None, r[k] if isinstance(r[k], (int, float)) else 0) for k in param_keys
+        ),
+    )
     cols = columns(param_keys, rows)
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols + ["id"], extrasaction="ignore")
@@ -657,10 +663,13 @@ def run_sweep(
             new = {k: spec.get(k) for k in same}
             old_keys = [p["key"] for p in old.get("params", [])]
             if same != new or old_keys != keys:
+                names = {"config_file": "--config", "smoke": "--smoke", "set": "--set"}
+                differ = [names.get(k, k) for k in same if same[k] != new[k]]
+                differ += ["--param"] if old_keys != keys else []
                 raise ConfigError(
-                    f"{out} holds a different sweep (task {old.get('task')}, --param "
-                    f"{', '.join(old_keys)}, --set {old.get('set') or 'none'}, smoke "
-                    f"{old.get('smoke')}): choose another --out"
+                    f"{out} holds a different sweep ({', '.join(differ)} differ; it has task "
+                    f"{old.get('task')}, --param {', '.join(old_keys)}, --set "
+                    f"{old.get('set') or 'none'}, smoke {old.get('smoke')}): choose another --out"
                 )
     _atomic_text(spec_file, json.dumps(spec, indent=1))
 
@@ -810,24 +819,29 @@ def cmd_sweep(args) -> int:
     task = task_name_from_args(args)
     if not task:
         raise ConfigError("no task given (try `hydroilqr tasks`)")
-    out = args.out or f"runs/{Path(task).stem}-sweep"
+    out = args.out or f"runs/{Path(task).stem}{'-smoke' if args.smoke else ''}-sweep"
     keys, specs = args.param or [], args.values or []
     if len(keys) != len(specs):
         raise ConfigError("give one --values after each --param")
     params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
-    res = run_sweep(
-        task,
-        params,
-        out,
-        sets=args.set,
-        config_file=args.config,
-        smoke=args.smoke,
-        scheduler=args.scheduler,
-        workers=args.workers,
-        retry_failed=args.retry_failed,
-    )
+    try:
+        res = run_sweep(
+            task,
+            params,
+            out,
+            sets=args.set,
+            config_file=args.config,
+            smoke=args.smoke,
+            scheduler=args.scheduler,
+            workers=args.workers,
+            retry_failed=args.retry_failed,
+        )
+    except KeyboardInterrupt:
+        raise KeyboardInterrupt(
+            f"finished points are kept in {out}: the same command continues the sweep"
+        ) from None
     if res["failed"]:
         import sys
 
@@ -867,5 +881,7 @@ def setup(p) -> None:
         action="store_true",
         help="on resume, also recompute points recorded as failed",
     )
-    p.add_argument("--out", help="output directory, resumable (default runs/TASK-sweep)")
+    p.add_argument(
+        "--out", help="output directory, resumable (default runs/TASK-sweep, TASK-smoke-sweep)"
+    )
     p.set_defaults(func=cmd_sweep)
