@@ -65,7 +65,7 @@ def swept(tmp_path_factory):
 def test_three_point_sweep(swept):
     out, _ = swept
     rows = _rows(out)
-    assert [float(r[KEY]) for r in rows] == [1000.0, -5.0, 1e6]
+    assert [float(r[KEY]) for r in rows] == [-5.0, 1000.0, 1e6]  # sorted by value
     for col in POINT_COLUMNS:
         assert col in rows[0]
     ok = [r for r in rows if r["status"] == "ok"]
@@ -73,7 +73,7 @@ def test_three_point_sweep(swept):
     for r in ok:
         assert float(r["final_cost"]) > 0 and "max_overlap_m" in r
         assert int(r["iterations"]) <= 3 and float(r["wall_seconds"]) > 0
-    bad = rows[1]
+    bad = rows[0]
     assert bad["status"] == "failed" and "must be positive" in bad["error"]
     doc = json.loads((out / "sweep.json").read_text())
     assert doc["summary"] == {"points": 3, "done": 2, "failed": 1, "missing": 0}
