@@ -346,7 +346,10 @@ def plot_sweep(
     other = param_keys[1] if len(param_keys) > 1 else None
     has_overlap = any(r.get("max_overlap_m") is not None for r in rows)
     panels = (["max_overlap_m"] if has_overlap else []) + ["final_cost"]
-    labels = {"max_overlap_m": "max overlap [m]", "final_cost": "optimal cost"}
+    labels = {
+        "max_overlap_m": "max overlap [m]",
+        "final_cost": "final cost (circled: not converged)",
+    }
     fig, axes = plt.subplots(
         len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4), sharex=True, squeeze=False
     )
