@@ -818,6 +818,25 @@ def run_sweep(
 # ------------------------------------------------------------------------------------------
 
 
+def _quiet_cluster_teardown() -> None:
+    """After Ctrl+C, close what is left of an embedded Dask cluster here, quietly: interrupted
+    while it was starting, Dask's own exit hook would print a long traceback."""
+    import atexit
+    import logging
+
+    try:
+        from distributed.deploy import spec
+    except ImportError:
+        return
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    for cluster in list(spec.SpecCluster._instances):
+        try:
+            cluster.close(timeout=5)
+        except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
+            pass
+    atexit.unregister(spec.close_clusters)
+
+
 def cmd_sweep(args) -> int:
     task = task_name_from_args(args)
     if not task:
@@ -842,6 +861,7 @@ def cmd_sweep(args) -> int:
             retry_failed=args.retry_failed,
         )
     except KeyboardInterrupt:
+        _quiet_cluster_teardown()
         raise KeyboardInterrupt(
             f"finished points are kept in {out}: the same command continues the sweep"
         ) from None
