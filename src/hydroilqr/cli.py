@@ -185,8 +185,13 @@ def cmd_solve(args) -> int:
         f"wrote {out}/summary.json, solution.npz, convergence.png"
         + ("" if args.no_replay else ", replay.html")
     )
-    if cfg.receding_horizon is None and sol.reason != "interrupted" and sol.iterations <= 1:
-        moved = "no step was taken" if not any(e > 0 for e in sol.eps) else "one step was taken"
+    stepped = any(e > 0 for e in sol.eps)
+    if (
+        cfg.receding_horizon is None
+        and sol.reason not in ("interrupted", "max_iterations")
+        and sol.iterations <= 1
+    ):
+        moved = "one step was taken" if stepped else "no step was taken"
         console.print(
             f"[yellow]note:[/yellow] {moved}: the initial guess is already (nearly) stationary "
             "for the model the solver sees. If the cost depends on a contact that never happens "
