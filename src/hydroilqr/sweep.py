@@ -829,12 +829,14 @@ def _quiet_cluster_teardown() -> None:
     except ImportError:
         return
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
-    for cluster in list(spec.SpecCluster._instances):
+    for cluster in list(getattr(spec.SpecCluster, "_instances", ())):
         try:
             cluster.close(timeout=5)
         except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
             pass
-    atexit.unregister(spec.close_clusters)
+    hook = getattr(spec, "close_clusters", None)
+    if hook is not None:
+        atexit.unregister(hook)
 
 
 def cmd_sweep(args) -> int:
