@@ -181,10 +181,9 @@ def cmd_solve(args) -> int:
     console.print(
         "metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()), soft_wrap=True
     )
-    console.print(
-        f"wrote {out}/summary.json, solution.npz, convergence.png"
-        + ("" if args.no_replay else ", replay.html")
-    )
+    written = [p.name for p in report.solve_outputs(out) if p.is_file()]
+    first = ["summary.json", "solution.npz"]
+    console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
     stepped = any(e > 0 for e in sol.eps)
     if (
         cfg.receding_horizon is None

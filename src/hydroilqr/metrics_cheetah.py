@@ -13,6 +13,11 @@
 * ``diagonal_pair_overlap`` / ``lateral_pair_overlap``: fraction of those states in which both
   feet of a diagonal pair (FL+HR, FR+HL) / of a same-side pair (FL+HL, FR+HR) touch together,
   averaged over the two pairs (a trot has diagonal > lateral);
+* ``pair_sync``: for the diagonal, lateral, front (FL+FR) and hind (HL+HR) pairs, the fraction
+  of those states in which both feet are in the same phase (both down or both up), averaged over
+  the pairs of a kind. It names the gait: a trot has diagonal near 1 and lateral low, a pace the
+  reverse, a bound front and hind near 1. (The overlaps above reward long stance: a gait whose
+  feet are mostly down overlaps in every pair.)
 * ``foot_touchdowns``: per foot, how many times it goes from air to ground (t ≥ 0.2 s);
 * ``max_foot_faces`` / ``mean_foot_faces``: contact polygons of one foot on the ground (most,
   and mean over the states where it touches);
@@ -39,6 +44,7 @@ from .metrics import contact_pairs, metric
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
 DIAGONAL = ((0, 3), (1, 2))  # FL+HR, FR+HL
 LATERAL = ((0, 2), (1, 3))  # FL+HL, FR+HR
+PAIRS = {"diagonal": DIAGONAL, "lateral": LATERAL, "front": ((0, 1),), "hind": ((2, 3),)}
 
 _cache: dict = {}
 
@@ -141,6 +147,10 @@ def cheetah_metrics(task, sol) -> dict:
             np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in DIAGONAL])
         ),
         "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in LATERAL])),
+        "pair_sync": {
+            kind: float(np.mean([np.sum(f[:, a] == f[:, b]) / n for a, b in pairs]))
+            for kind, pairs in PAIRS.items()
+        },
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,

@@ -646,7 +646,9 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     rows = len(c) + 1
     fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
     for i, ax in enumerate(axes[:-1]):
-        ax.plot(r.t, r.X_plan[:, c[i]], "--", color="0.4", label="planned (time-stretched)")
+        stretched = abs(r.settings.speed - 1.0) > 1e-12
+        plan_label = "planned (time-stretched)" if stretched else "planned"
+        ax.plot(r.t, r.X_plan[:, c[i]], "--", color="0.4", label=plan_label)
         ax.plot(r.t, r.X[:, c[i]], color="C0", label="actual")
         ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
         ax.grid(alpha=0.3)
