@@ -107,6 +107,9 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
         "iterations_per_resolve",
     ):
         assert np.isfinite(m[key])
+    assert set(m["pair_sync"]) == {"diagonal", "lateral", "front", "hind"}
+    assert all(0.0 <= v <= 1.0 for v in m["pair_sync"].values())
+    assert np.isfinite(sol.extra["trajectory_cost"]) and sol.extra["trajectory_cost"] > 0
     assert m["target_velocity_mps"] == 1.0 and m["body_ground_contact_steps"] == 0
     assert m["max_foot_faces"] > 0
     summary = report.write_outputs(task, sol, tmp_path, replay=False)
@@ -153,3 +156,16 @@ def test_resume_refuses_another_runs_checkpoint(tmp_path):
     (tmp_path / "run" / "summary.json").unlink()
     assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 2
     assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out, "--no-replay"]) == 0
+
+
+def test_pair_sync_names_the_gait():
+    """pair_sync on synthetic contact patterns: a trot, a pace and a bound."""
+    from hydroilqr.metrics_cheetah import pair_sync as sync
+
+    phase = (np.arange(40) // 5) % 2 == 0  # 5 steps down, 5 up
+    trot = np.stack([phase, ~phase, ~phase, phase], axis=1)  # FL+HR, FR+HL together
+    pace = np.stack([phase, ~phase, phase, ~phase], axis=1)  # FL+HL, FR+HR together
+    bound = np.stack([phase, phase, ~phase, ~phase], axis=1)  # fronts, hinds together
+    assert sync(trot)["diagonal"] == 1.0 and sync(trot)["lateral"] == 0.0
+    assert sync(pace)["lateral"] == 1.0 and sync(pace)["diagonal"] == 0.0
+    assert sync(bound)["front"] == sync(bound)["hind"] == 1.0

@@ -116,6 +116,16 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 @metric("cheetah")
+def pair_sync(f: np.ndarray) -> dict[str, float]:
+    """f: [T, 4] foot contact flags (FL, FR, HL, HR) -> for each pair kind, the fraction of
+    steps in which both feet of a pair are in the same phase, averaged over its pairs."""
+    n = max(1, f.shape[0])
+    return {
+        kind: float(np.mean([np.sum(f[:, a] == f[:, b]) / n for a, b in pairs]))
+        for kind, pairs in PAIRS.items()
+    }
+
+
 def cheetah_metrics(task, sol) -> dict:
     p = _params(task)
     pos, _ = _blocks(task, p["body"])
@@ -147,10 +157,7 @@ def cheetah_metrics(task, sol) -> dict:
             np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in DIAGONAL])
         ),
         "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in LATERAL])),
-        "pair_sync": {
-            kind: float(np.mean([np.sum(f[:, a] == f[:, b]) / n for a, b in pairs]))
-            for kind, pairs in PAIRS.items()
-        },
+        "pair_sync": pair_sync(f),
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
