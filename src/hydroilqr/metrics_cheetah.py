@@ -115,7 +115,6 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return feet, faces, body
 
 
-@metric("cheetah")
 def pair_sync(f: np.ndarray) -> dict[str, float]:
     """f: [T, 4] foot contact flags (FL, FR, HL, HR) -> for each pair kind, the fraction of
     steps in which both feet of a pair are in the same phase, averaged over its pairs."""
@@ -126,6 +125,7 @@ def pair_sync(f: np.ndarray) -> dict[str, float]:
     }
 
 
+@metric("cheetah")
 def cheetah_metrics(task, sol) -> dict:
     p = _params(task)
     pos, _ = _blocks(task, p["body"])
