@@ -11,14 +11,18 @@ import numpy as np
 PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
 
 
+def solution_file(path: str | Path) -> Path:
+    """A run directory's solution.npz, or ``path`` itself if it is not a directory."""
+    path = Path(path)
+    return path / "solution.npz" if path.is_dir() else path
+
+
 def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
     """The Solution of a solved run given as its directory or its solution.npz, and the file's
     path; ConfigError naming ``key`` (the option that pointed there) if it cannot be read."""
     from .config import ConfigError
 
-    path = Path(path)
-    if path.is_dir():
-        path = path / "solution.npz"
+    path = solution_file(path)
     try:
         return Solution.load(path), path
     except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
@@ -95,10 +99,7 @@ class Solution:
     @staticmethod
     def load(path: str | Path) -> Solution:
         """From a file written by ``save``, or a run directory holding solution.npz."""
-        path = Path(path)
-        if path.is_dir():
-            path = path / "solution.npz"
-        with np.load(path, allow_pickle=False) as d:
+        with np.load(solution_file(path), allow_pickle=False) as d:
             meta = json.loads(str(d["meta"]))
             return Solution(
                 X=d["X"],
