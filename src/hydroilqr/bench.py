@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import workers
 from .cli import console, register
 from .config import ConfigError
 from .solution import PHASES
@@ -36,6 +37,7 @@ PAPER = [
     "solver.derivatives=autodiff",
     "solver.derivative_interval=1",
     "solver.autodiff_workers=1",  # serial, one step after another
+    "solver.line_search_workers=1",  # one trial after another
 ]
 # The fastest configuration measured on this machine (docs/performance.md): SAP; the cheaper
 # of AutoDiff and batched forward differences, chosen per task by a short probe
@@ -307,6 +309,8 @@ def bench_task(
         f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
         f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
     )
+    for t in tasks:  # worker processes (if any) start here, not inside a timed iteration
+        workers.warm_up(t.dynamics)
     t0 = time.perf_counter()
     res = run_alternating(tasks, U0, iterations, block)
     wall = time.perf_counter() - t0

@@ -173,6 +173,10 @@ class SolverConfig:
     # AutoDiff in this many processes (the time steps split between them; each worker process
     # holds its own plant). 1 = serial in this process, as in the paper; 0 = one per core.
     autodiff_workers: int = 1
+    # Line-search trials in this many processes: each round evaluates ε, ε·factor, ... side by
+    # side and takes the first acceptable one in that order (the iterates of the serial search).
+    # 1 = one trial after another; 0 = one per core. Shares the worker pool with autodiff.
+    line_search_workers: int = 1
     # > 0: reuse a step's partials while its (x, u) has moved less than this (scaled max norm,
     # |Δz_i| / max(1, |z_i|)) since they were taken; 0 = recompute every iteration.
     derivative_reuse_tolerance: float = 0.0
@@ -754,8 +758,9 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("solver.max_iterations: must be >= 0")
     if cfg.solver.fd_epsilon <= 0:
         raise ConfigError("solver.fd_epsilon: must be positive")
-    if cfg.solver.autodiff_workers < 0:
-        raise ConfigError("solver.autodiff_workers: must be >= 0 (0 = one per core)")
+    for key in ("autodiff_workers", "line_search_workers"):
+        if getattr(cfg.solver, key) < 0:
+            raise ConfigError(f"solver.{key}: must be >= 0 (0 = one per core)")
     if not 0 <= cfg.mpc.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {cfg.mpc.deadline}"

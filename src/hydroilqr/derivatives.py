@@ -31,6 +31,9 @@ from pydrake.common import Parallelism
 from pydrake.systems.analysis import BatchEvalUniquePeriodicDiscreteUpdate
 
 from .plant import Dynamics, SimulationError
+from .workers import Unavailable as WorkersUnavailable
+from .workers import autodiff as parallel_autodiff
+from .workers import resolve as resolve_workers
 
 
 class DerivativeMethod(enum.Enum):
@@ -199,13 +202,13 @@ class Linearizer:
 def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
     N = U.shape[0]
     if method is DerivativeMethod.AUTODIFF:
-        workers = dyn.task.solver.autodiff_workers or (os.cpu_count() or 1)
-        if workers > 1 and N >= 2 * workers and getattr(dyn, "_ad_pool", None) is not False:
+        workers = resolve_workers(dyn.task.solver.autodiff_workers)
+        if workers > 1 and N >= 2 * workers:
             try:
-                return _autodiff_parallel(dyn, X[:N], U, workers)
-            except _PoolUnavailable:
-                dyn._ad_pool = False  # e.g. inside a daemonic worker: stay serial from now on
-        return _autodiff(dyn, X[:N], U)
+                return parallel_autodiff(dyn, X[:N], U, workers)
+            except WorkersUnavailable:
+                pass  # e.g. inside a daemonic process: serial
+        return autodiff_serial(dyn, X[:N], U)
     return _finite_differences(
         dyn,
         X[:N],
@@ -249,7 +252,9 @@ def _interpolate(keys, Ak, Bk, N):
     return A, B
 
 
-def _autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray):
+def autodiff_serial(dyn: Dynamics, X: np.ndarray, U: np.ndarray):
+    """AutoDiff partials one time step after another in this process (the paper's method).
+    X: [N, nx], U: [N, nu] -> A: [N, nx, nx], B: [N, nx, nu]."""
     _, ad_context, ad_plant, ad_plant_context, ad_input = dyn.autodiff()
     N, nx, nu = U.shape[0], dyn.nx, dyn.nu
     A = np.empty((N, nx, nx))
@@ -336,65 +341,3 @@ def _batch_step(dyn: Dynamics, Z: np.ndarray, threads: int) -> np.ndarray:
 def batch_step(dyn: Dynamics, X: np.ndarray, U: np.ndarray, threads: int = 0) -> np.ndarray:
     """One step from many states at once. X: [M, nx], U: [M, nu] -> [M, nx]."""
     return _batch_step(dyn, np.concatenate([X, U], axis=1), threads)
-
-
-# ------------------------------------------------------------------------------------------
-# AutoDiff split over worker processes (pydrake holds the GIL, so threads do not help)
-# ------------------------------------------------------------------------------------------
-
-_WORKER_DYN = None
-
-
-def _worker_init(config: dict, base_dir: str) -> None:
-    global _WORKER_DYN
-    from .config import task_from_dict
-
-    _WORKER_DYN = Dynamics(task_from_dict(config, base_dir))
-
-
-def _worker_autodiff(X: np.ndarray, U: np.ndarray):
-    return _autodiff(_WORKER_DYN, X, U)
-
-
-def _autodiff_pool(dyn: Dynamics, workers: int):
-    """A process pool of ``workers - 1`` processes (this process takes a share too), built
-    once per Dynamics and shut down at exit."""
-    pool = getattr(dyn, "_ad_pool", None)
-    if pool is None:
-        import atexit
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(
-            max_workers=workers - 1,
-            mp_context=multiprocessing.get_context("spawn"),
-            initializer=_worker_init,
-            initargs=(dyn.task.to_dict(), dyn.task.base_dir),
-        )
-        atexit.register(pool.shutdown, wait=False, cancel_futures=True)
-        dyn._ad_pool = pool
-    return pool
-
-
-class _PoolUnavailable(RuntimeError):
-    pass
-
-
-def _autodiff_parallel(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
-    """Same result as ``_autodiff``: the steps are split into ``workers`` contiguous chunks."""
-    chunks = np.array_split(np.arange(U.shape[0]), workers)
-    try:
-        pool = _autodiff_pool(dyn, workers)
-        futures = [pool.submit(_worker_autodiff, X[c], U[c]) for c in chunks[1:]]
-    except Exception as e:  # no child processes allowed here (daemonic process, limits)
-        raise _PoolUnavailable(str(e)) from None
-    A0, B0 = _autodiff(dyn, X[chunks[0]], U[chunks[0]])
-    parts = [(A0, B0)]
-    for f in futures:
-        try:
-            parts.append(f.result())
-        except SimulationError:
-            raise
-        except Exception as e:  # a worker died: report as a failed derivative step
-            raise SimulationError(f"autodiff worker failed: {e}") from None
-    return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])

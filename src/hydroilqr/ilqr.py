@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import workers
 from .config import SolverConfig
 from .cost import QuadraticCost, Quadratization
 from .derivatives import DerivativeMethod, Linearizer
@@ -235,22 +236,30 @@ def solve(
                     expected = expected_full
                     break
                 t = time.perf_counter()
-                eps = 1.0
-                for _ in range(s.line_search_max_steps):
+                next_eps = 1.0
+                tried = 0
+                while tried < s.line_search_max_steps and not accepted:
                     if deadline is not None and time.perf_counter() > deadline:
                         late = True
                         break
-                    expected = expected_decrease(bp.dV, eps)
-                    try:
-                        Xn, Un = dyn.closed_loop_rollout(x0, U, X, K, kappa, eps)
-                        with np.errstate(over="ignore", invalid="ignore"):
-                            Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
-                    except SimulationError:
-                        Jn = np.inf
-                    if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
-                        accepted = True
-                        break
-                    eps *= s.line_search_factor
+                    # trials side by side in worker processes (1: serial)
+                    n = min(workers.line_search_width(dyn), s.line_search_max_steps - tried)
+                    trial_eps = []
+                    for _ in range(n):  # ε, ε·f, ε·f², ... by repeated products, as serially
+                        trial_eps.append(next_eps)
+                        next_eps *= s.line_search_factor
+                    for e, trial in zip(trial_eps, _trials(dyn, x0, U, X, K, kappa, trial_eps)):
+                        eps = e
+                        expected = expected_decrease(bp.dV, eps)
+                        Jn = np.inf  # a failed rollout is a rejected step
+                        if not isinstance(trial, SimulationError):
+                            Xn, Un = trial
+                            with np.errstate(over="ignore", invalid="ignore"):
+                                Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
+                        if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
+                            accepted = True
+                            break
+                    tried += n
                 ph["line_search"] += time.perf_counter() - t
                 if accepted or late:
                     break
@@ -355,6 +364,22 @@ def solve(
         mu=mu_hist,
         extra={"derivative_steps": derivative_steps},
     )
+
+
+def _trials(dyn, x0, U, X, K, kappa, eps_list):
+    """Closed-loop rollouts (eq. 7) for each ε: (X, U) or the SimulationError of a failed one."""
+    if len(eps_list) > 1:
+        try:
+            return workers.closed_loop_rollouts(dyn, x0, U, X, K, kappa, eps_list)
+        except workers.Unavailable:
+            pass
+    out = []
+    for e in eps_list:  # serial: one ε, or the pool stopped taking work
+        try:
+            out.append(dyn.closed_loop_rollout(x0, U, X, K, kappa, e))
+        except SimulationError as err:
+            out.append(err)
+    return out
 
 
 # After a failure μ grows to at least this, whatever regularization_min is: from a tiny μ

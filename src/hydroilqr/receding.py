@@ -158,7 +158,7 @@ def fingerprint(cfg) -> str:
     """What makes two runs the same computation: the resolved task minus the settings that
     only change speed (threads, worker processes) or other commands (mpc)."""
     d = cfg.to_dict()
-    for key in ("threads", "autodiff_workers"):
+    for key in ("threads", "autodiff_workers", "line_search_workers"):
         d.get("solver", {}).pop(key, None)
     d.pop("mpc", None)
     d.pop("base_dir", None)

@@ -1,0 +1,174 @@
+"""Worker processes that each hold their own copy of the plant.
+
+pydrake holds the GIL while Drake computes, so Python threads do not run two discrete updates
+at once; processes do. One pool per ``Dynamics``, created on first use and shut down at exit:
+``size − 1`` spawned processes (nothing of Drake is forked), this process being the first
+worker. Each worker builds its plant from the task's dictionary, so what it computes is bitwise
+what this process would compute (tests check both uses).
+
+Two kinds of work are sent to it:
+
+* ``autodiff``: the AutoDiff partials of a contiguous chunk of time steps
+  (``solver.autodiff_workers``, used by derivatives.py);
+* ``closed_loop_rollouts``: line-search trials, one step size per process
+  (``solver.line_search_workers``, used by ilqr.py). A round evaluates ε, ε·f, ε·f², ... side
+  by side and the first acceptable one in that order is taken, so the iterates are those of the
+  serial line search.
+
+The pool has ``max(autodiff_workers, line_search_workers) − 1`` processes (0 = one per core).
+Where child processes are not allowed (inside a daemonic process, e.g. a sweep worker) the
+pool is marked unavailable and everything runs serially here.
+"""
+
+from __future__ import annotations
+
+import atexit
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from .plant import Dynamics, SimulationError
+
+_DYN: Dynamics | None = None  # the plant of this worker process
+
+
+def resolve(count: int) -> int:
+    """A worker-count setting: 0 = one per core."""
+    return count if count > 0 else (os.cpu_count() or 1)
+
+
+def pool_size(dyn: Dynamics) -> int:
+    s = dyn.task.solver
+    return max(resolve(s.autodiff_workers), resolve(s.line_search_workers))
+
+
+def pool(dyn: Dynamics) -> ProcessPoolExecutor | None:
+    """The Dynamics' pool, created on first use; None if it has no extra processes or child
+    processes cannot be started here."""
+    p = getattr(dyn, "_worker_pool", None)
+    if p is False:
+        return None
+    if p is None:
+        size = pool_size(dyn)
+        if size < 2:
+            return None
+        try:
+            p = ProcessPoolExecutor(
+                max_workers=size - 1,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init,
+                initargs=(dyn.task.to_dict(), dyn.task.base_dir),
+            )
+        except Exception:  # no child processes allowed here
+            dyn._worker_pool = False
+            return None
+        atexit.register(p.shutdown, wait=False, cancel_futures=True)
+        dyn._worker_pool = p
+    return p
+
+
+def mark_unavailable(dyn: Dynamics) -> None:
+    """Stay serial from now on (submitting failed, e.g. inside a daemonic process)."""
+    p = getattr(dyn, "_worker_pool", None)
+    if p:
+        p.shutdown(wait=False, cancel_futures=True)
+    dyn._worker_pool = False
+
+
+def warm_up(dyn: Dynamics) -> None:
+    """Start the pool's processes and build their plants now (e.g. before timing), not on
+    first use."""
+    p = pool(dyn)
+    if p is not None:
+        for f in [p.submit(_ready) for _ in range(pool_size(dyn) - 1)]:
+            f.result()
+
+
+class Unavailable(RuntimeError):
+    """The pool could not take work; the caller computes serially."""
+
+
+def _submit(dyn: Dynamics, fn, *args):
+    p = pool(dyn)
+    if p is None:
+        raise Unavailable("no worker processes")
+    try:
+        return p.submit(fn, *args)
+    except Exception as e:  # e.g. a broken pool
+        mark_unavailable(dyn)
+        raise Unavailable(str(e)) from None
+
+
+def _result(future):
+    try:
+        return future.result()
+    except SimulationError:
+        raise
+    except Exception as e:  # a worker died: report as a failed simulation
+        raise SimulationError(f"worker process failed: {e}") from None
+
+
+# ------------------------------------------------------------------------------ in workers
+def _init(config: dict, base_dir: str) -> None:
+    global _DYN
+    from .config import task_from_dict
+
+    _DYN = Dynamics(task_from_dict(config, base_dir))
+
+
+def _ready() -> bool:
+    return _DYN is not None
+
+
+def _autodiff(X: np.ndarray, U: np.ndarray):
+    from .derivatives import autodiff_serial
+
+    return autodiff_serial(_DYN, X, U)
+
+
+def _rollout(x0, Ubar, Xbar, K, kappa, eps):
+    try:
+        return _DYN.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps)
+    except SimulationError as e:
+        return e  # a rejected trial, not a failure of the worker
+
+
+# ------------------------------------------------------------------------------ in this process
+def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
+    """Same result as ``derivatives.autodiff_serial`` on X: [N, nx], U: [N, nu]: the steps are
+    split into ``workers`` contiguous chunks, the first computed here. Raises Unavailable."""
+    from .derivatives import autodiff_serial
+
+    chunks = np.array_split(np.arange(U.shape[0]), workers)
+    futures = [_submit(dyn, _autodiff, X[c], U[c]) for c in chunks[1:]]
+    parts = [autodiff_serial(dyn, X[chunks[0]], U[chunks[0]])]
+    parts += [_result(f) for f in futures]
+    return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
+
+
+def line_search_width(dyn: Dynamics) -> int:
+    """How many line-search trials one round evaluates side by side (1 = serial)."""
+    task = getattr(dyn, "task", None)  # (test dynamics without a task: serial)
+    w = resolve(task.solver.line_search_workers) if task is not None else 1
+    if w < 2 or pool(dyn) is None:
+        return 1
+    return min(w, pool_size(dyn))
+
+
+def closed_loop_rollouts(dyn: Dynamics, x0, Ubar, Xbar, K, kappa, eps_list):
+    """Forward passes of eq. (7) for each ε in eps_list, the first here and the others in
+    worker processes. Returns a list of (X: [N+1, nx], U: [N, nu]) or SimulationError (a
+    rejected trial) per ε. Raises Unavailable only before anything was computed."""
+    futures = [_submit(dyn, _rollout, x0, Ubar, Xbar, K, kappa, e) for e in eps_list[1:]]
+    try:
+        out = [dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps_list[0])]
+    except SimulationError as e:
+        out = [e]
+    for f in futures:
+        try:
+            out.append(_result(f))
+        except SimulationError as e:
+            out.append(e)
+    return out
