@@ -225,5 +225,29 @@ def environment() -> dict:
         "scipy": version("scipy"),
         "cpu": cpu,
         "cpu_features": simd,
+        "blas_core": blas_core(),
         "cores": os.cpu_count(),
     }
+
+
+def blas_core() -> str | None:
+    """The kernel set numpy's OpenBLAS picked for this CPU (e.g. SkylakeX, Zen, Haswell), or
+    None where it cannot be asked. Two machines with the same core give the same last bits."""
+    import ctypes
+    import glob
+    import os
+
+    import numpy
+
+    libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__), os.pardir, "numpy.libs", "*"))
+    for path in sorted(p for p in libs if "openblas" in os.path.basename(p)):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename"):
+            f = getattr(lib, name, None)
+            if f is not None:
+                f.restype = ctypes.c_char_p
+                return f().decode(errors="replace")
+    return None
