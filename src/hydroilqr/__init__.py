@@ -8,6 +8,7 @@ Data flow: task YAML (config.py) -> plant/dynamics (plant.py) -> derivatives (de
 from .api import solve
 from .config import ConfigError, SolverConfig, TaskConfig
 from .derivatives import DerivativeMethod, linearize
+from .ilqr import IterationInfo
 from .plant import Dynamics, SimulationError
 from .solution import Solution
 from .task import Task
@@ -16,6 +17,7 @@ __all__ = [
     "ConfigError",
     "DerivativeMethod",
     "Dynamics",
+    "IterationInfo",
     "SimulationError",
     "Solution",
     "SolverConfig",

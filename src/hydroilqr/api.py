@@ -11,7 +11,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from .config import SolverConfig
+import numpy as np
+
+from .config import SolverConfig, validate_solver
 from .ilqr import IterationInfo
 from .ilqr import solve as ilqr_solve
 from .receding import solve_receding
@@ -20,28 +22,56 @@ from .task import Task
 
 
 def solve(
-    task: Task,
+    task: Task | str,
+    U0: np.ndarray | None = None,
+    x0: np.ndarray | None = None,
     settings: SolverConfig | None = None,
-    callbacks: list[Callable[[IterationInfo], None]] | None = None,
+    callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
     checkpoint_dir: str | Path | None = None,
     on_resolve=None,
     stop_on_interrupt: bool = False,
 ) -> Solution:
-    """Solves a task: one iLQR solve over the horizon, or the receding-horizon schedule if the
-    task has one (checkpointed to ``checkpoint_dir`` after every resolve).
+    """Solves a task (a Task, or a built-in task name / task file path): one iLQR solve over
+    the horizon, or the receding-horizon schedule if the task has one (checkpointed to
+    ``checkpoint_dir`` after every resolve).
+
+    ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
+    state (default: the task's). Single solves only: a receding-horizon task takes both from
+    its task file. ``settings``: solver settings for this solve (default: the task's
+    ``solver`` section; the task itself is not changed). ``callbacks``: see
+    ``ilqr.IterationInfo``; one returning True stops the solve (single solves) or the current
+    window (receding horizon).
 
     ``stop_on_interrupt``: Ctrl+C ends a single solve with the best trajectory so far
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
     checkpoint (continue with ``--resume``)."""
+    if isinstance(task, (str, Path)):
+        task = Task.load(str(task))
+    if not isinstance(task, Task):
+        raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
+    saved = task.config.solver
     if settings is not None:
-        task.config.solver = settings
-    if task.config.receding_horizon is not None:
-        return solve_receding(task, callbacks, checkpoint_dir, on_resolve)
-    N = task.config.steps
-    return ilqr_solve(
-        task.problem(),
-        task.initial_guess(N),
-        task.config.solver,
-        callbacks,
-        stop_on_interrupt=stop_on_interrupt,
-    )
+        validate_solver(settings)
+        task.config.solver = settings  # for this solve only (the worker processes read it)
+    try:
+        if task.config.receding_horizon is not None:
+            if U0 is not None or x0 is not None:
+                raise ValueError(
+                    f"{task.name} is a receding-horizon task: U0 and x0 come from its task file "
+                    "(initial_guess, initial_state)"
+                )
+            return solve_receding(task, callbacks, checkpoint_dir, on_resolve)
+        N = task.config.steps
+        if U0 is None:
+            U0 = task.initial_guess(N)
+        elif np.shape(U0)[:1] != (N,):
+            raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
+        return ilqr_solve(
+            task.problem(x0=x0),
+            U0,
+            task.config.solver,
+            callbacks,
+            stop_on_interrupt=stop_on_interrupt,
+        )
+    finally:
+        task.config.solver = saved

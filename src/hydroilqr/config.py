@@ -52,6 +52,7 @@ import copy
 import dataclasses
 import difflib
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -473,7 +474,7 @@ def parse_override(text: str) -> tuple[str, Any]:
         raise ConfigError(f"override {text!r}: expected key=value")
     key, raw = text.split("=", 1)
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
+        value = yaml_value(raw) if raw.strip() else None
     except yaml.YAMLError:
         value = raw
     return key.strip(), value
@@ -496,17 +497,28 @@ def check_truth_overrides(overrides: list[str]) -> None:
             )
 
 
-def with_overrides(cfg: TaskConfig, overrides: list[str]) -> TaskConfig:
-    """A copy of a loaded task with ``key=value`` overrides applied (validated again)."""
+def with_overrides(cfg: TaskConfig, overrides: list[str] | dict[str, Any] | str) -> TaskConfig:
+    """A copy of a loaded task with overrides applied (validated again): ``key=value``
+    strings, or a dict of dotted keys to values."""
     d = cfg.to_dict()
-    for text in overrides:
-        key, value = parse_override(text)
+    for key, value in _override_items(overrides):
         _set_dotted(d, key, _cwd_path(key, value))
     return task_from_dict(d, cfg.base_dir)
 
 
+def _override_items(overrides) -> list[tuple[str, Any]]:
+    if isinstance(overrides, dict):
+        return list(overrides.items())
+    return [parse_override(text) for text in overrides or []]
+
+
 def task_file(name_or_path: str) -> Path:
     """Built-in task name or a path to a task YAML file."""
+    if not isinstance(name_or_path, (str, Path)) or "\n" in str(name_or_path):
+        raise ConfigError(
+            "expected a built-in task name or a task file path (for YAML text: "
+            "Task.from_dict(yaml.safe_load(text)))"
+        )
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
         if not p.exists():
@@ -540,6 +552,20 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 )
             seen[key] = key_node.start_mark.line
         return super().construct_mapping(node, deep)
+
+
+# YAML 1.1 (PyYAML) reads 1e6 (no dot) as the *string* "1e6"; read it as a number, as YAML 1.2
+# and every reader of a task file would.
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def yaml_value(text: str) -> Any:
+    """A value given on the command line or in an override, read as YAML (1e6 is a number)."""
+    return yaml.load(text, Loader=_UniqueKeyLoader)
 
 
 def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
@@ -639,9 +665,26 @@ def load_task(
     With ``smoke``, the task's own ``smoke`` overrides (or generic ones) shrink it first.
     """
     path = task_file(name_or_path)
-    data = load_raw(path)
+    return build_task(load_raw(path), path.resolve().parent, overrides, config_file, smoke, path)
+
+
+def build_task(
+    data: dict[str, Any],
+    base_dir: str | Path,
+    overrides: list[str] | dict[str, Any] | str | None = None,
+    config_file: str | None = None,
+    smoke: bool = False,
+    path: Path | None = None,
+) -> TaskConfig:
+    """A TaskConfig from a task's YAML data (paths in it relative to ``base_dir``), with the
+    same ``config_file``, ``smoke`` and overrides handling as ``load_task``."""
+    data = copy.deepcopy(data)
+    base_dir = Path(base_dir).resolve()
+    label = path.name if path is not None else "task"
     if data.get("horizon") is not None and data.get("num_steps"):
-        raise ConfigError(f"{path.name}: give horizon or num_steps, not both")
+        raise ConfigError(f"{label}: give horizon or num_steps, not both")
+    if isinstance(overrides, str):
+        overrides = [overrides]
     if config_file:
         extra = load_raw(Path(config_file), "--config file")
         _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
@@ -657,23 +700,20 @@ def load_task(
                     raise ConfigError(f"{key}: the smoke section cannot change itself")
                 _set_dotted(data, key, value)
             shrunk = _build_dataclass(TaskConfig, data, "")
-            shrunk.base_dir = str(path.resolve().parent)
+            shrunk.base_dir = str(base_dir)
             validate(shrunk)
         except ConfigError as e:
             raise ConfigError(f"smoke: {e}") from None
-    if isinstance(overrides, dict):
-        items = overrides.items()
-    else:
-        items = map(parse_override, overrides or [])
-    items = list(items)
+    items = _override_items(overrides)
     keys = {k for k, _ in items}
     if "horizon" in keys and "num_steps" not in keys:
         data["num_steps"] = 0  # a horizon given on the command line wins over num_steps
     for key, value in items:
         _set_dotted(data, key, _cwd_path(key, value))
-    data.setdefault("name", path.stem)
+    if path is not None:
+        data.setdefault("name", path.stem)
     cfg = _build_dataclass(TaskConfig, data, "")
-    cfg.base_dir = str(path.resolve().parent)
+    cfg.base_dir = str(base_dir)
     validate(cfg)
     return cfg
 
@@ -706,6 +746,41 @@ def _check_contact(p: ContactProperties, key: str) -> None:
 def _check_length(values: list[float], n: int, key: str) -> None:
     if len(values) != n:
         raise ConfigError(f"{key}: expected {n} numbers, got {len(values)}")
+
+
+def validate_solver(sv: SolverConfig) -> None:
+    """ConfigError naming the first invalid solver setting (also for settings built in Python)."""
+    if sv.derivatives not in DERIVATIVES:
+        raise ConfigError(
+            f"solver.derivatives: expected one of {', '.join(DERIVATIVES)}, got {sv.derivatives!r}"
+        )
+    if sv.max_iterations < 0:
+        raise ConfigError("solver.max_iterations: must be >= 0")
+    if sv.fd_epsilon <= 0:
+        raise ConfigError("solver.fd_epsilon: must be positive")
+    for key in ("autodiff_workers", "line_search_workers"):
+        if getattr(sv, key) < 0:
+            raise ConfigError(f"solver.{key}: must be >= 0 (0 = one per core)")
+    if not sv.derivative_reuse_tolerance >= 0:
+        raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
+    if sv.derivative_interval < 1:
+        raise ConfigError("solver.derivative_interval: must be >= 1")
+    for name, ok, rule in (
+        ("line_search_factor", 0 < sv.line_search_factor < 1, "between 0 and 1"),
+        ("armijo", 0 <= sv.armijo < 1, "in [0, 1)"),
+        ("line_search_max_steps", sv.line_search_max_steps >= 1, ">= 1"),
+        ("line_search_retries", sv.line_search_retries >= 0, ">= 0"),
+        ("regularization_init", sv.regularization_init >= 0, ">= 0"),
+        ("regularization_min", sv.regularization_min >= 0, ">= 0"),
+        ("regularization_max", sv.regularization_max > sv.regularization_min, "> its min"),
+        ("regularization_factor", sv.regularization_factor > 1, "> 1"),
+        ("short_step", 0 <= sv.short_step <= 1, "in [0, 1]"),
+        ("relative_cost_tolerance", sv.relative_cost_tolerance >= 0, ">= 0"),
+        ("expected_decrease_tolerance", sv.expected_decrease_tolerance >= 0, ">= 0"),
+        ("threads", sv.threads >= 0, ">= 0 (0 = all cores)"),
+    ):
+        if not ok:
+            raise ConfigError(f"solver.{name}: must be {rule}, got {getattr(sv, name)}")
 
 
 def validate(cfg: TaskConfig) -> None:
@@ -749,18 +824,7 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError("plant.contact_surface_representation: expected polygon or triangle")
     if cfg.horizon <= 0 and cfg.num_steps <= 0:
         raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
-    if cfg.solver.derivatives not in DERIVATIVES:
-        raise ConfigError(
-            f"solver.derivatives: expected one of {', '.join(DERIVATIVES)}, "
-            f"got {cfg.solver.derivatives!r}"
-        )
-    if cfg.solver.max_iterations < 0:
-        raise ConfigError("solver.max_iterations: must be >= 0")
-    if cfg.solver.fd_epsilon <= 0:
-        raise ConfigError("solver.fd_epsilon: must be positive")
-    for key in ("autodiff_workers", "line_search_workers"):
-        if getattr(cfg.solver, key) < 0:
-            raise ConfigError(f"solver.{key}: must be >= 0 (0 = one per core)")
+    validate_solver(cfg.solver)
     if not 0 <= cfg.mpc.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {cfg.mpc.deadline}"
@@ -771,27 +835,6 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError(
             "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
         )
-    if not cfg.solver.derivative_reuse_tolerance >= 0:
-        raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
-    if cfg.solver.derivative_interval < 1:
-        raise ConfigError("solver.derivative_interval: must be >= 1")
-    sv = cfg.solver
-    for name, ok, rule in (
-        ("line_search_factor", 0 < sv.line_search_factor < 1, "between 0 and 1"),
-        ("armijo", 0 <= sv.armijo < 1, "in [0, 1)"),
-        ("line_search_max_steps", sv.line_search_max_steps >= 1, ">= 1"),
-        ("line_search_retries", sv.line_search_retries >= 0, ">= 0"),
-        ("regularization_init", sv.regularization_init >= 0, ">= 0"),
-        ("regularization_min", sv.regularization_min >= 0, ">= 0"),
-        ("regularization_max", sv.regularization_max > sv.regularization_min, "> its min"),
-        ("regularization_factor", sv.regularization_factor > 1, "> 1"),
-        ("short_step", 0 <= sv.short_step <= 1, "in [0, 1]"),
-        ("relative_cost_tolerance", sv.relative_cost_tolerance >= 0, ">= 0"),
-        ("expected_decrease_tolerance", sv.expected_decrease_tolerance >= 0, ">= 0"),
-        ("threads", sv.threads >= 0, ">= 0 (0 = all cores)"),
-    ):
-        if not ok:
-            raise ConfigError(f"solver.{name}: must be {rule}, got {getattr(sv, name)}")
     if cfg.num_steps < 0:
         raise ConfigError(f"num_steps: must be positive (or 0: use horizon), got {cfg.num_steps}")
     steps = cfg.horizon / cfg.plant.time_step

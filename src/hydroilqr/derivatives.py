@@ -68,8 +68,18 @@ def linearize(
 
     Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails.
     """
-    method = DerivativeMethod(method)
-    N = U.shape[0]
+    try:
+        method = DerivativeMethod(method)
+    except ValueError:
+        valid = ", ".join(m.value for m in DerivativeMethod)
+        raise ValueError(f"derivative method {method!r}: expected one of {valid}") from None
+    X, U = np.asarray(X, dtype=float), np.asarray(U, dtype=float)
+    N = U.shape[0] if U.ndim == 2 else -1
+    if N < 1 or X.ndim != 2 or X.shape[0] < N:
+        raise ValueError(
+            f"X must be [N+1, nx] (or [N, nx]) and U [N, nu], got {X.shape} and {U.shape}"
+        )
+    dyn.check_arguments(X[:N], U)  # shapes against nx, nu; NaN -> SimulationError
     rollout = rollout and X.shape[0] == N + 1
     if interval > 1 and N > 2:
         keys = keypoints(dyn, X, N, interval, adaptive)

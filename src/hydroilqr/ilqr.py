@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import workers
-from .config import SolverConfig
+from .config import SolverConfig, validate_solver
 from .cost import QuadraticCost, Quadratization
 from .derivatives import DerivativeMethod, Linearizer
 from .plant import Dynamics, SimulationError
@@ -114,7 +114,11 @@ def expected_decrease(dV: tuple[float, float], eps: float) -> float:
 
 @dataclass
 class IterationInfo:
-    """What a callback sees after each iteration."""
+    """What a callback sees after each iteration: its number (from 1), the cost after it, the
+    accepted step ε (0: none), μ, its wall time and phase split (seconds), the predicted
+    decrease, whether a step was accepted, and the current iterate X: [N+1, nx], U: [N, nu]
+    (the solver's arrays: copy them to keep them). A callback that returns True stops the
+    solve after this iteration (``reason == "callback"``)."""
 
     iteration: int
     cost: float
@@ -124,6 +128,8 @@ class IterationInfo:
     phases: dict[str, float]
     expected: float
     accepted: bool
+    X: np.ndarray | None = None
+    U: np.ndarray | None = None
 
 
 @dataclass
@@ -150,6 +156,11 @@ def solve(
 ) -> Solution:
     """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution.
 
+    ``settings``: the solver settings (default ``SolverConfig()``, *not* a task's: to solve a
+    task with its own settings use ``hydroilqr.solve(task, U0=..., x0=...)``).
+    ``callbacks``: called with an ``IterationInfo`` after every iteration; one returning True
+    stops the solve (``reason == "callback"``).
+
     ``linearizer`` computes the partials (default: one built from ``settings``); MPC passes
     its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
     computed (MPC: the previous plan's prediction); used instead of the initial rollout only
@@ -161,7 +172,16 @@ def solve(
     MPC: an update that runs late returns in time.
     """
     s = settings or SolverConfig()
+    validate_solver(s)
     dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
+    x0 = np.asarray(x0, dtype=float)
+    U0 = np.asarray(U0, dtype=float)
+    if x0.shape != (dyn.nx,):
+        raise ValueError(f"x0 must have shape [{dyn.nx}] (nx), got {x0.shape}")
+    if U0.ndim != 2 or U0.shape[1] != dyn.nu or U0.shape[0] < 1:
+        raise ValueError(f"U0 must have shape [N, {dyn.nu}] (nu = {dyn.nu}), got {U0.shape}")
+    if not (np.isfinite(x0).all() and np.isfinite(U0).all()):
+        raise ValueError("x0 and U0 must be finite (no NaN or infinite entries)")
     method = DerivativeMethod(s.derivatives)
     max_it = s.max_iterations if max_iterations is None else max_iterations
     callbacks = callbacks or []
@@ -202,7 +222,8 @@ def solve(
     interrupted = False
     try:
         for it in range(max_it):
-            t_it = time.perf_counter()
+            # the first iteration's time includes the initial rollout (its "rollout" phase)
+            t_it = time.perf_counter() if it else t_start
             ph = dict.fromkeys(PHASES, 0.0)
             if it == 0:
                 ph["rollout"] = rollout_time
@@ -288,10 +309,9 @@ def solve(
             eps_hist.append(eps if accepted else 0.0)
             mu_hist.append(mu)
             info = IterationInfo(
-                it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted
+                it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted, X, U
             )
-            for cb in callbacks:
-                cb(info)
+            stop = [bool(cb(info)) for cb in callbacks]  # every callback sees every iteration
             if not accepted:
                 if late:
                     reason = "deadline"
@@ -303,6 +323,9 @@ def solve(
                 else:
                     reason = "line_search_failed"
                     # A local minimum at the resolution the dynamics allow: report honestly.
+                break
+            if any(stop):
+                reason = "callback"
                 break
             # Small progress from one shortened step is not convergence (the local model may just
             # be poor there), so a short step counts only when the last few iterations together
@@ -347,7 +370,9 @@ def solve(
                 K, kappa = bp.K, bp.kappa
         except SimulationError:
             pass
-        phases["derivatives"][-1] += time.perf_counter() - t
+        elapsed = time.perf_counter() - t
+        phases["derivatives"][-1] += elapsed
+        iter_seconds[-1] += elapsed
     return Solution(
         X=X,
         U=U,

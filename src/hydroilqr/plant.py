@@ -374,7 +374,17 @@ class Dynamics:
 
     # -------------------------------------------------------------------------- stepping
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """x_{k+1} = f(x_k, u_k). x: [nx], u: [nu] -> [nx]. Raises SimulationError."""
+        """x_{k+1} = f(x_k, u_k). x: [nx], u: [nu] -> [nx]. Raises SimulationError (also for a
+        non-finite x or u) or ValueError (wrong shapes)."""
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        # Checked here: Drake's own check of x ends the Python process (SystemExit).
+        if (
+            x.shape != (self.nx,)
+            or u.shape != (self.nu,)
+            or not (np.isfinite(x).all() and np.isfinite(u).all())
+        ):
+            self.check_arguments(x, u)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         self._input.FixValue(self.context, u)
         try:
@@ -389,8 +399,32 @@ class Dynamics:
             )
         return np.array(xn, copy=True)
 
+    def check_arguments(self, X: np.ndarray, U: np.ndarray) -> None:
+        """X: [nx] or [N(+1), nx] states, U: [nu] or [N, nu] inputs. ValueError for wrong
+        shapes, SimulationError for NaN or infinite entries."""
+        X, U = np.asarray(X), np.asarray(U)
+        if X.ndim not in (1, 2) or X.shape[-1] != self.nx:
+            raise ValueError(f"states must have {self.nx} entries (nx), got shape {X.shape}")
+        if U.ndim != X.ndim or U.shape[-1] != self.nu:
+            want = f"[N, {self.nu}]" if X.ndim == 2 else f"[{self.nu}]"
+            raise ValueError(f"inputs must have shape {want} (nu = {self.nu}), got {U.shape}")
+        if not np.isfinite(X).all():
+            raise SimulationError("non-finite (NaN or infinite) state")
+        if not np.isfinite(U).all():
+            raise SimulationError("non-finite (NaN or infinite) input")
+
+    def _trajectory_arguments(self, x0, U):
+        x0 = np.asarray(x0, dtype=float)
+        U = np.asarray(U, dtype=float)
+        if x0.shape != (self.nx,):
+            raise ValueError(f"x0 must have shape [{self.nx}] (nx), got {x0.shape}")
+        if U.ndim != 2 or U.shape[1] != self.nu:
+            raise ValueError(f"U must have shape [N, {self.nu}] (nu = {self.nu}), got {U.shape}")
+        return x0, U
+
     def rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Open-loop simulation. x0: [nx], U: [N, nu] -> X: [N+1, nx]. Raises SimulationError."""
+        x0, U = self._trajectory_arguments(x0, U)
         N = U.shape[0]
         X = np.empty((N + 1, self.nx))
         X[0] = x0
@@ -408,6 +442,7 @@ class Dynamics:
         Returns X: [N+1, nx], U: [N, nu]. Feedback acts on the coordinate difference (K is
         expressed in the coordinates in which f was linearized).
         """
+        x0, Ubar = self._trajectory_arguments(x0, Ubar)
         N = Ubar.shape[0]
         X = np.empty((N + 1, self.nx))
         U = np.empty_like(Ubar)

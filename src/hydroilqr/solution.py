@@ -12,9 +12,14 @@ PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
 
 
 def solution_file(path: str | Path) -> Path:
-    """A run directory's solution.npz, or ``path`` itself if it is not a directory."""
+    """A run directory's solution.npz; ``path`` itself if it is a file; else ``path`` with
+    ``.npz`` appended if that exists (what ``Solution.save(path)`` writes)."""
     path = Path(path)
-    return path / "solution.npz" if path.is_dir() else path
+    if path.is_dir():
+        return path / "solution.npz"
+    if not path.exists() and path.suffix != ".npz" and path.with_name(path.name + ".npz").exists():
+        return path.with_name(path.name + ".npz")
+    return path
 
 
 def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
@@ -81,8 +86,15 @@ class Solution:
             "derivatives": self.derivatives,
         }
 
-    def save(self, path: str | Path) -> None:
-        """Writes an .npz with the arrays and the statistics (as JSON inside)."""
+    def save(self, path: str | Path) -> Path:
+        """Writes an .npz with the arrays and the statistics (as JSON inside) and returns its
+        path: ``path`` (``.npz`` appended if missing), or ``path/solution.npz`` if ``path`` is
+        a directory (as in a run directory). ``Solution.load`` reads either back."""
+        path = Path(path)
+        if path.is_dir():
+            path = path / "solution.npz"
+        elif path.suffix != ".npz":
+            path = path.with_name(path.name + ".npz")
         np.savez_compressed(
             path,
             X=self.X,
@@ -95,10 +107,12 @@ class Solution:
                 json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu, "extra": self.extra})
             ),
         )
+        return path
 
     @staticmethod
     def load(path: str | Path) -> Solution:
-        """From a file written by ``save``, or a run directory holding solution.npz."""
+        """From a file written by ``save`` (the path given to it, with or without ``.npz``), or
+        a run directory holding solution.npz."""
         with np.load(solution_file(path), allow_pickle=False) as d:
             meta = json.loads(str(d["meta"]))
             return Solution(

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, TaskConfig, load_task, task_from_dict
+from .config import ConfigError, TaskConfig, build_task, load_task, with_overrides
 from .cost import QuadraticCost
 from .ilqr import Problem
 from .plant import Dynamics, SimulationError
@@ -35,12 +35,26 @@ class Task:
         return cls(load_task(name_or_path, overrides, config_file, smoke))
 
     @classmethod
-    def from_yaml(cls, path: str | Path, overrides=None, smoke: bool = False) -> Task:
-        return cls(load_task(str(path), overrides, None, smoke))
+    def from_yaml(
+        cls, path: str | Path, overrides=None, config_file: str | None = None, smoke: bool = False
+    ) -> Task:
+        """A task YAML file (same as ``load`` given a path)."""
+        return cls(load_task(str(path), overrides, config_file, smoke))
 
     @classmethod
-    def from_dict(cls, data: dict, base_dir: str = ".") -> Task:
-        return cls(task_from_dict(data, base_dir))
+    def from_dict(
+        cls, data: dict, base_dir: str | Path = ".", overrides=None, smoke: bool = False
+    ) -> Task:
+        """A task from its YAML data as a dict (e.g. ``yaml.safe_load(text)``); relative paths
+        in it are relative to ``base_dir``."""
+        return cls(build_task(data, base_dir, overrides, None, smoke))
+
+    def with_overrides(self, overrides) -> Task:
+        """A new Task with ``key=value`` overrides (a list, a dict or one string) applied.
+
+        A Task reads its config once, when ``dynamics`` / ``cost`` / ``x0`` are first used:
+        change a loaded task this way, not by editing ``task.config`` afterwards."""
+        return Task(with_overrides(self.config, overrides))
 
     # ------------------------------------------------------------------ pieces
     @property
@@ -90,6 +104,8 @@ class Task:
         CSV) holds one row per time step, of which rows ``start .. start+N-1`` are used (past
         its end the last row is held; from ``start = 0`` it must cover N steps), or a single
         row, a constant control."""
+        if not isinstance(N, (int, np.integer)) or N < 1:
+            raise ValueError(f"initial_guess: N must be a positive number of steps, got {N!r}")
         dyn = self.dynamics
         x = self.x0 if x is None else x
         kind = self.config.initial_guess

@@ -25,6 +25,7 @@ from __future__ import annotations
 import atexit
 import multiprocessing
 import os
+import sys
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -57,7 +58,7 @@ def pool(dyn: Dynamics) -> ProcessPoolExecutor | None:
         try:
             p = ProcessPoolExecutor(
                 max_workers=size - 1,
-                mp_context=multiprocessing.get_context("spawn"),
+                mp_context=_SpawnContext(),
                 initializer=_init,
                 initargs=(dyn.task.to_dict(), dyn.task.base_dir),
             )
@@ -67,6 +68,33 @@ def pool(dyn: Dynamics) -> ProcessPoolExecutor | None:
         atexit.register(p.shutdown, wait=False, cancel_futures=True)
         dyn._worker_pool = p
     return p
+
+
+class _SpawnProcess(multiprocessing.context.SpawnProcess):
+    """A spawned process that does not run the parent's ``__main__`` again.
+
+    Plain spawn re-imports the user's script in every child, so a script without an
+    ``if __name__ == "__main__":`` guard would run its solves once more per worker. The
+    workers need nothing from ``__main__`` (their functions live in this module), so the
+    script is hidden from multiprocessing while the child is launched."""
+
+    @staticmethod
+    def _Popen(process_obj):
+        main = sys.modules.get("__main__")
+        keys = ("__file__", "__spec__")
+        saved = {k: main.__dict__[k] for k in keys if main is not None and k in main.__dict__}
+        try:
+            if main is not None:
+                main.__dict__.pop("__file__", None)
+                main.__spec__ = None
+            return multiprocessing.context.SpawnProcess._Popen(process_obj)
+        finally:
+            if main is not None:
+                main.__dict__.update(saved)
+
+
+class _SpawnContext(multiprocessing.context.SpawnContext):
+    Process = _SpawnProcess
 
 
 def mark_unavailable(dyn: Dynamics) -> None:

@@ -1,0 +1,112 @@
+"""The Python API as a researcher uses it from a script or notebook (smoke-sized problems)."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from hydroilqr import ConfigError, SimulationError, Solution, SolverConfig, Task, solve
+
+
+@pytest.fixture(scope="module")
+def task():
+    return Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=3")
+
+
+def test_solve_takes_own_guess_and_state_and_leaves_the_task_alone(task):
+    U0 = np.full((task.steps, 1), 0.5)
+    x0 = task.x0 + np.array([0.0, 0.01, 0.0, 0.0])
+    sol = solve(task, U0=U0, x0=x0, settings=SolverConfig(max_iterations=2))
+    assert sol.iterations <= 2
+    np.testing.assert_array_equal(sol.X[0], x0)
+    assert task.config.solver.max_iterations == 3  # settings were for that solve only
+    assert solve("cartpole-wall", settings=SolverConfig(max_iterations=1)).iterations == 1
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"U0": np.zeros((5, 1))}, "U0 must have shape"),
+        ({"U0": "zeros"}, "U0 must have shape"),
+        ({"x0": np.zeros(3)}, "x0 must have shape"),
+        ({"x0": np.array([0.0, np.nan, 0.0, 0.0])}, "finite"),
+    ],
+)
+def test_bad_guess_or_state_is_a_value_error(task, kwargs, match):
+    if isinstance(kwargs.get("U0"), str):
+        kwargs = {"U0": np.zeros(task.steps)}  # 1-D
+    with pytest.raises(ValueError, match=match):
+        solve(task, **kwargs)
+
+
+def test_bad_settings_and_inputs_give_clear_errors(task):
+    with pytest.raises(ConfigError, match="line_search_factor"):
+        solve(task, settings=SolverConfig(line_search_factor=2.0))
+    with pytest.raises(ConfigError, match="expected one of autodiff"):
+        solve(task, settings=SolverConfig(derivatives="autodif"))
+    x = task.x0.copy()
+    x[1] = np.nan
+    with pytest.raises(SimulationError, match="non-finite"):
+        task.dynamics.step(x, np.zeros(1))  # Drake's own check would end the process
+    with pytest.raises(ValueError, match="4 entries"):
+        task.dynamics.step(task.x0[:3], np.zeros(1))
+    with pytest.raises(ConfigError, match="Task.from_dict"):
+        Task.from_yaml("name: x\nmodels: []\n")
+    with pytest.raises(ValueError, match="positive"):
+        task.initial_guess(-1)
+
+
+def test_callback_sees_iterates_and_can_stop(task):
+    seen = []
+
+    def cb(info):
+        seen.append((info.iteration, info.X.shape, info.U.shape))
+        return info.iteration >= 2
+
+    sol = solve(task.with_overrides({"solver.max_iterations": 10}), callbacks=[cb])
+    assert sol.iterations == 2 and sol.reason == "callback" and not sol.converged
+    assert seen[0] == (1, (task.steps + 1, 4), (task.steps, 1))
+
+
+def test_overrides_make_a_new_task_and_read_1e6_as_a_number(task):
+    stiff = task.with_overrides(["cost.Qf.pole_angle=1e6"])
+    assert stiff.config.cost.Qf["pole_angle"] == 1e6
+    assert task.config.cost.Qf["pole_angle"] != 1e6
+    assert stiff.cost.total(*_rollout(stiff)) > task.cost.total(*_rollout(task))
+
+
+def _rollout(t):
+    U = t.initial_guess(t.steps)
+    return t.dynamics.rollout(t.x0, U), U
+
+
+def test_save_and_load_agree_on_paths(task, tmp_path):
+    sol = solve(task)
+    assert sol.save(tmp_path / "plan") == tmp_path / "plan.npz"
+    assert Solution.load(tmp_path / "plan").final_cost == sol.final_cost
+    run = tmp_path / "run"
+    run.mkdir()
+    assert sol.save(run) == run / "solution.npz"
+    np.testing.assert_array_equal(Solution.load(run).U, sol.U)
+    assert sol.total_seconds >= sum(sum(v) for v in sol.phase_seconds.values()) - 1e-9
+
+
+def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):
+    """Worker processes are spawned; they must not run the user's script again."""
+    script = tmp_path / "noguard.py"
+    script.write_text(
+        "print('TOP', flush=True)\n"
+        "from hydroilqr import Task, solve\n"
+        "t = Task.load('cartpole-wall', smoke=True, overrides=['solver.max_iterations=2',\n"
+        "    'solver.derivatives=autodiff', 'solver.autodiff_workers=2',\n"
+        "    'solver.line_search_workers=2'])\n"
+        "solve(t)\n"
+        "assert t.dynamics._worker_pool, 'no worker processes were used'\n"
+        "print('DONE', flush=True)\n"
+    )
+    out = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.count("TOP") == 1 and out.stdout.count("DONE") == 1
