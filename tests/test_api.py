@@ -49,7 +49,7 @@ def test_bad_settings_and_inputs_give_clear_errors(task):
     x[1] = np.nan
     with pytest.raises(SimulationError, match="non-finite"):
         task.dynamics.step(x, np.zeros(1))  # Drake's own check would end the process
-    with pytest.raises(ValueError, match="4 entries"):
+    with pytest.raises(ValueError, match=r"x must have shape \[4\]"):
         task.dynamics.step(task.x0[:3], np.zeros(1))
     with pytest.raises(ConfigError, match="Task.from_dict"):
         Task.from_yaml("name: x\nmodels: []\n")
@@ -110,3 +110,44 @@ def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):
     )
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.count("TOP") == 1 and out.stdout.count("DONE") == 1
+
+
+def test_audit_cases_round_trip_overrides_resolver_and_truthy_callbacks(task):
+    from hydroilqr.config import yaml_value
+
+    kin = Task.load("kinova-forward", smoke=True)  # sets num_steps
+    again = Task.from_dict(kin.config.to_dict(), base_dir=kin.config.base_dir)
+    assert again.steps == kin.steps
+    assert kin.with_overrides("solver.max_iterations=2").config.solver.max_iterations == 2
+    assert kin.with_overrides({"horizon": 0.2}).steps == 20  # horizon wins, as with --set
+    assert yaml_value("1e6") == 1e6 and yaml_value(".5e1") == 5.0
+    for text in (".e5", "-e5", "+E1", "v1e3", "0x1e5"):
+        assert not isinstance(yaml_value(text), float), text
+    calls = []
+    three = task.with_overrides({"solver.max_iterations": 3})
+    sol = solve(three, callbacks=[lambda i: calls.append(1) or 1])
+    assert sol.reason != "callback" and len(calls) == sol.iterations  # 1 is not True
+
+
+def test_computed_guess_holds_the_given_state():
+    kin = Task.load("kinova-forward", smoke=True, overrides=["solver.max_iterations=0"])
+    x0 = kin.x0.copy()
+    x0[:7] += 0.3
+    sol = solve(kin, x0=x0)
+    np.testing.assert_allclose(sol.U[0], kin.initial_guess(kin.steps, x=x0)[0])
+
+
+def test_worker_pools_close_with_their_tasks():
+    import gc
+
+    from hydroilqr import workers
+
+    base = Task.load("cartpole-wall", smoke=True, overrides=["solver.line_search_workers=2"])
+    pools = []
+    for _ in range(2):
+        t = base.with_overrides({"solver.max_iterations": 1})
+        workers.warm_up(t.dynamics)
+        pools.append(t.dynamics._worker_pool)
+        del t
+        gc.collect()
+    assert all(p._shutdown_thread for p in pools)

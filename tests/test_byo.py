@@ -109,6 +109,7 @@ def test_guide_has_runnable_steps():
 def test_guide_commands_run(tmp_path, monkeypatch, capsys):
     """Runs the guide top to bottom; solves are made smoke-sized (``--smoke`` appended)."""
     monkeypatch.chdir(tmp_path)
+    namespace = {"__name__": "guide"}  # the guide's Python blocks continue one another
     for kind, text in guide_steps():
         if kind == "file":
             name = text.splitlines()[0].split(":", 1)[1].strip()
@@ -122,7 +123,7 @@ def test_guide_commands_run(tmp_path, monkeypatch, capsys):
             assert rc == 0, f"{text}: {cap.err}"
             assert cap.err.strip() == "", f"{text}: {cap.err}"
         else:
-            exec(compile(text, str(GUIDE), "exec"), {"__name__": "guide"})
+            exec(compile(text, str(GUIDE), "exec"), namespace)
     # what the guide says a run directory holds
     for f in ("solution.npz", "summary.json", "convergence.png", "replay.html"):
         assert (tmp_path / "runs" / "acrobot-smoke" / f).exists(), f

@@ -63,7 +63,7 @@ def solve(
             return solve_receding(task, callbacks, checkpoint_dir, on_resolve)
         N = task.config.steps
         if U0 is None:
-            U0 = task.initial_guess(N)
+            U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
         elif np.shape(U0)[:1] != (N,):
             raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
         return ilqr_solve(

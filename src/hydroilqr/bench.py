@@ -257,8 +257,8 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
 
 def _stats(sol) -> dict:
     it = np.asarray(sol.iteration_seconds, float)
-    # Shares of the summed phases (the solver counts the initial rollout as a phase of the
-    # first iteration but not in its iteration time).
+    # Shares of the summed phases (the first iteration's time and phases both include the
+    # initial rollout).
     total = float(sum(np.sum(sol.phase_seconds[p]) for p in PHASES)) or 1.0
     return {
         "iterations": int(it.size),

@@ -501,12 +501,23 @@ def with_overrides(cfg: TaskConfig, overrides: list[str] | dict[str, Any] | str)
     """A copy of a loaded task with overrides applied (validated again): ``key=value``
     strings, or a dict of dotted keys to values."""
     d = cfg.to_dict()
-    for key, value in _override_items(overrides):
+    items = _override_items(overrides)
+    _horizon_wins(d, items)
+    for key, value in items:
         _set_dotted(d, key, _cwd_path(key, value))
     return task_from_dict(d, cfg.base_dir)
 
 
+def _horizon_wins(data: dict, items: list[tuple[str, Any]]) -> None:
+    """A horizon given as an override wins over the task's num_steps."""
+    keys = {k for k, _ in items}
+    if "horizon" in keys and "num_steps" not in keys:
+        data["num_steps"] = 0
+
+
 def _override_items(overrides) -> list[tuple[str, Any]]:
+    if isinstance(overrides, str):
+        overrides = [overrides]
     if isinstance(overrides, dict):
         return list(overrides.items())
     return [parse_override(text) for text in overrides or []]
@@ -558,7 +569,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 # and every reader of a task file would.
 _UniqueKeyLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9][0-9_]*)[eE][-+]?[0-9]+$"),
     list("-+0123456789."),
 )
 
@@ -681,10 +692,8 @@ def build_task(
     data = copy.deepcopy(data)
     base_dir = Path(base_dir).resolve()
     label = path.name if path is not None else "task"
-    if data.get("horizon") is not None and data.get("num_steps"):
+    if path is not None and data.get("horizon") is not None and data.get("num_steps"):
         raise ConfigError(f"{label}: give horizon or num_steps, not both")
-    if isinstance(overrides, str):
-        overrides = [overrides]
     if config_file:
         extra = load_raw(Path(config_file), "--config file")
         _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
@@ -705,9 +714,7 @@ def build_task(
         except ConfigError as e:
             raise ConfigError(f"smoke: {e}") from None
     items = _override_items(overrides)
-    keys = {k for k, _ in items}
-    if "horizon" in keys and "num_steps" not in keys:
-        data["num_steps"] = 0  # a horizon given on the command line wins over num_steps
+    _horizon_wins(data, items)
     for key, value in items:
         _set_dotted(data, key, _cwd_path(key, value))
     if path is not None:

@@ -160,6 +160,8 @@ def solve(
     task with its own settings use ``hydroilqr.solve(task, U0=..., x0=...)``).
     ``callbacks``: called with an ``IterationInfo`` after every iteration; one returning True
     stops the solve (``reason == "callback"``).
+    Worker processes (``autodiff_workers``, ``line_search_workers``) follow the settings of
+    the dynamics' task (``problem.dynamics.task.solver``), not ``settings``.
 
     ``linearizer`` computes the partials (default: one built from ``settings``); MPC passes
     its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
@@ -311,7 +313,9 @@ def solve(
             info = IterationInfo(
                 it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted, X, U
             )
-            stop = [bool(cb(info)) for cb in callbacks]  # every callback sees every iteration
+            # every callback sees every iteration; only a literal True stops (not any truthy
+            # return value, e.g. of a progress bar's update())
+            stop = [cb(info) is True for cb in callbacks]
             if not accepted:
                 if late:
                     reason = "deadline"

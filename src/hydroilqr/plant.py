@@ -377,14 +377,21 @@ class Dynamics:
         """x_{k+1} = f(x_k, u_k). x: [nx], u: [nu] -> [nx]. Raises SimulationError (also for a
         non-finite x or u) or ValueError (wrong shapes)."""
         x = np.asarray(x, dtype=float)
-        u = np.asarray(u, dtype=float)
+        u = np.atleast_1d(np.asarray(u, dtype=float))  # a number for a single actuator
         # Checked here: Drake's own check of x ends the Python process (SystemExit).
-        if (
-            x.shape != (self.nx,)
-            or u.shape != (self.nu,)
-            or not (np.isfinite(x).all() and np.isfinite(u).all())
-        ):
-            self.check_arguments(x, u)
+        if x.shape != (self.nx,) or u.shape != (self.nu,):
+            raise ValueError(
+                f"step: x must have shape [{self.nx}] and u [{self.nu}], got {x.shape} and "
+                f"{u.shape}"
+            )
+        if not (np.isfinite(x).all() and np.isfinite(u).all()):
+            self.check_arguments(x, u)  # names which one
+        return self._step(x, u)
+
+    def _step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """``step`` without the argument checks, for rollouts (whose x0 and U are checked once
+        and whose states are checked after every step, so a NaN control gives a
+        SimulationError there too)."""
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         self._input.FixValue(self.context, u)
         try:
@@ -420,6 +427,8 @@ class Dynamics:
             raise ValueError(f"x0 must have shape [{self.nx}] (nx), got {x0.shape}")
         if U.ndim != 2 or U.shape[1] != self.nu:
             raise ValueError(f"U must have shape [N, {self.nu}] (nu = {self.nu}), got {U.shape}")
+        if not np.isfinite(x0).all():
+            raise SimulationError("non-finite (NaN or infinite) initial state")
         return x0, U
 
     def rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -430,7 +439,7 @@ class Dynamics:
         X[0] = x0
         for k in range(N):
             try:
-                X[k + 1] = self.step(X[k], U[k])
+                X[k + 1] = self._step(X[k], U[k])
             except SimulationError as e:
                 raise SimulationError(f"step {k}: {e}") from None
         return X
@@ -450,7 +459,7 @@ class Dynamics:
         for k in range(N):
             U[k] = Ubar[k] - eps * kappa[k] - K[k] @ (X[k] - Xbar[k])
             try:
-                X[k + 1] = self.step(X[k], U[k])
+                X[k + 1] = self._step(X[k], U[k])
             except SimulationError as e:
                 raise SimulationError(f"step {k}: {e}") from None
         return X, U

@@ -22,10 +22,11 @@ pool is marked unavailable and everything runs serially here.
 
 from __future__ import annotations
 
-import atexit
 import multiprocessing
 import os
 import sys
+import threading
+import weakref
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -35,9 +36,17 @@ from .plant import Dynamics, SimulationError
 _DYN: Dynamics | None = None  # the plant of this worker process
 
 
+def cores() -> int:
+    """Cores this process may run on (its CPU affinity), not the host's."""
+    try:
+        return len(os.sched_getaffinity(0)) or 1
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
 def resolve(count: int) -> int:
     """A worker-count setting: 0 = one per core."""
-    return count if count > 0 else (os.cpu_count() or 1)
+    return count if count > 0 else cores()
 
 
 def pool_size(dyn: Dynamics) -> int:
@@ -65,7 +74,8 @@ def pool(dyn: Dynamics) -> ProcessPoolExecutor | None:
         except Exception:  # no child processes allowed here
             dyn._worker_pool = False
             return None
-        atexit.register(p.shutdown, wait=False, cancel_futures=True)
+        # Shut down with its Dynamics (or at exit): many Tasks must not pile up processes.
+        weakref.finalize(dyn, p.shutdown, wait=False, cancel_futures=True)
         dyn._worker_pool = p
     return p
 
@@ -80,17 +90,23 @@ class _SpawnProcess(multiprocessing.context.SpawnProcess):
 
     @staticmethod
     def _Popen(process_obj):
-        main = sys.modules.get("__main__")
-        keys = ("__file__", "__spec__")
-        saved = {k: main.__dict__[k] for k in keys if main is not None and k in main.__dict__}
-        try:
-            if main is not None:
-                main.__dict__.pop("__file__", None)
-                main.__spec__ = None
-            return multiprocessing.context.SpawnProcess._Popen(process_obj)
-        finally:
-            if main is not None:
-                main.__dict__.update(saved)
+        # Serialized, so concurrent launches never save an already hidden state; the window
+        # in which other spawns in this process would not see __main__ is one launch long.
+        with _HIDE_MAIN:
+            main = sys.modules.get("__main__")
+            keys = ("__file__", "__spec__")
+            saved = {k: main.__dict__[k] for k in keys if main is not None and k in main.__dict__}
+            try:
+                if main is not None:
+                    main.__dict__.pop("__file__", None)
+                    main.__spec__ = None
+                return multiprocessing.context.SpawnProcess._Popen(process_obj)
+            finally:
+                if main is not None:
+                    main.__dict__.update(saved)
+
+
+_HIDE_MAIN = threading.Lock()
 
 
 class _SpawnContext(multiprocessing.context.SpawnContext):
@@ -194,9 +210,13 @@ def closed_loop_rollouts(dyn: Dynamics, x0, Ubar, Xbar, K, kappa, eps_list):
         out = [dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps_list[0])]
     except SimulationError as e:
         out = [e]
-    for f in futures:
+    for f, eps in zip(futures, eps_list[1:]):
         try:
-            out.append(_result(f))
-        except SimulationError as e:
-            out.append(e)
+            out.append(f.result())  # (X, U) or the SimulationError of a rejected trial
+        except Exception:  # the worker died: redo the trial here, stay serial from now on
+            mark_unavailable(dyn)
+            try:
+                out.append(dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps))
+            except SimulationError as e:
+                out.append(e)
     return out
