@@ -109,6 +109,8 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
         assert np.isfinite(m[key])
     assert set(m["pair_sync"]) == {"diagonal", "lateral", "front", "hind"}
     assert all(0.0 <= v <= 1.0 for v in m["pair_sync"].values())
+    assert set(m["foot_slip_mps"]) == {"FL", "FR", "HL", "HR"}
+    assert all(np.isfinite(v) and v >= 0 for v in m["foot_slip_mps"].values())
     assert np.isfinite(sol.extra["trajectory_cost"]) and sol.extra["trajectory_cost"] > 0
     assert m["target_velocity_mps"] == 1.0 and m["body_ground_contact_steps"] == 0
     assert m["max_foot_faces"] > 0
@@ -169,3 +171,21 @@ def test_pair_sync_names_the_gait():
     assert sync(trot)["diagonal"] == 1.0 and sync(trot)["lateral"] == 0.0
     assert sync(pace)["lateral"] == 1.0 and sync(pace)["diagonal"] == 0.0
     assert sync(bound)["front"] == sync(bound)["hind"] == 1.0
+
+
+def test_foot_slip_is_zero_standing_and_body_speed_when_dragged():
+    """The slip of each foot's lowest point: 0 at rest, the body's speed when the whole robot
+    translates rigidly."""
+    from types import SimpleNamespace
+
+    from hydroilqr.metrics_cheetah import foot_slip_speeds
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    x = task.x0.copy()
+    lay = task.dynamics.layout
+    still = foot_slip_speeds(task, SimpleNamespace(X=np.array([x])))
+    np.testing.assert_allclose(still, 0.0, atol=1e-12)
+    moving = x.copy()
+    moving[list(lay.primitives["body.velocity"].coords)] = [0.6, 0.8, 0.0]  # 1 m/s level
+    dragged = foot_slip_speeds(task, SimpleNamespace(X=np.array([moving])))
+    np.testing.assert_allclose(dragged, 1.0, atol=1e-9)

@@ -19,6 +19,9 @@
   reverse, a bound front and hind near 1. (The overlaps above reward long stance: a gait whose
   feet are mostly down overlaps in every pair.)
 * ``foot_touchdowns``: per foot, how many times it goes from air to ground (t ≥ 0.2 s);
+* ``foot_slip_mps``: per foot, the median horizontal speed of the foot's lowest material point
+  while it touches the ground (t ≥ 0.2 s): ~0 for a planted (rolling, pivoting) foot, large
+  for one that slides;
 * ``max_foot_faces`` / ``mean_foot_faces``: contact polygons of one foot on the ground (most,
   and mean over the states where it touches);
 * ``iterations_per_resolve`` (mean) and ``resolve_seconds`` (mean) for receding-horizon runs.
@@ -115,6 +118,35 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return feet, faces, body
 
 
+def foot_slip_speeds(task, sol) -> np.ndarray:
+    """Horizontal speed of the lowest point of each foot sphere, as a point of the leg it is
+    welded to (the material point that touches the ground), at every state: [T, 4]. A foot
+    that rolls or pivots without slipping has ~0 there while it touches; a sliding foot does
+    not. Feet that are not spheres use their geometry origin."""
+    dyn = task.dynamics
+    plant = dyn.plant
+    inspector = dyn.scene_graph.model_inspector()
+    ids = {name: gid for gid, (name, _) in dyn.geometry_names().items()}
+    feet = []
+    for name in _params(task)["feet"]:
+        gid = ids[name]
+        shape = inspector.GetShape(gid)
+        radius = shape.radius() if hasattr(shape, "radius") else 0.0
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        feet.append((gid, body, radius))
+    S = np.zeros((len(sol.X), 4))
+    for k, x in enumerate(np.asarray(sol.X)):
+        plant.SetPositionsAndVelocities(dyn.plant_context, x)
+        query = plant.get_geometry_query_input_port().Eval(dyn.plant_context)
+        for j, (gid, body, radius) in enumerate(feet):
+            p = query.GetPoseInWorld(gid).translation() - np.array([0.0, 0.0, radius])
+            X_WB = plant.EvalBodyPoseInWorld(dyn.plant_context, body)
+            V_WB = plant.EvalBodySpatialVelocityInWorld(dyn.plant_context, body)
+            v = V_WB.translational() + np.cross(V_WB.rotational(), p - X_WB.translation())
+            S[k, j] = np.hypot(v[0], v[1])
+    return S
+
+
 def pair_sync(f: np.ndarray) -> dict[str, float]:
     """f: [T, 4] foot contact flags (FL, FR, HL, HR) -> for each pair kind, the fraction of
     steps in which both feet of a pair are in the same phase, averaged over its pairs."""
@@ -159,6 +191,7 @@ def cheetah_metrics(task, sol) -> dict:
         "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in LATERAL])),
         "pair_sync": pair_sync(f),
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
+        "foot_slip_mps": _stance_slip(task, sol, feet, settled, labels),
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
     }
@@ -167,6 +200,18 @@ def cheetah_metrics(task, sol) -> dict:
         out["iterations_per_resolve"] = float(np.mean([r["iterations"] for r in resolves]))
         out["resolve_seconds"] = float(np.mean([r["seconds"] for r in resolves]))
     return out
+
+
+def _stance_slip(task, sol, feet, settled, labels) -> dict[str, float]:
+    """Per foot, the median slip speed (``foot_slip_speeds``) over states where it touches the
+    ground (t ≥ settle). The median: a foot lands still moving and sticks within a few steps,
+    so a mean is dominated by touchdowns and grazes."""
+    S = foot_slip_speeds(task, sol)
+    on = feet & settled[:, None]
+    return {
+        lab: float(np.median(S[on[:, j], j])) if on[:, j].any() else 0.0
+        for j, lab in enumerate(labels)
+    }
 
 
 @report.plot("cheetah", files=("velocity.png", "gait.png"))
