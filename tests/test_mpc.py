@@ -213,6 +213,9 @@ def test_a_passed_deadline_cuts_the_line_search_short():
     assert sol.reason == "deadline" and not sol.converged and len(sol.costs) == 2
     assert sol.costs[-1] == sol.costs[0] and np.any(sol.K != 0)  # fresh gains, no step
     # In the loop: updates past the deadline keep their warm start and the loop goes on.
-    res = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
+    s = MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9, realtime=True)
+    res = run_mpc(task, s)
     assert res.past_deadline == res.stats()["updates_past_deadline"] > 0
+    lock = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
+    assert lock.past_deadline == 0  # lock-step runs ignore the deadline: reproducible
     assert np.all(np.isfinite(res.X)) and res.U.shape[0] == 20
