@@ -14,7 +14,10 @@ Levenberg-Marquardt term μ I added to Q_uu:
 
 Forward pass (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k − x̄_k). The predicted cost change of a
 step of size ε is ΔJ(ε) = −ε Σ κᵀQ_u + ½ ε² Σ κᵀ Q_uu κ; a step is accepted when the actual
-decrease is at least ``armijo`` times the predicted one. A rollout that fails (contact solver
+decrease is at least ``armijo`` times the predicted one (ε = 1, f, f², ... for
+``line_search_factor`` f; with ``line_search_workers`` > 1 a round of them is evaluated side by
+side in worker processes and the first acceptable one in that order is taken, so the iterates
+do not depend on the number of workers). A rollout that fails (contact solver
 not converging, non-finite state) is a rejected step. When no ε works, μ grows and the
 backward pass is repeated; μ shrinks after a successful step, unless the step was shorter than
 ``short_step`` (the quadratic model held only for a short step: μ grows, a shrinking trust
