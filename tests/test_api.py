@@ -151,3 +151,12 @@ def test_worker_pools_close_with_their_tasks():
         del t
         gc.collect()
     assert all(p._shutdown_thread for p in pools)
+
+
+def test_version_names_what_decides_the_last_bits(capsys):
+    from hydroilqr import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and out.startswith("hydroilqr ") and "OpenBLAS kernels" in out

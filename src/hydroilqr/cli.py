@@ -260,11 +260,39 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"hydroilqr: error: {message} (see `{self.prog} --help`)\n")
 
 
+def _version_line() -> str:
+    from . import __version__
+    from .report import environment
+
+    e = environment()
+    return (
+        f"hydroilqr {__version__} (code {e['code']}; drake {e['drake']}, numpy {e['numpy']}, "
+        f"OpenBLAS kernels {e['blas_core'] or 'unknown'}, Python {e['python']}, "
+        f"{e['cores']} cores)"
+    )
+
+
+class _VersionAction(argparse.Action):
+    """--version, computed only when asked (it runs git and reads the BLAS library)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(_version_line())
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="hydroilqr",
         description="Contact-implicit trajectory optimization: iLQR over Drake's hydroelastic "
         "contact.",
+    )
+    parser.add_argument(
+        "--version",
+        action=_VersionAction,
+        help="the version and what decides the last bits of a result (drake, numpy, BLAS)",
     )
     sub = parser.add_subparsers(dest="command", required=True)
 
