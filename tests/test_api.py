@@ -160,3 +160,24 @@ def test_version_names_what_decides_the_last_bits(capsys):
         cli.main(["--version"])
     out = capsys.readouterr().out
     assert e.value.code == 0 and out.startswith("hydroilqr ") and "OpenBLAS kernels" in out
+
+
+def test_continuation_stages_warm_start_the_task(task):
+    staged = task.with_overrides(
+        {"continuation": [{"tip.hydroelastic_modulus": 1.0e5}], "solver.max_iterations": 2}
+    )
+    assert staged.stages()[0].config.geometry["tip"].hydroelastic_modulus == 1.0e5
+    sol = solve(staged)
+    st = sol.extra["continuation"]
+    assert [s["overrides"] for s in st] == [{"tip.hydroelastic_modulus": 1.0e5}, {}]
+    assert sum(s["iterations"] for s in st) == sol.iterations == len(sol.costs) - 1
+    assert len(sol.iteration_seconds) == len(sol.phase_seconds["derivatives"]) == sol.iterations
+    assert st[0]["final_cost"] <= st[0]["start_cost"] and sol.costs[0] == st[0]["start_cost"]
+
+
+def test_continuation_is_checked_before_solving():
+    with pytest.raises(ConfigError, match="receding_horizon"):
+        Task.load("cheetah-trot-1.0", smoke=True, overrides={"continuation": [{"plant.x": 1}]})
+    bad = Task.load("cartpole-wall", smoke=True, overrides={"continuation": [{"tipp.friction": 1}]})
+    with pytest.raises(ConfigError, match=r"continuation\[0\]"):
+        bad.validate()

@@ -17,7 +17,7 @@ from .config import SolverConfig, validate_solver
 from .ilqr import IterationInfo
 from .ilqr import solve as ilqr_solve
 from .receding import solve_receding
-from .solution import Solution
+from .solution import PHASES, Solution
 from .task import Task
 
 
@@ -66,12 +66,66 @@ def solve(
             U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
         elif np.shape(U0)[:1] != (N,):
             raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
-        return ilqr_solve(
-            task.problem(x0=x0),
-            U0,
-            task.config.solver,
-            callbacks,
-            stop_on_interrupt=stop_on_interrupt,
+        parts = []
+        for stage in task.stages():  # continuation: each stage warm-starts the next
+            if settings is not None:
+                stage.config.solver = settings
+            sol = ilqr_solve(
+                stage.problem(x0=x0), U0, stage.config.solver, callbacks, stop_on_interrupt=True
+            )
+            parts.append(sol)
+            U0 = sol.U
+            if sol.reason == "interrupted":
+                if not stop_on_interrupt:
+                    raise KeyboardInterrupt
+                return _join(task, parts)
+        parts.append(
+            ilqr_solve(
+                task.problem(x0=x0),
+                U0,
+                task.config.solver,
+                callbacks,
+                stop_on_interrupt=stop_on_interrupt,
+            )
         )
+        return _join(task, parts) if len(parts) > 1 else parts[0]
     finally:
         task.config.solver = saved
+
+
+def _join(task: Task, parts: list[Solution]) -> Solution:
+    """One Solution from continuation stages: the last stage's trajectory, gains and stop
+    reason; the iteration histories of all stages in order (so times count every stage; each
+    stage's costs are of its own model), and ``extra["continuation"]`` per stage."""
+    last = parts[-1]
+    stages_cfg = task.config.continuation
+    costs = [parts[0].costs[0]]
+    for p in parts:
+        costs.extend(p.costs[1:])
+    stages = [
+        {
+            "overrides": dict(stages_cfg[i]) if i < len(stages_cfg) else {},  # {}: the task
+            "iterations": p.iterations,
+            "start_cost": float(p.costs[0]),
+            "final_cost": p.final_cost,
+            "seconds": p.total_seconds,
+            "reason": p.reason,
+        }
+        for i, p in enumerate(parts)
+    ]
+    return Solution(
+        X=last.X,
+        U=last.U,
+        K=last.K,
+        kappa=last.kappa,
+        t=last.t,
+        costs=np.array(costs),
+        iteration_seconds=[s for p in parts for s in p.iteration_seconds],
+        phase_seconds={k: [v for p in parts for v in p.phase_seconds[k]] for k in PHASES},
+        converged=last.converged,
+        reason=last.reason,
+        derivatives=last.derivatives,
+        eps=[e for p in parts for e in p.eps],
+        mu=[m for p in parts for m in p.mu],
+        extra={**last.extra, "continuation": stages},
+    )

@@ -135,6 +135,14 @@ def cmd_solve(args) -> int:
         f"steps={task.steps} contact={cfg.plant.contact_approximation} "
         f"derivatives={cfg.solver.derivatives} -> {out}"
     )
+    if cfg.continuation:
+        steps = "; ".join(
+            ", ".join(f"{k}={v}" for k, v in stage.items()) for stage in cfg.continuation
+        )
+        console.print(
+            f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
+            "the next, then the task as written (the iteration count restarts per stage)"
+        )
     t0 = time.perf_counter()
     if cfg.receding_horizon is not None:
         from .progress import ResolveProgress

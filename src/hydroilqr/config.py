@@ -36,6 +36,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
                                   # R windows of W steps, each keeps its first S steps, so the
                                   # trajectory has R*S steps (horizon / num_steps are not used);
                                   # max_iterations: per window after the first one
+    continuation: []              # single solves: stages of dotted overrides solved first,
+                                  # each warm-starting the next, e.g.
+                                  # [{ball_collision.hydroelastic_modulus: 5.0e+5}]
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
@@ -252,6 +255,10 @@ class TaskConfig:
     mpc: MPCConfig = field(default_factory=MPCConfig)
     metrics: list[str] = field(default_factory=lambda: ["default"])
     metric_params: dict[str, Any] = field(default_factory=dict)
+    # Continuation (homotopy) for single solves: first solve the task with each stage's dotted
+    # overrides (e.g. a softer contact), each stage warm-starting the next with its controls,
+    # then the task as written. Softer contact has smoother gradients (paper §IV-C).
+    continuation: list[dict[str, Any]] = field(default_factory=list)
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
@@ -792,6 +799,17 @@ def validate_solver(sv: SolverConfig) -> None:
 
 def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
+    for i, stage in enumerate(cfg.continuation):
+        if not isinstance(stage, dict) or not stage:
+            raise ConfigError(
+                f"continuation[{i}]: expected a mapping of dotted keys to values, e.g. "
+                "{ball_collision.hydroelastic_modulus: 5.0e+5}"
+            )
+        for key in stage:
+            if str(key).split(".")[0] in ("continuation", "receding_horizon", "smoke", "name"):
+                raise ConfigError(f"continuation[{i}]: {key} cannot change between stages")
+    if cfg.continuation and cfg.receding_horizon is not None:
+        raise ConfigError("continuation: for single solves (not with receding_horizon)")
     if not cfg.models:
         raise ConfigError("models: at least one model file is required")
     if not all(c.isalnum() or c in "-_.@+" for c in cfg.name) or cfg.name.startswith("."):

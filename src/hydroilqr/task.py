@@ -49,6 +49,17 @@ class Task:
         in it are relative to ``base_dir``."""
         return cls(build_task(data, base_dir, overrides, None, smoke))
 
+    def stages(self) -> list[Task]:
+        """The continuation stages (``continuation:``) as Tasks, in order; the last stage is
+        followed by this task itself."""
+        out = []
+        for i, stage in enumerate(self.config.continuation):
+            try:
+                out.append(self.with_overrides({**stage, "continuation": []}))
+            except ConfigError as e:
+                raise ConfigError(f"continuation[{i}]: {e}") from None
+        return out
+
     def with_overrides(self, overrides) -> Task:
         """A new Task with ``key=value`` overrides (a list, a dict or one string) applied.
 
@@ -88,6 +99,13 @@ class Task:
         """Builds everything that can fail on bad input, before any solve starts."""
         _ = self.dynamics, self.cost, self.x0
         self.initial_guess(self.steps)
+        for i, stage in enumerate(self.stages()):
+            try:
+                _ = stage.dynamics, stage.cost
+            except ConfigError as e:
+                raise ConfigError(f"continuation[{i}]: {e}") from None
+            if stage.dynamics.nx != self.dynamics.nx or stage.dynamics.nu != self.dynamics.nu:
+                raise ConfigError(f"continuation[{i}]: changes the state or input size")
         from . import metrics as metrics_mod
 
         metrics_mod.load_plugins()
