@@ -219,3 +219,14 @@ def test_a_passed_deadline_cuts_the_line_search_short():
     lock = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
     assert lock.past_deadline == 0  # lock-step runs ignore the deadline: reproducible
     assert np.all(np.isfinite(res.X)) and res.U.shape[0] == 20
+
+
+def test_continuation_seeds_the_first_plan():
+    task = Task.load(
+        "cartpole-wall", smoke=True, overrides={"continuation": [{"tip.hydroelastic_modulus": 1e5}]}
+    )
+    plain = Task.load("cartpole-wall", smoke=True)
+    s = dict(duration=0.1, rate=50.0, horizon=0.2)
+    res, ref = run_mpc(task, MPCSettings(**s)), run_mpc(plain, MPCSettings(**s))
+    assert np.all(np.isfinite(res.X)) and res.U.shape == ref.U.shape
+    assert not np.array_equal(res.U, ref.U)  # the soft stage changed the first plan

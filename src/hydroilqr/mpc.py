@@ -520,6 +520,12 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     # The first plan is solved to convergence before the clock starts (as a robot plans before
     # it moves); later updates run at most K iterations each.
     ctrl.iterations = task.config.solver.max_iterations
+    for stage in task.stages():  # the task's continuation, if any, seeds the first plan
+        try:
+            problem = Problem(stage.dynamics, stage.cost, x, 0.0)
+            ctrl.U = ilqr_solve(problem, ctrl.U, stage.config.solver, final_gains=False).U
+        except SimulationError:
+            break  # plan from the controls so far
     plan, ok = ctrl.update(x, 0.0, full=True)
     ctrl.iterations = settings.iterations_per_update
     if plan is None:
