@@ -316,9 +316,9 @@ def solve(
             info = IterationInfo(
                 it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted, X, U
             )
-            # every callback sees every iteration; only a literal True stops (not any truthy
-            # return value, e.g. of a progress bar's update())
-            stop = [cb(info) is True for cb in callbacks]
+            # every callback sees every iteration; only True (Python's or numpy's) stops, not any
+            # truthy return value (e.g. a progress bar's update() returns True-ish counts)
+            stop = [_is_true(cb(info)) for cb in callbacks]
             if not accepted:
                 if late:
                     reason = "deadline"
@@ -396,6 +396,10 @@ def solve(
         mu=mu_hist,
         extra={"derivative_steps": derivative_steps},
     )
+
+
+def _is_true(value) -> bool:
+    return value is True or (isinstance(value, np.bool_) and bool(value))
 
 
 def _trials(dyn, x0, U, X, K, kappa, eps_list):
