@@ -68,10 +68,9 @@ def solve(
             raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
         parts = []
         for stage in task.stages():  # continuation: each stage warm-starts the next
-            if settings is not None:
-                stage.config.solver = settings
+            stage_settings = settings if settings is not None else stage.config.solver
             sol = ilqr_solve(
-                stage.problem(x0=x0), U0, stage.config.solver, callbacks, stop_on_interrupt=True
+                stage.problem(x0=x0), U0, stage_settings, callbacks, stop_on_interrupt=True
             )
             parts.append(sol)
             U0 = sol.U

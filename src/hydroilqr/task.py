@@ -51,13 +51,16 @@ class Task:
 
     def stages(self) -> list[Task]:
         """The continuation stages (``continuation:``) as Tasks, in order; the last stage is
-        followed by this task itself."""
+        followed by this task itself. Built once (each holds its own plant)."""
+        if getattr(self, "_stages", None) is not None:
+            return self._stages
         out = []
         for i, stage in enumerate(self.config.continuation):
             try:
                 out.append(self.with_overrides({**stage, "continuation": []}))
             except ConfigError as e:
                 raise ConfigError(f"continuation[{i}]: {e}") from None
+        self._stages = out
         return out
 
     def with_overrides(self, overrides) -> Task:
