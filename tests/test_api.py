@@ -181,3 +181,18 @@ def test_continuation_is_checked_before_solving():
     bad = Task.load("cartpole-wall", smoke=True, overrides={"continuation": [{"tipp.friction": 1}]})
     with pytest.raises(ConfigError, match=r"continuation\[0\]"):
         bad.validate()
+
+
+def test_stopping_inside_a_stage_returns_the_task_models_trajectory(task):
+    staged = task.with_overrides(
+        {"continuation": [{"tip.hydroelastic_modulus": 1.0e5}], "solver.max_iterations": 3}
+    )
+    sol = solve(staged, callbacks=[lambda info: True])  # stops in the stage, not just the stage
+    assert sol.reason == "callback" and sol.iterations == 1
+    X = staged.dynamics.rollout(staged.x0, sol.U)
+    np.testing.assert_array_equal(sol.X, X)  # the task's model, not the soft stage's
+    assert sol.final_cost == pytest.approx(staged.cost.total(X, sol.U))
+    solve(staged, settings=SolverConfig(max_iterations=1))
+    assert staged.stages()[0].config.solver.max_iterations == 3  # per-call settings do not stick
+    with pytest.raises(ConfigError, match="cannot change between stages"):
+        task.with_overrides({"continuation": [{"horizon": 0.5}]})

@@ -16,6 +16,7 @@ import numpy as np
 from .config import SolverConfig, validate_solver
 from .ilqr import IterationInfo
 from .ilqr import solve as ilqr_solve
+from .plant import SimulationError
 from .receding import solve_receding
 from .solution import PHASES, Solution
 from .task import Task
@@ -50,9 +51,13 @@ def solve(
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
     saved = task.config.solver
+    stages = [] if task.config.receding_horizon is not None else task.stages()  # before the swap
+    stage_saved = [st.config.solver for st in stages]
     if settings is not None:
         validate_solver(settings)
         task.config.solver = settings  # for this solve only (the worker processes read it)
+        for st in stages:
+            st.config.solver = settings
     try:
         if task.config.receding_horizon is not None:
             if U0 is not None or x0 is not None:
@@ -67,17 +72,29 @@ def solve(
         elif np.shape(U0)[:1] != (N,):
             raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
         parts = []
-        for stage in task.stages():  # continuation: each stage warm-starts the next
-            stage_settings = settings if settings is not None else stage.config.solver
-            sol = ilqr_solve(
-                stage.problem(x0=x0), U0, stage_settings, callbacks, stop_on_interrupt=True
-            )
+        for i, stage in enumerate(stages):  # continuation: each stage warm-starts the next
+            try:
+                sol = ilqr_solve(
+                    stage.problem(x0=x0),
+                    U0,
+                    stage.config.solver,
+                    callbacks,
+                    stop_on_interrupt=True,
+                )
+            except SimulationError as e:
+                raise SimulationError(f"continuation[{i}]: {e}") from None
             parts.append(sol)
             U0 = sol.U
-            if sol.reason == "interrupted":
-                if not stop_on_interrupt:
+            if sol.reason in ("interrupted", "callback"):
+                if sol.reason == "interrupted" and not stop_on_interrupt:
                     raise KeyboardInterrupt
-                return _join(task, parts)
+                # Stopped inside a stage: the result is the stage's controls on the task's own
+                # model (its trajectory and cost), not the stage model's trajectory.
+                task_part = ilqr_solve(
+                    task.problem(x0=x0), U0, task.config.solver, max_iterations=0
+                )
+                task_part.reason = sol.reason
+                return _join(task, parts + [task_part])
         parts.append(
             ilqr_solve(
                 task.problem(x0=x0),
@@ -90,6 +107,8 @@ def solve(
         return _join(task, parts) if len(parts) > 1 else parts[0]
     finally:
         task.config.solver = saved
+        for st, s in zip(stages, stage_saved):
+            st.config.solver = s
 
 
 def _join(task: Task, parts: list[Solution]) -> Solution:
@@ -101,6 +120,8 @@ def _join(task: Task, parts: list[Solution]) -> Solution:
     costs = [parts[0].costs[0]]
     for p in parts:
         costs.extend(p.costs[1:])
+    if last.iterations == 0:  # stopped in a stage: its last iterate, costed on the task's model
+        costs[-1] = last.costs[0]
     stages = [
         {
             "overrides": dict(stages_cfg[i]) if i < len(stages_cfg) else {},  # {}: the task

@@ -805,9 +805,14 @@ def validate(cfg: TaskConfig) -> None:
                 f"continuation[{i}]: expected a mapping of dotted keys to values, e.g. "
                 "{ball_collision.hydroelastic_modulus: 5.0e+5}"
             )
+        fixed = ("continuation", "receding_horizon", "smoke", "name", "horizon", "num_steps")
+        fixed += ("initial_state", "initial_guess")
         for key in stage:
-            if str(key).split(".")[0] in ("continuation", "receding_horizon", "smoke", "name"):
-                raise ConfigError(f"continuation[{i}]: {key} cannot change between stages")
+            if str(key).split(".")[0] in fixed or str(key) == "plant.time_step":
+                raise ConfigError(
+                    f"continuation[{i}]: {key} cannot change between stages (every stage "
+                    "solves the task's time grid from its initial state)"
+                )
     if cfg.continuation and cfg.receding_horizon is not None:
         raise ConfigError("continuation: for single solves (not with receding_horizon)")
     if not cfg.models:

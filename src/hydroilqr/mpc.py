@@ -520,10 +520,19 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     # The first plan is solved to convergence before the clock starts (as a robot plans before
     # it moves); later updates run at most K iterations each.
     ctrl.iterations = task.config.solver.max_iterations
-    for stage in task.stages():  # the task's continuation, if any, seeds the first plan
+    # The task's continuation, if any, seeds the first plan (not over a given warm-start plan),
+    # with the derivative settings this run uses.
+    stages = task.stages() if ctrl.U_ref is None else []
+    for stage in stages:
+        s_stage = dataclasses.replace(
+            stage.config.solver,
+            threads=task.config.solver.threads,
+            derivatives=task.config.solver.derivatives,
+            derivative_interval=task.config.solver.derivative_interval,
+        )
         try:
             problem = Problem(stage.dynamics, stage.cost, x, 0.0)
-            ctrl.U = ilqr_solve(problem, ctrl.U, stage.config.solver, final_gains=False).U
+            ctrl.U = ilqr_solve(problem, ctrl.U, s_stage, final_gains=False).U
         except SimulationError:
             break  # plan from the controls so far
     plan, ok = ctrl.update(x, 0.0, full=True)
