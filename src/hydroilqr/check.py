@@ -123,6 +123,13 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         f"derivatives={cfg.solver.derivatives}"
     )
 
+    if cfg.continuation:
+        task.validate()  # builds every stage: bad keys or sizes are named here
+        for i, stage in enumerate(cfg.continuation):
+            keys = ", ".join(f"{k}={v}" for k, v in stage.items())
+            console.print(f"  continuation[{i}] (solved first): {keys}")
+        out["continuation"] = [dict(s) for s in cfg.continuation]
+
     plant = dyn.plant
     free = [plant.get_body(i).name() for i in plant.GetFloatingBaseBodies()]
     out["floating_bodies"] = sorted(free)
