@@ -23,7 +23,6 @@ linearly interpolates between them: a speed/accuracy trade-off reported by ``ben
 from __future__ import annotations
 
 import enum
-import os
 
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
@@ -33,6 +32,7 @@ from pydrake.systems.analysis import BatchEvalUniquePeriodicDiscreteUpdate
 from .plant import Dynamics, SimulationError
 from .workers import Unavailable as WorkersUnavailable
 from .workers import autodiff as parallel_autodiff
+from .workers import cores
 from .workers import resolve as resolve_workers
 
 
@@ -43,7 +43,7 @@ class DerivativeMethod(enum.Enum):
 
 
 def num_threads(requested: int = 0) -> int:
-    return requested if requested and requested > 0 else (os.cpu_count() or 1)
+    return requested if requested and requested > 0 else cores()
 
 
 def linearize(
@@ -73,13 +73,10 @@ def linearize(
     except ValueError:
         valid = ", ".join(m.value for m in DerivativeMethod)
         raise ValueError(f"derivative method {method!r}: expected one of {valid}") from None
-    X, U = np.asarray(X, dtype=float), np.asarray(U, dtype=float)
-    N = U.shape[0] if U.ndim == 2 else -1
-    if N < 1 or X.ndim != 2 or X.shape[0] < N:
-        raise ValueError(
-            f"X must be [N+1, nx] (or [N, nx]) and U [N, nu], got {X.shape} and {U.shape}"
-        )
-    dyn.check_arguments(X[:N], U)  # shapes against nx, nu; NaN -> SimulationError
+    X, U = dyn.check_arguments(X, U, x_rows=True, u_rows=True)  # NaN -> SimulationError
+    N = U.shape[0]
+    if X.shape[0] < N:
+        raise ValueError(f"X must have N+1 (or N) rows for U: [N, nu], got {X.shape[0]} < {N}")
     rollout = rollout and X.shape[0] == N + 1
     if interval > 1 and N > 2:
         keys = keypoints(dyn, X, N, interval, adaptive)

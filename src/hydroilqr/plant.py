@@ -376,17 +376,8 @@ class Dynamics:
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """x_{k+1} = f(x_k, u_k). x: [nx], u: [nu] -> [nx]. Raises SimulationError (also for a
         non-finite x or u) or ValueError (wrong shapes)."""
-        x = np.asarray(x, dtype=float)
-        u = np.atleast_1d(np.asarray(u, dtype=float))  # a number for a single actuator
-        # Checked here: Drake's own check of x ends the Python process (SystemExit).
-        if x.shape != (self.nx,) or u.shape != (self.nu,):
-            raise ValueError(
-                f"step: x must have shape [{self.nx}] and u [{self.nu}], got {x.shape} and "
-                f"{u.shape}"
-            )
-        if not (np.isfinite(x).all() and np.isfinite(u).all()):
-            self.check_arguments(x, u)  # names which one
-        return self._step(x, u)
+        u = np.atleast_1d(u)  # a number for a single actuator
+        return self._step(*self.check_arguments(x, u))
 
     def _step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         """``step`` without the argument checks, for rollouts (whose x0 and U are checked once
@@ -406,34 +397,26 @@ class Dynamics:
             )
         return np.array(xn, copy=True)
 
-    def check_arguments(self, X: np.ndarray, U: np.ndarray) -> None:
-        """X: [nx] or [N(+1), nx] states, U: [nu] or [N, nu] inputs. ValueError for wrong
-        shapes, SimulationError for NaN or infinite entries."""
-        X, U = np.asarray(X), np.asarray(U)
-        if X.ndim not in (1, 2) or X.shape[-1] != self.nx:
-            raise ValueError(f"states must have {self.nx} entries (nx), got shape {X.shape}")
-        if U.ndim != X.ndim or U.shape[-1] != self.nu:
-            want = f"[N, {self.nu}]" if X.ndim == 2 else f"[{self.nu}]"
-            raise ValueError(f"inputs must have shape {want} (nu = {self.nu}), got {U.shape}")
+    def check_arguments(self, X, U, x_rows: bool = False, u_rows: bool = False):
+        """States X: [nx] (or [M, nx] with ``x_rows``) and inputs U: [nu] (or [N, nu] with
+        ``u_rows``), as float arrays. ValueError for wrong shapes, SimulationError for NaN or
+        infinite entries (Drake's own check of a state ends the process with SystemExit)."""
+        X, U = np.asarray(X, dtype=float), np.asarray(U, dtype=float)
+        if X.ndim != 1 + x_rows or X.shape[-1] != self.nx:
+            want = f"[M, {self.nx}]" if x_rows else f"[{self.nx}]"
+            raise ValueError(f"state x must have shape {want} (nx = {self.nx}), got {X.shape}")
+        if U.ndim != 1 + u_rows or U.shape[-1] != self.nu:
+            want = f"[N, {self.nu}]" if u_rows else f"[{self.nu}]"
+            raise ValueError(f"input u must have shape {want} (nu = {self.nu}), got {U.shape}")
         if not np.isfinite(X).all():
             raise SimulationError("non-finite (NaN or infinite) state")
         if not np.isfinite(U).all():
             raise SimulationError("non-finite (NaN or infinite) input")
-
-    def _trajectory_arguments(self, x0, U):
-        x0 = np.asarray(x0, dtype=float)
-        U = np.asarray(U, dtype=float)
-        if x0.shape != (self.nx,):
-            raise ValueError(f"x0 must have shape [{self.nx}] (nx), got {x0.shape}")
-        if U.ndim != 2 or U.shape[1] != self.nu:
-            raise ValueError(f"U must have shape [N, {self.nu}] (nu = {self.nu}), got {U.shape}")
-        if not np.isfinite(x0).all():
-            raise SimulationError("non-finite (NaN or infinite) initial state")
-        return x0, U
+        return X, U
 
     def rollout(self, x0: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Open-loop simulation. x0: [nx], U: [N, nu] -> X: [N+1, nx]. Raises SimulationError."""
-        x0, U = self._trajectory_arguments(x0, U)
+        x0, U = self.check_arguments(x0, U, u_rows=True)
         N = U.shape[0]
         X = np.empty((N + 1, self.nx))
         X[0] = x0
@@ -451,7 +434,7 @@ class Dynamics:
         Returns X: [N+1, nx], U: [N, nu]. Feedback acts on the coordinate difference (K is
         expressed in the coordinates in which f was linearized).
         """
-        x0, Ubar = self._trajectory_arguments(x0, Ubar)
+        x0, Ubar = self.check_arguments(x0, Ubar, u_rows=True)
         N = Ubar.shape[0]
         X = np.empty((N + 1, self.nx))
         U = np.empty_like(Ubar)
