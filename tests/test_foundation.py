@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import DerivativeMethod, Task, linearize, solve
-from hydroilqr.config import SolverConfig
+from hydroilqr.config import ConfigError, SolverConfig
 from hydroilqr.cost import Quadratization
 from hydroilqr.ilqr import Problem, backward_pass
 from hydroilqr.ilqr import solve as ilqr_solve
@@ -381,3 +381,23 @@ def test_short_accepted_steps_raise_the_regularization():
     assert task.config.solver.short_step == 0.1 and short, sol.eps
     for i in short:  # an accepted step of 1/16 or less: μ went up, not down
         assert mus[i + 1] > mus[i]
+
+
+def test_nominal_time_horizon_end_aims_every_step_at_the_horizon_end():
+    from hydroilqr.cost import QuadraticCost
+    from hydroilqr.state import Block
+
+    layout = StateLayout(1, 1, [Block("p", (0,), (0,)), Block("p.v", (1,), (1,))], ["f"])
+    args = (layout, [1.0, 0.1], [50.0, 5.0], [0.01], np.zeros(2), np.array([2.0, 0.0]), 0.1)
+    step, end = QuadraticCost(*args), QuadraticCost(*args, nominal_time="horizon_end")
+    N, t0 = 4, 1.0
+    np.testing.assert_allclose(step.targets(N, t0)[:, 0], 2.0 * (t0 + 0.1 * np.arange(N + 1)))
+    np.testing.assert_allclose(end.targets(N, t0)[:, 0], 2.0 * (t0 + 0.1 * N))
+    X, U = np.zeros((N + 1, 2)), np.zeros((N, 1))
+    X[:, 0] = 2.0 * (t0 + 0.1 * N)  # sitting at the goal: only horizon_end is satisfied
+    assert end.total(X, U, t0) == 0.0 < step.total(X, U, t0)
+    assert np.all(end.quadratize(X, U, t0).lx == 0.0)
+    task = Task.load("cheetah-trot-1.0", ["cost.nominal_time=horizon_end"], smoke=True)
+    assert task.cost.nominal_time == "horizon_end"
+    with pytest.raises(ConfigError, match="cost.nominal_time: expected one of step, horizon_end"):
+        Task.load("cheetah-trot-1.0", ["cost.nominal_time=end"], smoke=True)

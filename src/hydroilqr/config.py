@@ -28,6 +28,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       Qf: {pole_angle: 200}
       nominal: {pole_angle: 3.14159}
       nominal_rate: {}            # x_nom(t) = nominal + rate * t (per block)
+      nominal_time: step          # step: x̃_k = x_k ⊖ x_nom(t_k); horizon_end: every step of a
+                                  # solve aims at x_nom(t_N), the nominal at its horizon's end
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
       reference: ''               # a solved run to track (its states are the nominal)
       reference_blocks: []        # blocks taken from the reference (empty: all)
@@ -131,6 +133,9 @@ class PlantConfig:
     gravity: list[float] = field(default_factory=lambda: [0.0, 0.0, -9.81])
 
 
+NOMINAL_TIMES = ("step", "horizon_end")
+
+
 @dataclass
 class CostConfig:
     Q: dict[str, Any] = field(default_factory=dict)
@@ -138,6 +143,10 @@ class CostConfig:
     Qf: dict[str, Any] = field(default_factory=dict)
     nominal: dict[str, Any] = field(default_factory=dict)
     nominal_rate: dict[str, Any] = field(default_factory=dict)
+    # When the nominal is taken: "step" (each step's own time, x_nom(t_k)) or "horizon_end"
+    # (every step of a solve against x_nom(t_N), the nominal at the end of its horizon: a goal
+    # ahead that moves with each receding-horizon window, as in the paper's cheetah code).
+    nominal_time: str = "step"
     # Multiply the running weights Q and R by the time step (as the paper's public code does:
     # running cost dt·(x̃ᵀQx̃ + uᵀRu), terminal cost x̃ᵀQ_f x̃ unscaled).
     running_cost_dt: bool = False
@@ -889,6 +898,11 @@ def validate(cfg: TaskConfig) -> None:
             raise ConfigError(f"scene[{i}].radius: must be positive, got {o.radius}")
         if o.shape == "cylinder" and o.length <= 0:
             raise ConfigError(f"scene[{i}].length: must be positive, got {o.length}")
+    if cfg.cost.nominal_time not in NOMINAL_TIMES:
+        raise ConfigError(
+            f"cost.nominal_time: expected one of {', '.join(NOMINAL_TIMES)}, "
+            f"got {cfg.cost.nominal_time!r}"
+        )
     for section in ("Q", "Qf", "nominal_rate"):
         for k, v in getattr(cfg.cost, section).items():
             vals = v if isinstance(v, list) else [v]

@@ -8,6 +8,9 @@ per named block in the task file. The nominal may move linearly in time,
 ``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed),
 or follow a solved run (``cost.reference``: its states X_ref(t), linearly interpolated in time
 with quaternions renormalized, held after its end) on some or all blocks.
+With ``nominal_time: horizon_end`` every step of a solve over [t0, t_N] is measured against
+x_nom(t_N) instead: a fixed goal at the horizon's end, which moves forward with each
+receding-horizon window (the paper's public cheetah code sets its target this way).
 
 ``quadratize`` returns the derivatives iLQR needs in Drake's coordinates: with
 ``r = x ⊖ x_nom`` and ``Jr = ∂r/∂x``, ``l_x = 2 Jrᵀ Q r`` and ``l_xx = 2 Jrᵀ Q Jr``
@@ -50,6 +53,7 @@ class QuadraticCost:
         rate,
         dt: float,
         terms: dict[str, tuple[str, tuple[int, ...]]] | None = None,
+        nominal_time: str = "step",
     ):
         self.layout = layout
         self.q = np.asarray(q, float)
@@ -59,6 +63,7 @@ class QuadraticCost:
         self.rate = np.asarray(rate, float)
         self.dt = dt
         self.terms = terms or {}
+        self.nominal_time = nominal_time
 
     @staticmethod
     def from_config(layout: StateLayout, cfg: CostConfig, dt: float, resolve=None) -> QuadraticCost:
@@ -111,7 +116,7 @@ class QuadraticCost:
         for section in ("Q", "Qf"):
             for name in getattr(cfg, section):
                 terms[f"{section}.{name}"] = (section, layout.block(name).tangent)
-        cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms)
+        cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
         if cfg.reference:
             cost.set_reference(*_load_reference(layout, cfg, resolve), cfg.reference_blocks)
         elif cfg.reference_blocks:
@@ -153,10 +158,17 @@ class QuadraticCost:
     def times(self, N: int, t0: float) -> np.ndarray:
         return t0 + self.dt * np.arange(N + 1)
 
+    def targets(self, N: int, t0: float) -> np.ndarray:
+        """The nominal each step of an N-step solve from t0 is measured against: [N+1, nx]."""
+        t = self.times(N, t0)
+        if self.nominal_time == "horizon_end":
+            t = np.full_like(t, t[-1])
+        return self.nominal(t)
+
     def stage_costs(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> np.ndarray:
         """Cost of each step (last entry is the terminal cost). X: [N+1, nx], U: [N, nu]."""
         N = U.shape[0]
-        R = self.layout.diff(X, self.nominal(self.times(N, t0)))  # [N+1, 2nv]
+        R = self.layout.diff(X, self.targets(N, t0))  # [N+1, 2nv]
         c = np.empty(N + 1)
         c[:N] = np.einsum("ki,i,ki->k", R[:N], self.q, R[:N]) + np.einsum(
             "ki,i,ki->k", U, self.r, U
@@ -171,7 +183,7 @@ class QuadraticCost:
     def breakdown(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> dict[str, float]:
         """Value of each named term (Q.<block>, Qf.<block>, R). X: [N+1, nx], U: [N, nu]."""
         N = U.shape[0]
-        R = self.layout.diff(X, self.nominal(self.times(N, t0)))
+        R = self.layout.diff(X, self.targets(N, t0))
         out = {}
         for name, (section, idx) in self.terms.items():
             idx = list(idx)
@@ -186,7 +198,7 @@ class QuadraticCost:
         """Gradients and Gauss-Newton Hessians of the cost along X: [N+1, nx], U: [N, nu]:
         lx [N+1, nx], lu [N, nu], lxx [N+1, nx, nx], luu [N, nu, nu] (in x coordinates)."""
         N = U.shape[0]
-        Xn = self.nominal(self.times(N, t0))
+        Xn = self.targets(N, t0)
         R = self.layout.diff(X, Xn)  # [N+1, 2nv]
         W = np.empty_like(R)
         W[:N] = self.q
