@@ -22,6 +22,12 @@ def test_solve_takes_own_guess_and_state_and_leaves_the_task_alone(task):
     np.testing.assert_array_equal(sol.X[0], x0)
     assert task.config.solver.max_iterations == 3  # settings were for that solve only
     assert solve("cartpole-wall", settings=SolverConfig(max_iterations=1)).iterations == 1
+    # A dict changes only the named fields of the task's own solver section.
+    assert solve(task, settings={"max_iterations": 1}).iterations == 1
+    with pytest.raises(ConfigError, match="settings.max_iter: unknown key"):
+        solve(task, settings={"max_iter": 1})
+    with pytest.raises(TypeError, match="settings: expected a SolverConfig or a dict"):
+        solve(task, settings=3)
 
 
 @pytest.mark.parametrize(

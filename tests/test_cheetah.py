@@ -160,6 +160,24 @@ def test_resume_refuses_another_runs_checkpoint(tmp_path):
     assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out, "--no-replay"]) == 0
 
 
+def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
+    import json
+    import shutil
+
+    from hydroilqr.config import ConfigError
+
+    _, _, full_dir = smoke_run
+    shutil.copy(full_dir / CHECKPOINT, tmp_path / CHECKPOINT)
+    with np.load(tmp_path / CHECKPOINT) as d:
+        arrays = dict(d)
+    meta = json.loads(str(arrays["meta"]))
+    meta["done"] = 1  # the arrays hold 3 resolves
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(tmp_path / CHECKPOINT, **arrays)
+    with pytest.raises(ConfigError, match="disagree with each other"):
+        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
+
+
 def test_pair_sync_names_the_gait():
     """pair_sync on synthetic contact patterns: a trot, a pace and a bound."""
     from hydroilqr.metrics_cheetah import pair_sync as sync

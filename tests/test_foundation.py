@@ -1,5 +1,7 @@
 """Foundation: LQR = Riccati, derivatives agree, the plant really steps, cart-pole solves."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -354,6 +356,11 @@ def test_cost_reference_tracks_a_solved_run(tmp_path):
     assert tracked.cost.breakdown(sol.X, sol.U)["Q.pole_angle"] < 1e-20
     with pytest.raises(ConfigError, match="cost.reference"):
         _ = Task.load("cartpole-wall", [f"cost.reference={tmp_path / 'none'}"]).cost
+    # A run of other models (its summary.json says which) is not a reference for this task.
+    summary = {"task": "acrobot", "config": {"models": [{"file": "package://x/Acrobot.urdf"}]}}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    with pytest.raises(ConfigError, match="is a run of other models"):
+        _ = Task.load("cartpole-wall", [f"cost.reference={tmp_path}"]).cost
 
 
 def test_cost_reference_quaternions_are_renormalized():

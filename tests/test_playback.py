@@ -118,3 +118,8 @@ def test_playback_settings_that_cannot_fit_the_plan(run_dir):
     with pytest.raises(ConfigError, match="--truth-set solver.max_iterations"):
         PlaybackSettings(truth_overrides=["solver.max_iterations=1"]).check_against(task)
     PlaybackSettings(truth_overrides=["tip.friction=0.3"]).check_against(task)  # a shorthand
+    # Playback's own options set these; a --truth-set of them would be half applied.
+    with pytest.raises(ConfigError, match="playback sets it with --truth-time-step"):
+        PlaybackSettings(truth_overrides=["plant.time_step=0.002"]).check_against(task)
+    with pytest.raises(ConfigError, match="playback sets it with --truth-contact"):
+        PlaybackSettings(truth_overrides=["plant.contact_approximation=tamsi"]).check_against(task)

@@ -110,6 +110,12 @@ def test_resume_computes_only_missing(swept):
     res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=SMALL, smoke=True)
     assert res["computed"] == 0 and res["failed"] == 0
     assert sorted(r["id"] for r in _rows(out)) == sorted(before)
+    # A torn spec cannot vouch for the points: refused, not overwritten.
+    spec = (out / "sweep_spec.json").read_text()
+    (out / "sweep_spec.json").write_text("{bad")
+    with pytest.raises(ConfigError, match="sweep_spec.json is unreadable"):
+        run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=["num_steps=20"], smoke=True)
+    (out / "sweep_spec.json").write_text(spec)
 
 
 def test_negative_values_after_values_flag():

@@ -183,6 +183,9 @@ CASES = [
         "plant.contact_model: expected one of",
     ),
     ("missing-package-dir", edit(package_map={"mine": "no_such_dir"}), "package_map.mine"),
+    ("mpc-derivatives", edit(mpc={"derivatives": "foo"}), "mpc.derivatives: expected one of"),
+    ("mpc-derivative-interval", edit(mpc={"derivative_interval": -1}), "mpc.derivative_interval"),
+    ("nominal-time", edit(cost__nominal_time="end"), "cost.nominal_time"),
     (
         "shift-longer-than-window",
         edit(receding_horizon={"window_steps": 2, "shift_steps": 4, "resolves": 1}),
@@ -462,3 +465,81 @@ def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):
     rc = cli.main(["mpc", str(path), "--out", str(tmp_path / "o"), "--no-replay", *option])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, option[0].lstrip("-").split("-")[0])
+
+
+def test_task_file_that_is_not_utf8(tmp_path, capsys):
+    path = tmp_path / "task.yaml"
+    path.write_bytes(b"name: x\nnum_steps: \xff\xfe\n")
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "not UTF-8 text")
+
+
+def test_smoke_does_not_claim_the_task_own_mistakes(tmp_path, capsys):
+    path = write_case(tmp_path, edit(models=[{"file": "robots/missing.urdf"}]))
+    rc = cli.main(["solve", "--task-file", str(path), "--smoke", "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "models[0].file")
+    assert "smoke:" not in cap.err
+
+
+def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
+    path = write_case(
+        tmp_path, edit(cost__Qf={"angles": 1e308}, initial_state={"angles": [2.0, 1.0]})
+    )
+    rc = cli.main(["solve", "--task-file", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc != 0 and "Traceback" not in cap.err and "RuntimeWarning" not in cap.err
+    lines = [ln for ln in cap.err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "cost of the initial guess is inf" in lines[0], cap.err
+    assert not (tmp_path / "o" / "solution.npz").exists()
+
+
+def test_run_files_that_disagree_are_refused(tmp_path):
+    from hydroilqr.config import ConfigError
+    from hydroilqr.solution import Solution, load_run_solution
+
+    N, nx, nu = 4, 2, 1
+    good = Solution(
+        np.zeros((N + 1, nx)),
+        np.zeros((N, nu)),
+        np.zeros((N, nu, nx)),
+        np.zeros((N, nu)),
+        np.arange(N + 1.0),
+        np.zeros(1),
+        [],
+        {},
+        True,
+        "",
+        "",
+    )
+    good.save(tmp_path / "a")
+    Solution.load(tmp_path / "a.npz").check_shapes()
+    bad = Solution(
+        np.zeros((N + 1, nx)),
+        np.zeros((2, nu)),
+        np.zeros((N, nu, nx)),
+        np.zeros((N, nu)),
+        np.arange(N + 1.0),
+        np.zeros(1),
+        [],
+        {},
+        True,
+        "",
+        "",
+    )
+    bad.save(tmp_path / "b")
+    with pytest.raises(ConfigError, match="arrays disagree"):
+        load_run_solution(tmp_path / "b.npz", "cost.reference")
+    (tmp_path / "c.npz").write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="not a file written by Solution.save"):
+        Solution.load(tmp_path / "c.npz")
+
+
+def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):
+    from hydroilqr.config import ConfigError
+    from hydroilqr.report import output_dir
+
+    (tmp_path / "summary.json").write_text("{torn")
+    with pytest.raises(ConfigError, match="summary.json is unreadable"):
+        output_dir(tmp_path, "cartpole-wall")

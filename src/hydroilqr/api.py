@@ -8,6 +8,7 @@ print(sol.converged, sol.final_cost, sol.X.shape)
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
@@ -26,7 +27,7 @@ def solve(
     task: Task | str,
     U0: np.ndarray | None = None,
     x0: np.ndarray | None = None,
-    settings: SolverConfig | None = None,
+    settings: SolverConfig | dict | None = None,
     callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
     checkpoint_dir: str | Path | None = None,
     on_resolve=None,
@@ -38,8 +39,9 @@ def solve(
 
     ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
     state (default: the task's). Single solves only: a receding-horizon task takes both from
-    its task file. ``settings``: solver settings for this solve (default: the task's
-    ``solver`` section; the task itself is not changed). ``callbacks``: see
+    its task file. ``settings``: solver settings for this solve, a SolverConfig or a dict of
+    changes to the task's ``solver`` section (default: that section; the task itself is not
+    changed). ``callbacks``: see
     ``ilqr.IterationInfo``; one returning True stops the solve (single solves) or the current
     window (receding horizon).
 
@@ -51,6 +53,17 @@ def solve(
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
     saved = task.config.solver
+    if isinstance(settings, dict):  # changes to the task's solver section, e.g. max_iterations
+        from .config import _build_dataclass
+
+        settings = _build_dataclass(
+            SolverConfig, {**dataclasses.asdict(saved), **settings}, "settings"
+        )
+    elif settings is not None and not isinstance(settings, SolverConfig):
+        raise TypeError(
+            f"settings: expected a SolverConfig or a dict of its fields, got "
+            f"{type(settings).__name__}"
+        )
     stages = [] if task.config.receding_horizon is not None else task.stages()  # before the swap
     stage_saved = [st.config.solver for st in stages]
     if settings is not None:

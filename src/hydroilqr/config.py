@@ -600,9 +600,11 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
         loop = " -> ".join(p.name for p in (*_chain, path.resolve()))
         raise ConfigError(f"{what} {path}: `extends` loops back on itself ({loop})")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as e:
         raise ConfigError(f"{what} {path}: {e.strerror}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{what} {path}: not UTF-8 text (byte {e.start})") from None
     try:
         data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
@@ -714,31 +716,38 @@ def build_task(
         extra = load_raw(Path(config_file), "--config file")
         _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
         data = _merge(data, extra)
-    if smoke:
-        shrink = data.get("smoke") or _generic_smoke(data)
-        if not isinstance(shrink, dict):
-            raise ConfigError("smoke: expected a mapping of dotted keys to values")
-        _build_dataclass(TaskConfig, data, "")  # the task's own mistakes, named as such
-        try:
-            for key, value in list(shrink.items()):
-                if key.split(".")[0] == "smoke":
-                    raise ConfigError(f"{key}: the smoke section cannot change itself")
-                _set_dotted(data, key, value)
-            shrunk = _build_dataclass(TaskConfig, data, "")
-            shrunk.base_dir = str(base_dir)
-            validate(shrunk)
-        except ConfigError as e:
-            raise ConfigError(f"smoke: {e}") from None
     items = _override_items(overrides)
-    _horizon_wins(data, items)
-    for key, value in items:
-        _set_dotted(data, key, _cwd_path(key, value))
-    if path is not None:
-        data.setdefault("name", path.stem)
-    cfg = _build_dataclass(TaskConfig, data, "")
-    cfg.base_dir = str(base_dir)
-    validate(cfg)
-    return cfg
+
+    def finish(d: dict[str, Any]) -> TaskConfig:
+        d = copy.deepcopy(d)
+        _horizon_wins(d, items)
+        for key, value in items:
+            _set_dotted(d, key, _cwd_path(key, value))
+        if path is not None:
+            d.setdefault("name", path.stem)
+        cfg = _build_dataclass(TaskConfig, d, "")
+        cfg.base_dir = str(base_dir)
+        validate(cfg)
+        return cfg
+
+    if not smoke:
+        return finish(data)
+    shrink = data.get("smoke") or _generic_smoke(data)
+    if not isinstance(shrink, dict):
+        raise ConfigError("smoke: expected a mapping of dotted keys to values")
+    shrunk = copy.deepcopy(data)
+    try:
+        for key, value in list(shrink.items()):
+            if key.split(".")[0] == "smoke":
+                raise ConfigError(f"{key}: the smoke section cannot change itself")
+            _set_dotted(shrunk, key, value)
+    except ConfigError as e:
+        raise ConfigError(f"smoke: {e}") from None
+    try:
+        return finish(shrunk)
+    except ConfigError as e:
+        finish(data)  # raises the task's own mistake unprefixed
+        raise ConfigError(f"smoke: {e}") from None
 
 
 def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
@@ -870,6 +879,16 @@ def validate(cfg: TaskConfig) -> None:
         )
     if cfg.mpc.warm_start_tail not in ("last", "guess"):
         raise ConfigError("mpc.warm_start_tail: expected last or guess")
+    if cfg.mpc.derivatives and cfg.mpc.derivatives not in DERIVATIVES:
+        raise ConfigError(
+            f"mpc.derivatives: expected one of {', '.join(DERIVATIVES)} (or empty: the "
+            f"task's solver.derivatives), got {cfg.mpc.derivatives!r}"
+        )
+    if cfg.mpc.derivative_interval < 0:
+        raise ConfigError(
+            "mpc.derivative_interval: must be >= 1 (or 0: the task's solver.derivative_interval)"
+            f", got {cfg.mpc.derivative_interval}"
+        )
     if not cfg.mpc.derivative_reuse_tolerance >= 0 or cfg.mpc.derivative_steps_per_update < 0:
         raise ConfigError(
             "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"

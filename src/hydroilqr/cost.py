@@ -19,7 +19,9 @@ receding-horizon window (the paper's public cheetah code sets its target this wa
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -66,8 +68,11 @@ class QuadraticCost:
         self.nominal_time = nominal_time
 
     @staticmethod
-    def from_config(layout: StateLayout, cfg: CostConfig, dt: float, resolve=None) -> QuadraticCost:
-        """``resolve(path) -> Path`` locates ``cfg.reference`` (default: as given)."""
+    def from_config(
+        layout: StateLayout, cfg: CostConfig, dt: float, resolve=None, models=None
+    ) -> QuadraticCost:
+        """``resolve(path) -> Path`` locates ``cfg.reference`` (default: as given); ``models``
+        (the task's model files) must match the reference run's, when its summary names them."""
         q = layout.tangent_vector(cfg.Q, "cost.Q")
         qf = layout.tangent_vector(cfg.Qf, "cost.Qf")
         nu = len(layout.actuators)
@@ -118,7 +123,7 @@ class QuadraticCost:
                 terms[f"{section}.{name}"] = (section, layout.block(name).tangent)
         cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
         if cfg.reference:
-            cost.set_reference(*_load_reference(layout, cfg, resolve), cfg.reference_blocks)
+            cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
         elif cfg.reference_blocks:
             raise ConfigError("cost.reference_blocks: given without cost.reference")
         return cost
@@ -170,15 +175,17 @@ class QuadraticCost:
         N = U.shape[0]
         R = self.layout.diff(X, self.targets(N, t0))  # [N+1, 2nv]
         c = np.empty(N + 1)
-        c[:N] = np.einsum("ki,i,ki->k", R[:N], self.q, R[:N]) + np.einsum(
-            "ki,i,ki->k", U, self.r, U
-        )
-        c[N] = R[N] @ (self.qf * R[N])
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow: inf, seen by callers
+            c[:N] = np.einsum("ki,i,ki->k", R[:N], self.q, R[:N]) + np.einsum(
+                "ki,i,ki->k", U, self.r, U
+            )
+            c[N] = R[N] @ (self.qf * R[N])
         return c
 
     def total(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> float:
         """Cost (3a) of X: [N+1, nx], U: [N, nu] starting at time t0."""
-        return float(np.sum(self.stage_costs(X, U, t0)))
+        with np.errstate(over="ignore", invalid="ignore"):
+            return float(np.sum(self.stage_costs(X, U, t0)))
 
     def breakdown(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> dict[str, float]:
         """Value of each named term (Q.<block>, Qf.<block>, R). X: [N+1, nx], U: [N, nu]."""
@@ -222,12 +229,22 @@ class QuadraticCost:
         return Quadratization(lx, lxx, lu, luu)
 
 
-def _load_reference(layout: StateLayout, cfg: CostConfig, resolve) -> tuple[np.ndarray, np.ndarray]:
+def _load_reference(
+    layout: StateLayout, cfg: CostConfig, resolve, models=None
+) -> tuple[np.ndarray, np.ndarray]:
     from .solution import load_run_solution
 
     sol, path = load_run_solution(
         resolve(cfg.reference) if resolve else cfg.reference, "cost.reference"
     )
+    theirs = _run_models(path.parent)
+    if models is not None and theirs is not None:
+        mine = sorted(Path(m).name for m in models)
+        if mine != theirs:
+            raise ConfigError(
+                f"cost.reference: {path.parent} is a run of other models ({', '.join(theirs)}), "
+                f"not this task's ({', '.join(mine)})"
+            )
     X, t = np.asarray(sol.X, float), np.asarray(sol.t, float)
     if X.ndim != 2 or X.shape[1] != layout.nx or t.shape != (X.shape[0],):
         raise ConfigError(
@@ -236,3 +253,12 @@ def _load_reference(layout: StateLayout, cfg: CostConfig, resolve) -> tuple[np.n
     if not np.all(np.isfinite(X)):
         raise ConfigError(f"cost.reference: {path} holds NaN or infinite states")
     return t, X
+
+
+def _run_models(run_dir: Path) -> list[str] | None:
+    """File names of the models a run's summary.json records (None: not recorded)."""
+    try:
+        models = json.loads((run_dir / "summary.json").read_text())["config"]["models"]
+        return sorted(Path(m["file"]).name for m in models)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import workers
-from .config import SolverConfig, validate_solver
+from .config import ConfigError, SolverConfig, validate_solver
 from .cost import QuadraticCost, Quadratization
 from .derivatives import DerivativeMethod, Linearizer
 from .plant import Dynamics, SimulationError
@@ -206,6 +206,11 @@ def solve(
                 f"initial rollout failed: {e} (`hydroilqr check` reports initial overlaps)"
             ) from None
     J = cost.total(X, U, t0)
+    if not np.isfinite(J):
+        raise ConfigError(
+            f"the cost of the initial guess is {J} on a finite trajectory: the cost weights "
+            "(or R) are too large to evaluate in floating point"
+        )
     rollout_time = time.perf_counter() - t_start
     costs = [J]
     mu = s.regularization_init

@@ -152,10 +152,12 @@ class MPCSettings:
         plan, path = load_run_solution(self.warm_start_plan, "mpc.warm_start_plan")
         U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
         nu = task.dynamics.nu
-        if U.ndim != 2 or U.shape[1] != nu or not np.all(np.isfinite(U)):
+        if U.ndim != 2 or U.shape[1] != nu:
             raise ConfigError(
                 f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
             )
+        if not np.all(np.isfinite(U)):
+            raise ConfigError(f"mpc.warm_start_plan: {path} holds NaN or infinite controls")
         from .report import previous_task
 
         other = previous_task(path.parent)  # another task with as many actuators is wrong too

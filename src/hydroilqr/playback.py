@@ -45,6 +45,7 @@ from .config import (
     TASKS_DIR,
     ConfigError,
     check_truth_overrides,
+    parse_override,
     task_from_dict,
     with_overrides,
 )
@@ -82,6 +83,14 @@ class PlaybackSettings:
     def check_against(self, task) -> None:
         """Settings that cannot fit ``task``'s plan (ConfigError)."""
         check_truth_overrides(self.truth_overrides)
+        own = {
+            "plant.time_step": "--truth-time-step",
+            "plant.contact_approximation": "--truth-contact",
+        }
+        for text in self.truth_overrides:
+            key = parse_override(text)[0]
+            if key in own:
+                raise ConfigError(f"--truth-set {key}: playback sets it with {own[key]}")
         dt = task.config.plant.time_step
         if self.truth_time_step > dt * (1 + 1e-9):
             raise ConfigError(
@@ -177,6 +186,8 @@ def load_run(run_dir: str | Path):
         config = summary["config"]
     except (OSError, ValueError, KeyError, TypeError):
         raise ConfigError(f"{summary_path}: unreadable or has no 'config'") from None
+    if not isinstance(config, dict):
+        raise ConfigError(f"{summary_path}: its 'config' is not a mapping")
     candidates = [summary.get("base_dir"), str(TASKS_DIR), str(run_dir)]
     err: ConfigError | None = None
     task = None

@@ -128,6 +128,24 @@ def load_checkpoint(task, directory: str | Path) -> dict:
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
         )
+    rh = task.config.receding_horizon
+    done, S = st.get("done"), rh.shift_steps
+    nx, nu = task.dynamics.nx, task.dynamics.nu
+    consistent = (
+        isinstance(done, int)
+        and 0 <= done <= rh.resolves
+        and len(st.get("resolves", [])) == done
+        and st["X"].shape == (1 + done * S, nx)
+        and st["U"].shape == (done * S, nu)
+        and st["K"].shape == (done * S, nu, nx)
+        and st["kappa"].shape == (done * S, nu)
+        and st["guess"].shape == (rh.window_steps, nu)
+    )
+    if not consistent:
+        raise ConfigError(
+            f"{ck}: its contents disagree with each other (resolves done {done!r}, "
+            f"{st['X'].shape[0]} states); remove it to start over"
+        )
     return st
 
 

@@ -137,6 +137,12 @@ def output_dir(out: str | Path, task_name: str | None = None) -> Path:
         raise ConfigError(f"--out {out}: exists and is not a directory")
     if task_name is not None:
         previous = previous_task(out)
+        torn = [m for m in RESULT_MARKERS if (out / m).exists()] if previous is None else []
+        if torn:  # results are there, but whose cannot be read
+            raise ConfigError(
+                f"{out} holds results whose {torn[0]} is unreadable: choose another --out "
+                "(or delete that directory)"
+            )
         if previous is not None and previous != task_name:
             what = (
                 "a bench's results" if previous == "bench" else f"the results of task {previous!r}"

@@ -30,7 +30,10 @@ def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
     path = solution_file(path)
     try:
         return Solution.load(path), path
-    except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
+    except ValueError as e:  # foreign file or arrays that disagree
+        why = str(e).removeprefix(f"{path}: ")
+        raise ConfigError(f"{key}: cannot read {path}: {why}") from None
+    except Exception as e:  # noqa: BLE001 - missing or torn file
         raise ConfigError(f"{key}: cannot read {path} ({type(e).__name__})") from None
 
 
@@ -113,9 +116,16 @@ class Solution:
     def load(path: str | Path) -> Solution:
         """From a file written by ``save`` (the path given to it, with or without ``.npz``), or
         a run directory holding solution.npz."""
-        with np.load(solution_file(path), allow_pickle=False) as d:
+        path = solution_file(path)
+        try:
+            d = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            if isinstance(e, FileNotFoundError):
+                raise
+            raise ValueError(f"{path}: not a file written by Solution.save") from None
+        with d:
             meta = json.loads(str(d["meta"]))
-            return Solution(
+            sol = Solution(
                 X=d["X"],
                 U=d["U"],
                 K=d["K"],
@@ -130,4 +140,21 @@ class Solution:
                 eps=meta.get("eps", []),
                 mu=meta.get("mu", []),
                 extra=meta.get("extra", {}),
+            )
+        sol.check_shapes(path)
+        return sol
+
+    def check_shapes(self, where: str | Path = "solution") -> None:
+        """ValueError unless X [N+1, nx], U [N, nu], K [N, nu, nx], kappa [N, nu], t [N+1]
+        agree with each other."""
+        X, U, K, kappa, t = (np.asarray(a) for a in (self.X, self.U, self.K, self.kappa, self.t))
+        ok = X.ndim == 2 and U.ndim == 2 and X.shape[0] == U.shape[0] + 1 and t.shape == X.shape[:1]
+        if ok:
+            N, nu, nx = U.shape[0], U.shape[1], X.shape[1]
+            ok = K.shape in ((N, nu, nx), (0,)) and kappa.shape in ((N, nu), (0,))
+        if not ok:
+            raise ValueError(
+                f"{where}: arrays disagree (X {list(X.shape)}, U {list(U.shape)}, "
+                f"K {list(K.shape)}, kappa {list(kappa.shape)}, t {list(t.shape)}; expected "
+                "X [N+1, nx], U [N, nu], K [N, nu, nx], kappa [N, nu], t [N+1])"
             )

@@ -657,9 +657,14 @@ def run_sweep(
     if spec_file.exists():
         try:
             old = json.loads(spec_file.read_text())
-        except ValueError:
+        except (ValueError, OSError):
             old = None
-        if old is not None:
+        if not isinstance(old, dict) and any(points_dir.iterdir()):
+            raise ConfigError(
+                f"{spec_file}: unreadable, so the points in {points_dir} cannot be matched to "
+                "this sweep; remove the directory or choose another --out"
+            )
+        if isinstance(old, dict):
             if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in user_set:
                 old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
             same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}

@@ -86,6 +86,7 @@ class Task:
             self.config.cost,
             self.config.plant.time_step,
             self.config.resolve_path,
+            [m.file for m in self.config.models],
         )
 
     @functools.cached_property
