@@ -499,35 +499,17 @@ def test_run_files_that_disagree_are_refused(tmp_path):
     from hydroilqr.config import ConfigError
     from hydroilqr.solution import Solution, load_run_solution
 
-    N, nx, nu = 4, 2, 1
-    good = Solution(
-        np.zeros((N + 1, nx)),
-        np.zeros((N, nu)),
-        np.zeros((N, nu, nx)),
-        np.zeros((N, nu)),
-        np.arange(N + 1.0),
-        np.zeros(1),
-        [],
-        {},
-        True,
-        "",
-        "",
-    )
-    good.save(tmp_path / "a")
+    def make(n_u):  # a solution of N = 4 steps whose U has n_u rows
+        N, nx, nu = 4, 2, 1
+        z = np.zeros
+        return Solution(
+            z((N + 1, nx)), z((n_u, nu)), z((N, nu, nx)), z((N, nu)), np.arange(N + 1.0),
+            z(1), [], {}, True, "", "",
+        )  # fmt: skip
+
+    make(4).save(tmp_path / "a")
     Solution.load(tmp_path / "a.npz").check_shapes()
-    bad = Solution(
-        np.zeros((N + 1, nx)),
-        np.zeros((2, nu)),
-        np.zeros((N, nu, nx)),
-        np.zeros((N, nu)),
-        np.arange(N + 1.0),
-        np.zeros(1),
-        [],
-        {},
-        True,
-        "",
-        "",
-    )
+    bad = make(2)
     bad.save(tmp_path / "b")
     with pytest.raises(ConfigError, match="arrays disagree"):
         load_run_solution(tmp_path / "b.npz", "cost.reference")
