@@ -162,6 +162,7 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
         (dict(pushes=[Push(5.0, "cart", np.array([1.0, 0, 0]))]), "outside the run"),
         (dict(pushes=[Push(0.1, "world", np.array([1.0, 0, 0]))]), "no movable body"),
         (dict(pushes=[Push(0.1, "cart", np.array([1.0, 0, 0]), -0.1)]), "push-duration"),
+        (dict(rate=40.0), "the period must be whole steps, e.g. 50 Hz or 33.3333 Hz"),
     ],
 )
 def test_mpc_settings_that_cannot_run_are_refused(settings, needle):
@@ -230,3 +231,29 @@ def test_continuation_seeds_the_first_plan():
     res, ref = run_mpc(task, MPCSettings(**s)), run_mpc(plain, MPCSettings(**s))
     assert np.all(np.isfinite(res.X)) and res.U.shape == ref.U.shape
     assert not np.array_equal(res.U, ref.U)  # the soft stage changed the first plan
+
+
+def test_pushes_last_whole_steps_add_up_and_leave_the_task_alone():
+    from hydroilqr.mpc import Truth
+
+    task = Task.load("cartpole-wall")
+    solver_before = task.config.solver
+    truth = Truth(task)
+    x0, u0 = task.x0, np.zeros(1)
+    free = truth.step(x0, u0, 0, [])[0]
+    push = Push(0.1, "cart", np.array([100.0, 0, 0]), 0.05)  # 0.1 + 0.05 is 0.15000000000000002
+    on = [k for k in range(8, 18) if not np.array_equal(truth.step(x0, u0, k, [push])[0], free)]
+    assert on == [10, 11, 12, 13, 14]  # 5 steps of 0.01 s, not 6
+    back = Push(0.1, "cart", np.array([-100.0, 0, 0]), 0.05)
+    both = truth.step(x0, u0, 12, [push, back])[0]
+    np.testing.assert_allclose(both, free, atol=1e-12)  # opposite pushes cancel
+    run_mpc(task, MPCSettings(duration=0.04, rate=50.0, horizon=0.1, derivatives="forward"))
+    assert task.config.solver is solver_before and task.config.solver.derivatives == "central"
+
+
+def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
+    out = tmp_path / "m"
+    argv = ["mpc", "cartpole-wall", "--duration", "0.5", "--out", str(out), "--no-replay"]
+    assert main([*argv, "--truth-set", "wall.xyz=[-0.42, 0, 0]"]) == 0
+    metrics = json.loads((out / "mpc.json").read_text())["metrics"]
+    assert metrics["wall_contact_steps"] > 0  # the controller's own wall is never touched

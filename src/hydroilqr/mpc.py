@@ -24,6 +24,7 @@ for ``push_duration`` seconds to show recovery.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -100,6 +101,14 @@ class MPCSettings:
             raise ConfigError(
                 f"mpc rate {self.rate:g} Hz: at most one update per time step "
                 f"({1.0 / dt:g} Hz with plant.time_step {dt:g} s)"
+            )
+        steps = 1.0 / (self.rate * dt)
+        if abs(steps - round(steps)) > 1e-4 * steps:
+            n = math.floor(steps)
+            near = " or ".join(f"{1.0 / (m * dt):g} Hz" for m in (n, n + 1) if m >= 1)
+            raise ConfigError(
+                f"mpc rate {self.rate:g} Hz: an update period of {steps:g} time steps "
+                f"(plant.time_step {dt:g} s); the period must be whole steps, e.g. {near}"
             )
         if not self.shrinking_horizon and self.horizon < 2 * dt * (1 - 1e-9):
             raise ConfigError(
@@ -355,6 +364,7 @@ class Controller:
         X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
         on_prediction = False
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
+        t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
         if self.plan is not None:
             shift = int(round((t - self.t_plan) / dt))
             shift = min(max(shift, 0), self.U.shape[0])
@@ -379,6 +389,7 @@ class Controller:
             elif self.warm_feedback:
                 X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
         self.reused_prediction.append(on_prediction)
+        pre_rollout = time.perf_counter() - t_pre
         lin = self.linearizer
         keep = lin.reuse_tolerance, lin.max_steps
         if full:
@@ -400,6 +411,7 @@ class Controller:
             lin.reuse_tolerance, lin.max_steps = keep
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
         self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
+        self.phases[-1]["rollout"] = self.phases[-1].get("rollout", 0.0) + pre_rollout
         self.past_deadline += sol.reason == "deadline"
         if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
             return self._failed(U_before)
@@ -467,16 +479,16 @@ class Truth:
         self.limits = self.dyn.effort_limits
         self.port = self.plant.get_applied_spatial_force_input_port()
         self._pushing = None
-        self._set_force(None)
+        self._set_force(())
 
-    def _set_force(self, push: Push | None):
+    def _set_force(self, pushes: tuple[Push, ...]):
         from pydrake.multibody.math import SpatialForce
         from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 
-        if push is self._pushing and push is not None:
+        if pushes == self._pushing:
             return
         forces = []
-        if push is not None:
+        for push in pushes:  # several at once add up
             try:
                 body = self.plant.GetBodyByName(push.body)
             except RuntimeError:
@@ -487,11 +499,17 @@ class Truth:
             f.F_Bq_W = SpatialForce(np.zeros(3), push.force)
             forces.append(f)
         self.port.FixValue(self.dyn.plant_context, forces)
-        self._pushing = push
+        self._pushing = pushes
 
-    def step(self, x, u, t, pushes):
-        active = next((p for p in pushes if p.time <= t < p.time + p.duration), None)
-        self._set_force(active)
+    def step(self, x, u, k, pushes):
+        """One step of the plant from x with input u at time step k (pushes active then)."""
+        dt = self.dyn.dt
+        active = []
+        for p in pushes:  # in whole time steps: [round(t/dt), + round(duration/dt))
+            k0 = int(round(p.time / dt))
+            if k0 <= k < k0 + max(1, int(round(p.duration / dt))):
+                active.append(p)
+        self._set_force(tuple(active))
         u = np.clip(u, -self.limits, self.limits)
         return self.dyn.step(x, u), u
 
@@ -507,11 +525,15 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
     if settings.shrinking_horizon:
         N = task.steps
         settings.horizon = N * dt
-    task.config.solver.threads = settings.threads
-    if settings.derivatives:
-        task.config.solver.derivatives = settings.derivatives
-    if settings.derivative_interval > 0:
-        task.config.solver.derivative_interval = settings.derivative_interval
+    # The controller's solver settings, on a copy of the task (the caller's is not changed).
+    solver = dataclasses.replace(
+        task.config.solver,
+        threads=settings.threads,
+        derivatives=settings.derivatives or task.config.solver.derivatives,
+        derivative_interval=settings.derivative_interval or task.config.solver.derivative_interval,
+    )
+    task = copy.copy(task)  # shares the built plant and cost; only the settings differ
+    task.config = dataclasses.replace(task.config, solver=solver)
     ctrl = Controller(task, N, settings.iterations_per_update, settings)
     truth = Truth(task, settings.truth_overrides)  # push bodies checked by settings.check
 
@@ -554,7 +576,7 @@ def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
             u = plan.U[i] - settings.feedback_scale * (plan.K[i] @ (x - plan.X[i]))
             if not np.all(np.isfinite(u)):
                 raise SimulationError("the controller produced a non-finite input")
-            x, u = truth.step(x, u, k * dt, settings.pushes)
+            x, u = truth.step(x, u, k, settings.pushes)
             X.append(x)
             U.append(u)
             k += 1
@@ -777,7 +799,11 @@ def cmd_mpc(args) -> int:
     stats = res.stats()
     sol = res.as_solution()
     try:
-        task_metrics = metrics.compute(task, sol)
+        # On the plant that was simulated (truth overrides cannot touch the cost).
+        sim_task = task
+        if settings.truth_overrides:
+            sim_task = task.with_overrides(settings.truth_overrides)
+        task_metrics = metrics.compute(sim_task, sol)
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
     data = {
