@@ -202,3 +202,24 @@ def test_stopping_inside_a_stage_returns_the_task_models_trajectory(task):
     assert staged.stages()[0].config.solver.max_iterations == 3  # per-call settings do not stick
     with pytest.raises(ConfigError, match="cannot change between stages"):
         task.with_overrides({"continuation": [{"horizon": 0.5}]})
+
+
+def test_a_worker_dying_during_autodiff_costs_time_not_the_solve(monkeypatch):
+    from concurrent.futures.process import BrokenProcessPool
+
+    from hydroilqr import workers
+    from hydroilqr.derivatives import autodiff_serial
+
+    class Dead:  # the future of a chunk whose worker process was killed
+        def result(self):
+            raise BrokenProcessPool("a process in the pool was terminated abruptly")
+
+    dyn = Task.load("cartpole-wall", overrides="num_steps=8").dynamics
+    X = dyn.rollout(dyn.initial_state(), np.zeros((8, 1)))
+    U = np.zeros((8, 1))
+    monkeypatch.setattr(workers, "_submit", lambda *args: Dead())
+    A, B = workers.autodiff(dyn, X[:-1], U, 2)
+    A0, B0 = autodiff_serial(dyn, X[:-1], U)
+    np.testing.assert_array_equal(A, A0)
+    np.testing.assert_array_equal(B, B0)
+    assert dyn._worker_pool is False  # serial from now on

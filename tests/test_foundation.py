@@ -408,3 +408,32 @@ def test_nominal_time_horizon_end_aims_every_step_at_the_horizon_end():
     assert task.cost.nominal_time == "horizon_end"
     with pytest.raises(ConfigError, match="cost.nominal_time: expected one of step, horizon_end"):
         Task.load("cheetah-trot-1.0", ["cost.nominal_time=end"], smoke=True)
+
+
+def test_a_solve_whose_steps_all_fail_is_not_called_converged(monkeypatch):
+    from hydroilqr.plant import SimulationError
+
+    task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
+    ref = solve(task, settings={"max_iterations": 1})  # gains of a normal first iteration
+    dyn = task.dynamics
+
+    def fail(*args, **kwargs):
+        raise SimulationError("every trial fails")
+
+    monkeypatch.setattr(dyn, "closed_loop_rollout", fail)
+    sol = solve(task)
+    # Raising μ after each failed search shrinks the predicted decrease below the tolerance:
+    # that is not a stationary point.
+    assert sol.reason == "line_search_failed" and not sol.converged
+    # The gains returned are those at the iteration's own μ (real feedback), not those of the
+    # most-regularized retry (max |K| ~ 1e-6).
+    assert np.abs(sol.K).max() > 1e-2 * np.abs(ref.K).max() > 0
+
+
+def test_stopping_in_a_continuation_stage_keeps_feedback_gains():
+    task = Task.load(
+        "cartpole-wall",
+        ["num_steps=20", "solver.max_iterations=5"],
+    ).with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
+    sol = solve(task, callbacks=[lambda info: info.iteration >= 2])
+    assert sol.reason == "callback" and np.abs(sol.K).max() > 0 and np.abs(sol.kappa).max() > 0

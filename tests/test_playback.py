@@ -123,3 +123,14 @@ def test_playback_settings_that_cannot_fit_the_plan(run_dir):
         PlaybackSettings(truth_overrides=["plant.time_step=0.002"]).check_against(task)
     with pytest.raises(ConfigError, match="playback sets it with --truth-contact"):
         PlaybackSettings(truth_overrides=["plant.contact_approximation=tamsi"]).check_against(task)
+
+
+def test_pd_loop_runs_at_the_rate_it_reports_and_the_api_checks_settings(run_dir):
+    task, sol, _ = load_run(run_dir)
+    st = PlaybackSettings(speed=1.0, truth_time_step=0.001, rate=300.0)
+    r = playback(task, sol, st)
+    changes = np.flatnonzero(np.any(np.diff(r.U, axis=0) != 0, axis=1)) + 1
+    gaps = set(np.diff(changes).tolist())
+    assert gaps <= {4} and r.metrics["pd_loop_rate_hz"] == pytest.approx(250.0)
+    with pytest.raises(ConfigError, match="playback sets it with --truth-time-step"):
+        playback(task, sol, PlaybackSettings(truth_overrides=["plant.time_step=0.01"]))

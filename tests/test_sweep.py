@@ -28,6 +28,7 @@ def test_parse_values():
     g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
     assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
     assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})
+    assert point_id({KEY: 1000000}) == point_id({KEY: 1e6})  # one value, two spellings
 
 
 def _rows(out: Path) -> list[dict]:
@@ -68,6 +69,7 @@ def test_three_point_sweep(swept):
     assert [float(r[KEY]) for r in rows] == [-5.0, 1000.0, 1e6]  # sorted by value
     for col in POINT_COLUMNS:
         assert col in rows[0]
+    assert "max_contact_faces" in rows[0]  # the task's other scalar metrics are columns too
     ok = [r for r in rows if r["status"] == "ok"]
     assert len(ok) == 2
     for r in ok:
@@ -110,6 +112,8 @@ def test_resume_computes_only_missing(swept):
     res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=SMALL, smoke=True)
     assert res["computed"] == 0 and res["failed"] == 0
     assert sorted(r["id"] for r in _rows(out)) == sorted(before)
+    summary = json.loads((out / "sweep.json").read_text())["summary"]
+    assert summary == {"points": 3, "done": 2, "failed": 1, "missing": 0}
     # A torn spec cannot vouch for the points: refused, not overwritten.
     spec = (out / "sweep_spec.json").read_text()
     (out / "sweep_spec.json").write_text("{bad")

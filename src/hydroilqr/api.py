@@ -103,7 +103,7 @@ def solve(
                     raise KeyboardInterrupt
                 # Stopped inside a stage: the result is the stage's controls on the task's own
                 # model (its trajectory and cost), not the stage model's trajectory.
-                task_part = ilqr_solve(
+                task_part = ilqr_solve(  # no iterations: the rollout and its gains
                     task.problem(x0=x0), U0, task.config.solver, max_iterations=0
                 )
                 task_part.reason = sol.reason

@@ -252,18 +252,24 @@ def solve(
             expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
             searches = 0
             late = False  # the deadline passed before a step was found
+            raised = False  # μ was raised in this iteration (Q_uu indefinite or a failed search)
+            first_gains = None  # (K, kappa) of the least-regularized pass around this X
             while True:
                 t = time.perf_counter()
                 bp = backward_pass(A, B, quad, mu)
                 ph["backward_pass"] += time.perf_counter() - t
                 if not bp.ok:
-                    mu = _increase(mu, s)
+                    mu, raised = _increase(mu, s), True
                     if mu > s.regularization_max:
                         break
                     continue
                 K, kappa = bp.K, bp.kappa
+                if first_gains is None:
+                    first_gains = (K, kappa)
                 expected_full = expected_decrease(bp.dV, 1.0)
                 if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
+                    # Stationary only if μ was not raised to get here: a large μ makes any
+                    # predicted decrease small.
                     expected = expected_full
                     break
                 t = time.perf_counter()
@@ -295,9 +301,13 @@ def solve(
                 if accepted or late:
                     break
                 searches += 1
-                mu = _increase(mu, s)
+                mu, raised = _increase(mu, s), True
                 if mu > s.regularization_max or searches > s.line_search_retries:
                     break
+            if not accepted and first_gains is not None:
+                # No step: the gains returned are those around this X at the iteration's own μ,
+                # not those of the most-regularized retry (which have almost no feedback).
+                K, kappa = first_gains
 
             seconds = time.perf_counter() - t_it
             iter_seconds.append(seconds)
@@ -327,7 +337,11 @@ def solve(
             if not accepted:
                 if late:
                     reason = "deadline"
-                elif expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and bp.ok:
+                elif (
+                    expected_full < s.expected_decrease_tolerance * max(1.0, abs(J))
+                    and bp.ok
+                    and not raised
+                ):
                     reason, converged = "expected_decrease", True
                 elif not bp.ok:
                     # Q_uu stayed indefinite up to solver.regularization_max: no descent step.
@@ -371,9 +385,9 @@ def solve(
             for v in phases.values():
                 v.append(0.0)
 
-    if final_gains and iter_seconds and accepted and not interrupted:
+    if final_gains and not interrupted and (accepted or max_it == 0):
         # Gains of eq. (8) around the *final* trajectory (the last backward pass was around
-        # the previous one).
+        # the previous one; with no iterations, there was none).
         t = time.perf_counter()
         try:
             A, B = partials(X, U)
@@ -382,9 +396,14 @@ def solve(
                 K, kappa = bp.K, bp.kappa
         except SimulationError:
             pass
+        except KeyboardInterrupt:
+            if not stop_on_interrupt:
+                raise
+            reason = "interrupted"  # the trajectory is complete; its gains are the last pass's
         elapsed = time.perf_counter() - t
-        phases["derivatives"][-1] += elapsed
-        iter_seconds[-1] += elapsed
+        if iter_seconds:
+            phases["derivatives"][-1] += elapsed
+            iter_seconds[-1] += elapsed
     return Solution(
         X=X,
         U=U,

@@ -335,6 +335,7 @@ def playback(
     if the real system's time step fails, ConfigError on bad settings."""
     settings = settings or PlaybackSettings()
     settings.validate()
+    settings.check_against(task)
     wall0 = time.perf_counter()
     planner = task.dynamics
     truth = Dynamics(truth_config(task, settings))
@@ -355,7 +356,7 @@ def playback(
     T_play = plan.duration / s
     n = max(1, int(round(T_play / dt)))
     tol = 1e-9 * max(1.0, T_play)
-    ctrl_period = 1.0 / settings.rate
+    ctrl_period = pd_period(settings)  # whole truth steps, as _pd_check assumes
     if settings.policy == "ilqr":
         ctrl_period = float(plan.t[1] - plan.t[0]) / s if plan.N > 0 else dt
     vscale = s if settings.scale_velocity_reference else 1.0
@@ -473,10 +474,7 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
     ctx = plant.CreateDefaultContext()
     plant.SetPositionsAndVelocities(ctx, x0)
     M = plant.CalcMassMatrix(ctx)
-    # The loop acts on truth time steps: its period is 1/rate rounded up to a whole number of
-    # them (a rate above 1/truth_time_step runs once per step).
-    dt = st.truth_time_step
-    h = dt * max(1, math.ceil(1.0 / (st.rate * dt) - 1e-9))
+    h = pd_period(st)
     per = {}
     warnings = []
     for name, j in _joint_velocity_indices(plant, joints).items():
@@ -490,6 +488,13 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
                 "(at most 1/--truth-time-step)"
             )
     return {"pd_loop": per, "pd_loop_rate_hz": 1.0 / h, "warnings": warnings}
+
+
+def pd_period(st: PlaybackSettings) -> float:
+    """The PD+ loop's period: 1/rate rounded up to whole truth time steps (the loop acts on
+    them; a rate above 1/truth_time_step runs once per step)."""
+    dt = st.truth_time_step
+    return dt * max(1, math.ceil(1.0 / (st.rate * dt) - 1e-9))
 
 
 SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning

@@ -116,9 +116,19 @@ def grid(params: list[tuple[str, list]]) -> list[dict[str, Any]]:
     return points
 
 
+def _canonical(v: Any) -> Any:
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        return float(v)
+    return v
+
+
 def point_id(values: dict[str, Any]) -> str:
     """Stable file name for a point: readable prefix + hash of the exact values."""
-    canon = json.dumps({k: repr(v) for k, v in values.items()}, sort_keys=True)
+    # Numbers in one form: 1000000 and 1e6 build the same task, so they are the same point.
+    canon = json.dumps(
+        {k: repr(_canonical(v)) for k, v in values.items()},
+        sort_keys=True,
+    )
     digest = hashlib.sha1(canon.encode()).hexdigest()[:10]
     label = "_".join(f"{k.split('.')[-1][:12]}{v:.4g}" for k, v in values.items())
     label = "".join(c if c.isalnum() or c in "._-+" else "-" for c in label)
@@ -277,6 +287,15 @@ def columns(param_keys: list[str], rows: list[dict]) -> list[str]:
     cols = list(param_keys) + list(POINT_COLUMNS)
     have = set().union(*(r.keys() for r in rows)) if rows else set()
     cols += [c for c in EXTRA_COLUMNS if c in have]
+    # Then every other scalar a point reported (task metrics), in a stable order.
+    plain = (bool, int, float, str, type(None))
+    scalar = {
+        k
+        for r in rows
+        for k, v in r.items()
+        if not k.startswith("param:") and k != "id" and isinstance(v, plain)
+    }
+    cols += sorted(scalar - set(cols))
     return cols
 
 
@@ -783,8 +802,8 @@ def run_sweep(
             client.close()
             if cluster is not None:
                 cluster.close()
-    all_rows = ordered()
-    write_tables(out, spec, keys, all_rows, len(points) - len(all_rows))
+    all_rows = ordered()  # this grid's points and those kept from earlier runs
+    write_tables(out, spec, keys, all_rows, len(points) - len(rows))
     wrote = ["sweep.csv", "sweep.json"]
     if plots and all_rows:
         grid_values = [

@@ -145,15 +145,6 @@ def _submit(dyn: Dynamics, fn, *args):
         raise Unavailable(str(e)) from None
 
 
-def _result(future):
-    try:
-        return future.result()
-    except SimulationError:
-        raise
-    except Exception as e:  # a worker died: report as a failed simulation
-        raise SimulationError(f"worker process failed: {e}") from None
-
-
 # ------------------------------------------------------------------------------ in workers
 def _init(config: dict, base_dir: str) -> None:
     global _DYN
@@ -188,7 +179,14 @@ def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     chunks = np.array_split(np.arange(U.shape[0]), workers)
     futures = [_submit(dyn, _autodiff, X[c], U[c]) for c in chunks[1:]]
     parts = [autodiff_serial(dyn, X[chunks[0]], U[chunks[0]])]
-    parts += [_result(f) for f in futures]
+    for c, f in zip(chunks[1:], futures):
+        try:
+            parts.append(f.result())
+        except SimulationError:
+            raise
+        except Exception:  # noqa: BLE001 - a worker died: its chunk is computed here
+            mark_unavailable(dyn)
+            parts.append(autodiff_serial(dyn, X[c], U[c]))
     return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
 
 
