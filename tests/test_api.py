@@ -223,3 +223,12 @@ def test_a_worker_dying_during_autodiff_costs_time_not_the_solve(monkeypatch):
     np.testing.assert_array_equal(A, A0)
     np.testing.assert_array_equal(B, B0)
     assert dyn._worker_pool is False  # serial from now on
+
+
+def test_settings_dict_changes_each_stage_own_solver_section():
+    task = Task.load("cartpole-wall", overrides="num_steps=20").with_overrides(
+        {"continuation": [{"solver.regularization_init": 0.5, "solver.regularization_min": 0.5}]}
+    )
+    sol = solve(task, settings={"max_iterations": 1})
+    assert sol.iterations == 2  # one per stage
+    assert sol.mu[0] >= 0.5 > sol.mu[1]  # the stage kept its own regularization

@@ -20,6 +20,7 @@ import pytest
 import yaml
 
 from hydroilqr import cli
+from hydroilqr.config import ConfigError
 
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 PENDULUM = "package://drake/examples/pendulum/Pendulum.urdf"
@@ -525,3 +526,58 @@ def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):
     (tmp_path / "summary.json").write_text("{torn")
     with pytest.raises(ConfigError, match="summary.json is unreadable"):
         output_dir(tmp_path, "cartpole-wall")
+
+
+def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkeypatch):
+    from hydroilqr.config import load_task
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cartpole-wall").mkdir()  # e.g. `solve cartpole-wall --out cartpole-wall`
+    assert load_task("cartpole-wall").name == "cartpole-wall"
+    (tmp_path / "mine.yaml").mkdir()
+    with pytest.raises(ConfigError, match="a directory, not a task YAML file"):
+        load_task("mine.yaml")
+
+
+def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
+    from hydroilqr.config import load_task
+
+    path = write_case(tmp_path, BASE)  # num_steps: 5 at dt 0.02
+    extra = tmp_path / "extra.yaml"
+    extra.write_text("horizon: 0.2\n")
+    assert load_task(str(path), config_file=str(extra)).steps == 10
+    smoke = write_case(tmp_path, edit(smoke={"horizon": 0.06}))
+    assert load_task(str(smoke), smoke=True).steps == 3
+    (tmp_path / "child.yaml").write_text(f"extends: {path.name}\nhorizon: 0.4\n")
+    assert load_task(str(tmp_path / "child.yaml")).steps == 20
+
+
+def test_continuation_stages_keep_the_grid_and_read_paths_from_the_task_file(tmp_path):
+    from hydroilqr.task import Task
+
+    path = write_case(tmp_path, edit(continuation=[{"plant": {"time_step": 0.04}}]))
+    with pytest.raises(ConfigError, match="time grid"):
+        Task.load(str(path)).stages()
+    path = write_case(tmp_path, edit(continuation=[{"initial_guess": "guess.csv"}]))
+    with pytest.raises(ConfigError, match="initial_guess cannot change"):
+        Task.load(str(path))
+    (tmp_path / "u.csv").write_text("0.1\n")
+    path = write_case(tmp_path, edit(continuation=[{"cost.R": 0.02}], initial_guess="u.csv"))
+    stage = Task.load(str(path)).stages()[0]
+    assert stage.config.resolve_path(stage.config.initial_guess) == tmp_path / "u.csv"
+
+
+def test_a_weld_names_a_frame_of_its_own_model(tmp_path, capsys):
+    spec = edit(
+        models=[
+            {"file": PENDULUM},
+            {"file": ACROBOT, "weld": {"parent": "world", "child": "arm"}},  # the pendulum's
+        ],
+        blocks={},
+        initial_state={},
+        cost={"R": 0.1},
+    )
+    path = write_case(tmp_path, spec)
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "models[1].weld.child: unknown frame 'arm'")

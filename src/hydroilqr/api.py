@@ -53,13 +53,7 @@ def solve(
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
     saved = task.config.solver
-    if isinstance(settings, dict):  # changes to the task's solver section, e.g. max_iterations
-        from .config import _build_dataclass
-
-        settings = _build_dataclass(
-            SolverConfig, {**dataclasses.asdict(saved), **settings}, "settings"
-        )
-    elif settings is not None and not isinstance(settings, SolverConfig):
+    if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(
             f"settings: expected a SolverConfig or a dict of its fields, got "
             f"{type(settings).__name__}"
@@ -67,10 +61,12 @@ def solve(
     stages = [] if task.config.receding_horizon is not None else task.stages()  # before the swap
     stage_saved = [st.config.solver for st in stages]
     if settings is not None:
-        validate_solver(settings)
-        task.config.solver = settings  # for this solve only (the worker processes read it)
-        for st in stages:
-            st.config.solver = settings
+        # A dict changes fields of each solve's own solver section (a stage may have its own);
+        # a SolverConfig replaces them all.
+        own = [_with_changes(st.config.solver, settings) for st in stages]
+        task.config.solver = _with_changes(saved, settings)  # for this solve only (the worker
+        for st, s in zip(stages, own):  # processes read it)
+            st.config.solver = s
     try:
         if task.config.receding_horizon is not None:
             if U0 is not None or x0 is not None:
@@ -122,6 +118,18 @@ def solve(
         task.config.solver = saved
         for st, s in zip(stages, stage_saved):
             st.config.solver = s
+
+
+def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
+    """``settings`` if it is a SolverConfig, else ``solver`` with the dict's fields changed."""
+    if isinstance(settings, dict):
+        from .config import _build_dataclass
+
+        settings = _build_dataclass(
+            SolverConfig, {**dataclasses.asdict(solver), **settings}, "settings"
+        )
+    validate_solver(settings)
+    return settings
 
 
 def _join(task: Task, parts: list[Solution]) -> Solution:

@@ -69,6 +69,8 @@ def geometry_table(dyn) -> list[dict]:
                 "modulus": prop("hydroelastic", "hydroelastic_modulus"),
                 "resolution_hint": prop("hydroelastic", "resolution_hint"),
                 "friction": friction.static_friction() if friction is not None else None,
+                "relaxation_time": prop("material", "relaxation_time"),
+                "dissipation": prop("material", "hunt_crossley_dissipation"),
             }
         )
     return rows
@@ -190,9 +192,19 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         "modulus [Pa]",
         "hint [m]",
         "friction",
+        "damping",
     ):
         t.add_column(col)
+    sap = cfg.plant.contact_approximation == "sap"
     for g in geoms:
+        # The damping the contact solver uses: SAP a relaxation time (default 0.1 s per
+        # geometry), the others Hunt-Crossley dissipation.
+        if sap:
+            rt = g["relaxation_time"]
+            damping = f"τ {0.1 if rt is None else rt:g} s" + (" (default)" if rt is None else "")
+        else:
+            d = g["dissipation"]
+            damping = "" if d is None else f"{d:g} s/m"
         t.add_row(
             g["name"],
             g["body"],
@@ -201,8 +213,14 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             "" if g["modulus"] is None else f"{g['modulus']:.3g}",
             "" if g["resolution_hint"] is None else f"{g['resolution_hint']:g}",
             "" if g["friction"] is None else f"{g['friction']:g}",
+            damping,
         )
     console.print(t)
+    if sap:
+        console.print(
+            "damping: sap uses relaxation times (a pair's τ is the sum of its two geometries'); "
+            "Hunt-Crossley dissipation applies under tamsi, similar or lagged only"
+        )
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
     from .plant import geometry_hits
 

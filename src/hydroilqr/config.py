@@ -513,14 +513,17 @@ def check_truth_overrides(overrides: list[str]) -> None:
             )
 
 
-def with_overrides(cfg: TaskConfig, overrides: list[str] | dict[str, Any] | str) -> TaskConfig:
+def with_overrides(
+    cfg: TaskConfig, overrides: list[str] | dict[str, Any] | str, paths_from: Path | None = None
+) -> TaskConfig:
     """A copy of a loaded task with overrides applied (validated again): ``key=value``
-    strings, or a dict of dotted keys to values."""
+    strings, or a dict of dotted keys to values. Relative file paths in them are relative to
+    the working directory, or to ``paths_from``."""
     d = cfg.to_dict()
     items = _override_items(overrides)
     _horizon_wins(d, items)
     for key, value in items:
-        _set_dotted(d, key, _cwd_path(key, value))
+        _set_dotted(d, key, _cwd_path(key, value, paths_from))
     return task_from_dict(d, cfg.base_dir)
 
 
@@ -547,11 +550,15 @@ def task_file(name_or_path: str) -> Path:
             "Task.from_dict(yaml.safe_load(text)))"
         )
     p = Path(name_or_path)
+    builtin = TASKS_DIR / f"{name_or_path}.yaml"
+    if p.is_dir() and builtin.exists():
+        return builtin  # e.g. a run directory named like the task (--out cartpole-wall)
     if p.suffix in (".yaml", ".yml") or p.exists():
         if not p.exists():
             raise ConfigError(f"task file {name_or_path}: no such file")
+        if p.is_dir():
+            raise ConfigError(f"task file {name_or_path}: a directory, not a task YAML file")
         return p
-    builtin = TASKS_DIR / f"{name_or_path}.yaml"
     if not builtin.exists():
         raise ConfigError(
             f"unknown task {name_or_path!r} (built-in tasks: {', '.join(list_tasks())})"
@@ -625,8 +632,19 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
         parent = load_raw(base_path, _chain=(*_chain, path.resolve()))
         if base_path.parent != path.parent.resolve():
             _anchor_paths(parent, base_path.parent)
-        data = _merge(parent, data)
+        data = _merge(_without_other_length(parent, data), data)
     return data
+
+
+def _without_other_length(below: dict[str, Any], above: dict[str, Any]) -> dict[str, Any]:
+    """``below`` minus its horizon or num_steps when the layer ``above`` gives the other one:
+    the upper layer's trajectory length wins (extends, --config, smoke)."""
+    below = dict(below)
+    if above.get("horizon") is not None and "num_steps" not in above:
+        below.pop("num_steps", None)
+    if above.get("num_steps") and "horizon" not in above:
+        below.pop("horizon", None)
+    return below
 
 
 GUESS_KEYWORDS = ("zeros", "gravity_compensation", "hold")
@@ -637,9 +655,10 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     ``extends`` a file in another directory still finds that file's models and guesses."""
 
     def anchor(p: Any) -> Any:
-        if not isinstance(p, str) or not p or p.startswith("package://") or Path(p).is_absolute():
+        if not isinstance(p, str) or not p or p.startswith("package://"):
             return p
-        return str(base_dir / p)
+        path = Path(p).expanduser()
+        return str(path if path.is_absolute() else base_dir / path)
 
     for m in data.get("models") or []:
         if isinstance(m, dict) and "file" in m:
@@ -652,10 +671,14 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     cost = data.get("cost")
     if isinstance(cost, dict) and isinstance(cost.get("reference"), str):
         cost["reference"] = anchor(cost["reference"])
+    mpc = data.get("mpc")
+    if isinstance(mpc, dict) and isinstance(mpc.get("warm_start_plan"), str):
+        mpc["warm_start_plan"] = anchor(mpc["warm_start_plan"])
 
 
-def _cwd_path(key: str, value: Any) -> Any:
-    """A relative file path given on the command line is relative to the working directory."""
+def _cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
+    """A relative file path given on the command line is relative to the working directory
+    (``base``: to that directory instead, e.g. a task file's for its continuation stages)."""
     parts = key.split(".")
     is_path = (
         key in ("initial_guess", "cost.reference", "mpc.warm_start_plan")
@@ -670,7 +693,7 @@ def _cwd_path(key: str, value: Any) -> Any:
         or Path(value).expanduser().is_absolute()
     ):
         return value
-    return str(Path.cwd() / Path(value).expanduser())
+    return str((base or Path.cwd()) / Path(value).expanduser())
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -715,7 +738,7 @@ def build_task(
     if config_file:
         extra = load_raw(Path(config_file), "--config file")
         _anchor_paths(extra, Path(config_file).resolve().parent)  # its paths: relative to it
-        data = _merge(data, extra)
+        data = _merge(_without_other_length(data, extra), extra)
     items = _override_items(overrides)
 
     def finish(d: dict[str, Any]) -> TaskConfig:
@@ -735,7 +758,7 @@ def build_task(
     shrink = data.get("smoke") or _generic_smoke(data)
     if not isinstance(shrink, dict):
         raise ConfigError("smoke: expected a mapping of dotted keys to values")
-    shrunk = copy.deepcopy(data)
+    shrunk = _without_other_length(copy.deepcopy(data), shrink)
     try:
         for key, value in list(shrink.items()):
             if key.split(".")[0] == "smoke":
@@ -765,11 +788,11 @@ DERIVATIVES = ("autodiff", "forward", "central")
 def _check_contact(p: ContactProperties, key: str) -> None:
     if p.compliance is not None and p.compliance not in ("rigid", "compliant"):
         raise ConfigError(f"{key}.compliance: expected rigid or compliant, got {p.compliance!r}")
-    for name in ("hydroelastic_modulus", "resolution_hint", "slab_thickness", "relaxation_time"):
+    for name in ("hydroelastic_modulus", "resolution_hint", "slab_thickness"):
         v = getattr(p, name)
         if v is not None and v <= 0:
             raise ConfigError(f"{key}.{name}: must be positive, got {v}")
-    for name in ("dissipation", "friction", "margin"):
+    for name in ("dissipation", "friction", "margin", "relaxation_time"):
         v = getattr(p, name)
         if v is not None and v < 0:
             raise ConfigError(f"{key}.{name}: must be non-negative, got {v}")

@@ -196,7 +196,10 @@ class MPCSettings:
             shrinking_horizon=m.shrinking_horizon,
             warm_start_tail=m.warm_start_tail,
             warm_start_feedback=m.warm_start_feedback,
-            warm_start_plan=m.warm_start_plan,
+            # a task file's path is relative to that file (a --warm-start-plan: to the cwd)
+            warm_start_plan=(
+                str(task.config.resolve_path(m.warm_start_plan)) if m.warm_start_plan else ""
+            ),
             derivative_reuse_tolerance=m.derivative_reuse_tolerance,
             derivative_steps_per_update=m.derivative_steps_per_update,
             line_search_steps=m.line_search_steps,

@@ -257,11 +257,11 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                     plant.world_frame() if w.parent == "world" else plant.GetFrameByName(w.parent)
                 )
                 child = None
-                for inst in instances:
+                for inst in instances:  # the child is a frame of this model, not another's
                     if plant.HasFrameNamed(w.child, inst):
                         child = plant.GetFrameByName(w.child, inst)
                 if child is None:
-                    child = plant.GetFrameByName(w.child)
+                    raise KeyError(w.child)
             except Exception:
                 bad = (
                     "parent"

@@ -55,11 +55,26 @@ class Task:
         if getattr(self, "_stages", None) is not None:
             return self._stages
         out = []
-        for i, stage in enumerate(self.config.continuation):
+        cfg = self.config
+        for i, stage in enumerate(cfg.continuation):
             try:
-                out.append(self.with_overrides({**stage, "continuation": []}))
+                # paths in a stage are relative to the task file, like the rest of it
+                st = with_overrides(cfg, {**stage, "continuation": []}, Path(cfg.base_dir))
             except ConfigError as e:
                 raise ConfigError(f"continuation[{i}]: {e}") from None
+            same = (
+                st.plant.time_step == cfg.plant.time_step
+                and st.steps == cfg.steps
+                and st.initial_state == cfg.initial_state
+                and st.initial_guess == cfg.initial_guess
+            )
+            if not same:  # e.g. {plant: {time_step: ...}}, which the key check cannot see
+                raise ConfigError(
+                    f"continuation[{i}]: the time grid, initial state and initial guess cannot "
+                    "change between stages (every stage solves the task's time grid from its "
+                    "initial state)"
+                )
+            out.append(Task(st))
         self._stages = out
         return out
 
