@@ -437,3 +437,18 @@ def test_stopping_in_a_continuation_stage_keeps_feedback_gains():
     ).with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
     sol = solve(task, callbacks=[lambda info: info.iteration >= 2])
     assert sol.reason == "callback" and np.abs(sol.K).max() > 0 and np.abs(sol.kappa).max() > 0
+
+
+def test_cost_terms_add_up_to_the_cost_when_blocks_overlap():
+    task = Task.load(
+        "cartpole-wall",
+        [
+            "num_steps=10",
+            "blocks.positions=[cart_slider, pole_pin]",
+            "cost.Q={positions: 0.5, pole_angle: 2.0}",
+        ],
+    )
+    X = task.dynamics.rollout(task.x0, np.full((10, 1), 3.0))
+    U = np.full((10, 1), 3.0)
+    terms = task.cost.breakdown(X, U)
+    assert sum(terms.values()) == pytest.approx(task.cost.total(X, U), rel=1e-12)

@@ -119,8 +119,14 @@ class QuadraticCost:
             q, r = q * dt, r * dt
         terms = {}
         for section in ("Q", "Qf"):
+            # Each coordinate belongs to the last named block that set its weight (the weight
+            # in effect), so overlapping blocks (a group and a member) are not counted twice.
+            owner: dict[int, str] = {}
             for name in getattr(cfg, section):
-                terms[f"{section}.{name}"] = (section, layout.block(name).tangent)
+                owner.update(dict.fromkeys(layout.block(name).tangent, name))
+            for name in getattr(cfg, section):
+                idx = tuple(i for i in layout.block(name).tangent if owner[i] == name)
+                terms[f"{section}.{name}"] = (section, idx)
         cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
         if cfg.reference:
             cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
