@@ -813,7 +813,7 @@ def setup(p) -> None:
     )
     p.add_argument("--kp", type=float, default=500.0, help="PD+ stiffness (default 500)")
     p.add_argument("--kd", type=float, default=5.0, help="PD+ damping (default 5)")
-    p.add_argument("--rate", type=float, default=1000.0, help="PD+ control rate, Hz")
+    p.add_argument("--rate", type=float, default=1000.0, help="PD+ control rate, Hz (default 1000)")
     p.add_argument(
         "--update-period",
         type=float,

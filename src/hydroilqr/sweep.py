@@ -867,7 +867,13 @@ def cmd_sweep(args) -> int:
     task = task_name_from_args(args)
     if not task:
         raise ConfigError("no task given (try `hydroilqr tasks`)")
-    out = args.out or f"runs/{Path(task).stem}{'-smoke' if args.smoke else ''}-sweep"
+    if args.out:
+        out = args.out
+    else:  # runs/NAME-sweep, NAME the task's name (as solve and mpc use)
+        from .config import load_task
+
+        name = load_task(task, args.set, args.config, args.smoke).name
+        out = f"runs/{name}{'-smoke' if args.smoke else ''}-sweep"
     keys, specs = args.param or [], args.values or []
     if len(keys) != len(specs):
         raise ConfigError("give one --values after each --param")
