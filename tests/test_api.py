@@ -232,3 +232,16 @@ def test_settings_dict_changes_each_stage_own_solver_section():
     sol = solve(task, settings={"max_iterations": 1})
     assert sol.iterations == 2  # one per stage
     assert sol.mu[0] >= 0.5 > sol.mu[1]  # the stage kept its own regularization
+
+
+def test_continuation_stage_solves_its_model_and_seeds_the_next():
+    from hydroilqr.ilqr import solve as ilqr_solve
+
+    task = Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=2")
+    staged = task.with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
+    stage = staged.stages()[0]
+    ref0 = ilqr_solve(stage.problem(), staged.initial_guess(staged.steps), stage.config.solver)
+    st = solve(staged).extra["continuation"]
+    assert st[0]["final_cost"] == ref0.final_cost
+    X = staged.dynamics.rollout(staged.x0, ref0.U)
+    assert st[1]["start_cost"] == pytest.approx(staged.cost.total(X, ref0.U), rel=1e-12)

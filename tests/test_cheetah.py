@@ -207,3 +207,57 @@ def test_foot_slip_is_zero_standing_and_body_speed_when_dragged():
     moving[list(lay.primitives["body.velocity"].coords)] = [0.6, 0.8, 0.0]  # 1 m/s level
     dragged = foot_slip_speeds(task, SimpleNamespace(X=np.array([moving])))
     np.testing.assert_allclose(dragged, 1.0, atol=1e-9)
+
+
+def test_resume_continues_from_checkpoint(tmp_path):
+    from hydroilqr.receding import load_checkpoint
+
+    def stop(done, total, sol):
+        if done == 2:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path, on_resolve=stop)
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    assert load_checkpoint(task, tmp_path)["done"] == 2
+    seen = []
+    solve(task, checkpoint_dir=tmp_path, on_resolve=lambda d, t, s: seen.append(d))
+    assert seen == [3]
+
+
+def test_checkpoint_of_other_settings_refused(tmp_path):
+    from hydroilqr.config import ConfigError
+    from hydroilqr.receding import load_checkpoint
+
+    def stop(done, total, sol):
+        raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path, on_resolve=stop)
+    other = Task.load("cheetah-trot-1.0", ["cost.R=0.02"], smoke=True)
+    with pytest.raises(ConfigError, match="different run"):
+        load_checkpoint(other, tmp_path)
+
+
+def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch):
+    from hydroilqr import receding
+
+    calls = []
+    real = receding.solve
+
+    def spy(problem, U0, *a, **k):
+        sol = real(problem, U0, *a, **k)
+        calls.append((problem.t0, np.array(U0), sol.U.copy()))
+        return sol
+
+    monkeypatch.setattr(receding, "solve", spy)
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    solve(task)
+    rh, dt = task.config.receding_horizon, task.dynamics.dt
+    assert [c[0] for c in calls] == pytest.approx(
+        [r * rh.shift_steps * dt for r in range(rh.resolves)]
+    )
+    S = rh.shift_steps
+    for (_, _, U_prev), (_, U0, _) in zip(calls, calls[1:]):
+        np.testing.assert_array_equal(U0[:-S], U_prev[S:])
+        np.testing.assert_array_equal(U0[-S:], np.tile(U_prev[-1], (S, 1)))

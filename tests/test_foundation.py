@@ -452,3 +452,29 @@ def test_cost_terms_add_up_to_the_cost_when_blocks_overlap():
     U = np.full((10, 1), 3.0)
     terms = task.cost.breakdown(X, U)
     assert sum(terms.values()) == pytest.approx(task.cost.total(X, U), rel=1e-12)
+
+
+def test_returned_gains_are_those_around_the_final_trajectory():
+    from hydroilqr.derivatives import linearize
+    from hydroilqr.ilqr import backward_pass
+
+    task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=4"])
+    sol = solve(task)
+    assert sol.eps[-1] > 0
+    s = task.config.solver
+    A, B = linearize(task.dynamics, sol.X, sol.U, s.derivatives, rollout=True)
+    bp = backward_pass(
+        A, B, task.cost.quadratize(sol.X, sol.U, 0.0), max(sol.mu[-1], s.regularization_min)
+    )
+    np.testing.assert_allclose(sol.K, bp.K, rtol=1e-9, atol=1e-12)
+
+
+def test_full_steps_lower_mu():
+    task = Task.load("kinova-forward", ["num_steps=20", "solver.max_iterations=6"])
+    sol = solve(task)
+    s = task.config.solver
+    mus = [s.regularization_init, *sol.mu]
+    full = [i for i, e in enumerate(sol.eps) if e >= s.short_step]
+    assert full
+    for i in full:
+        assert mus[i + 1] < mus[i] or mus[i + 1] == s.regularization_min

@@ -123,3 +123,19 @@ def test_shrinking_horizon_longer_than_task_is_a_config_error():
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="shrinking horizon"):
         run_mpc(task, MPCSettings.from_task(task, duration=1.0))
+
+
+def test_interval_interpolates_linearly_between_keypoints():
+    from hydroilqr.derivatives import keypoints, linearize
+
+    task = Task.load("cartpole-wall", ["horizon=0.6"])
+    dyn = task.dynamics
+    U = np.zeros((task.steps, dyn.nu))
+    X = dyn.rollout(task.x0, U)
+    A1, _ = linearize(dyn, X, U, "forward")
+    Ai, _ = linearize(dyn, X, U, "forward", interval=4, rollout=True)
+    keys = keypoints(dyn, X, task.steps, 4, False)
+    k0, k1 = keys[0], keys[1]
+    for k in range(k0 + 1, k1):
+        s = (k - k0) / (k1 - k0)
+        np.testing.assert_allclose(Ai[k], (1 - s) * A1[k0] + s * A1[k1], rtol=1e-12, atol=1e-12)

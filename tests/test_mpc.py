@@ -257,3 +257,52 @@ def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
     assert main([*argv, "--truth-set", "wall.xyz=[-0.42, 0, 0]"]) == 0
     metrics = json.loads((out / "mpc.json").read_text())["metrics"]
     assert metrics["wall_contact_steps"] > 0  # the controller's own wall is never touched
+
+
+def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
+    from hydroilqr.mpc import MPCSettings, run_mpc
+
+    task = Task.load("cartpole-wall")
+    ang = task.dynamics.layout.block("pole_angle").coords[0]
+    kw = dict(duration=0.5, rate=50.0, horizon=0.3, truth_overrides=["plant.gravity=[0, 0, -12]"])
+    fb = run_mpc(task, MPCSettings(**kw))
+    ff = run_mpc(task, MPCSettings(feedback_scale=0.0, **kw))
+    assert np.abs(fb.X[:, ang] - np.pi).mean() < np.abs(ff.X[:, ang] - np.pi).mean()
+    nowarm = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
+    assert not np.array_equal(nowarm.X, fb.X)
+
+
+def test_realtime_latency_is_felt():
+    from hydroilqr.mpc import MPCSettings, run_mpc
+
+    task = Task.load("cartpole-wall")
+    kw = dict(duration=0.3, rate=50.0, horizon=0.2)
+    lock = run_mpc(task, MPCSettings(**kw))
+    rt = run_mpc(task, MPCSettings(realtime=True, **kw))
+    assert not np.array_equal(rt.X, lock.X)
+
+
+def test_mpc_applies_the_plan_policy(monkeypatch):
+    from hydroilqr import mpc
+    from hydroilqr.mpc import MPCSettings, run_mpc
+
+    plans = []
+    real = mpc.Controller.update
+
+    def spy(self, x, t, *a, **k):
+        out = real(self, x, t, *a, **k)
+        plans.append(out[0])
+        return out
+
+    monkeypatch.setattr(mpc.Controller, "update", spy)
+    task = Task.load("cartpole-wall")
+    res = run_mpc(
+        task,
+        MPCSettings(
+            duration=0.1, rate=50.0, horizon=0.2, truth_overrides=["plant.gravity=[0, 0, -12]"]
+        ),
+    )
+    p = plans[0]  # the first plan is in force for steps 0 and 1
+    dx = res.X[1] - p.X[1]
+    assert np.abs(dx).max() > 0 and np.abs(p.K[1]).max() > 0
+    np.testing.assert_allclose(res.U[1], p.U[1] - p.K[1] @ dx)

@@ -134,3 +134,25 @@ def test_pd_loop_runs_at_the_rate_it_reports_and_the_api_checks_settings(run_dir
     assert gaps <= {4} and r.metrics["pd_loop_rate_hz"] == pytest.approx(250.0)
     with pytest.raises(ConfigError, match="playback sets it with --truth-time-step"):
         playback(task, sol, PlaybackSettings(truth_overrides=["plant.time_step=0.01"]))
+
+
+def test_ilqr_playback_applies_feedback(run_dir):
+    from hydroilqr.playback import PlaybackSettings, load_run, playback
+
+    task, sol, _ = load_run(run_dir)
+    r = playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0, truth_time_step=0.002))
+    dx = r.X[5] - sol.X[1]  # 0.01 s: plan step 1, the truth has drifted from the plan
+    assert np.abs(dx).max() > 0
+    np.testing.assert_allclose(r.U[5], sol.U[1] - sol.K[1] @ dx)
+
+
+def test_pd_law_uses_kp_and_kd(run_dir):
+    from hydroilqr.playback import PlaybackSettings, load_run, playback
+
+    task, sol, _ = load_run(run_dir)
+    st = PlaybackSettings(speed=1.0, truth_time_step=0.002)
+    r = playback(task, sol, st)
+    ref, k = r.reference, 10  # tau = 0.02 s: reference row 1
+    qi, vi = r.q_indices, r.v_indices
+    u = ref.u[1] - st.kp * (r.X[k, qi] - ref.q[1]) - st.kd * (r.X[k, vi] - ref.v[1])
+    np.testing.assert_allclose(r.U[k], u)
