@@ -306,3 +306,14 @@ def test_mpc_applies_the_plan_policy(monkeypatch):
     dx = res.X[1] - p.X[1]
     assert np.abs(dx).max() > 0 and np.abs(p.K[1]).max() > 0
     np.testing.assert_allclose(res.U[1], p.U[1] - p.K[1] @ dx)
+
+
+def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
+    from hydroilqr.mpc import Truth
+
+    task = Task.load("kinova-forward", smoke=True)
+    truth = Truth(task)
+    limits = truth.limits
+    assert np.all(np.isfinite(limits)) and np.all(limits > 0)
+    _, u = truth.step(task.x0, 3.0 * limits, 0, [])
+    np.testing.assert_array_equal(u, limits)
