@@ -317,3 +317,23 @@ def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
     assert np.all(np.isfinite(limits)) and np.all(limits > 0)
     _, u = truth.step(task.x0, 3.0 * limits, 0, [])
     np.testing.assert_array_equal(u, limits)
+
+
+def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
+    from hydroilqr import mpc
+    from hydroilqr.plant import SimulationError
+
+    real, calls = mpc.ilqr_solve, []
+
+    def third_fails(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise SimulationError("this update's solve failed")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mpc, "ilqr_solve", third_fails)
+    res = run_mpc(Task.load("cartpole-wall"), MPCSettings(duration=0.1, rate=50.0, horizon=0.2))
+    assert res.failures == 1
+    assert len(res.derivative_steps) == len(res.reused_prediction) == len(res.solve_seconds)
+    assert np.isnan(res.derivative_steps).sum() == 1
+    assert all(np.isfinite(v) for v in res.stats()["phase_seconds_mean"].values())

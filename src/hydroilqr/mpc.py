@@ -233,7 +233,7 @@ class MPCResult:
     wall_seconds: float
     settings: MPCSettings
     failure: str = ""  # set when the simulated plant failed (the run stops there)
-    derivative_steps: list[int] = field(default_factory=list)  # differentiated, per update
+    derivative_steps: list[float] = field(default_factory=list)  # per update (NaN: failed)
     reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
     phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
     interrupted: bool = False  # stopped by Ctrl+C before the end
@@ -243,6 +243,8 @@ class MPCResult:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
         sim = float(self.t[-1] - self.t[0])
         period = 1.0 / self.settings.rate
+        solved = [ph for ph in self.phases if np.all(np.isfinite(list(ph.values())))]
+        steps = [n for n in self.derivative_steps if np.isfinite(n)]
         return {
             "duration_s": sim,
             "updates": len(self.solve_seconds),
@@ -275,14 +277,12 @@ class MPCResult:
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
             # Mean seconds per update in each solver phase (rollout, derivatives, ...).
-            "phase_seconds_mean": {
-                p: float(np.mean([ph.get(p, 0.0) for ph in self.phases])) for p in PHASES
+            "phase_seconds_mean": {  # over the updates whose solve did not fail
+                p: float(np.mean([ph.get(p, 0.0) for ph in solved])) for p in PHASES
             }
-            if self.phases
+            if solved
             else {},
-            "derivative_steps_per_update_mean": (
-                float(np.mean(self.derivative_steps)) if self.derivative_steps else 0.0
-            ),
+            "derivative_steps_per_update_mean": float(np.mean(steps)) if steps else 0.0,
             "truth_overrides": list(self.settings.truth_overrides),
             "warm_start_plan": self.settings.warm_start_plan,
             "pushes": [
@@ -347,7 +347,7 @@ class Controller:
             settings.derivative_reuse_tolerance,
             settings.derivative_steps_per_update,
         )
-        self.derivative_steps: list[int] = []  # steps differentiated, per update
+        self.derivative_steps: list[float] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one
         self.phases: list[dict[str, float]] = []  # seconds per solver phase, per update
         self.past_deadline = 0  # updates whose line search the deadline cut short
@@ -409,6 +409,9 @@ class Controller:
                 deadline=deadline,
             )
         except SimulationError:
+            # Per-update lists stay aligned: a failed update's breakdown is unknown (NaN).
+            self.derivative_steps.append(math.nan)
+            self.phases.append(dict.fromkeys(PHASES, math.nan))
             return self._failed(U_before)
         finally:
             lin.reuse_tolerance, lin.max_steps = keep
