@@ -245,3 +245,11 @@ def test_continuation_stage_solves_its_model_and_seeds_the_next():
     assert st[0]["final_cost"] == ref0.final_cost
     X = staged.dynamics.rollout(staged.x0, ref0.U)
     assert st[1]["start_cost"] == pytest.approx(staged.cost.total(X, ref0.U), rel=1e-12)
+
+
+def test_a_continuation_reports_the_initial_cost_on_the_task_model():
+    task = Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=2")
+    staged = task.with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
+    U0 = staged.initial_guess(staged.steps)
+    own = staged.cost.total(staged.dynamics.rollout(staged.x0, U0), U0)
+    assert solve(staged).stats()["initial_cost"] == pytest.approx(own, rel=1e-12)

@@ -156,3 +156,43 @@ def test_pd_law_uses_kp_and_kd(run_dir):
     qi, vi = r.q_indices, r.v_indices
     u = ref.u[1] - st.kp * (r.X[k, qi] - ref.q[1]) - st.kd * (r.X[k, vi] - ref.v[1])
     np.testing.assert_allclose(r.U[k], u)
+
+
+def test_replay_frames_use_the_solved_inputs_and_the_nearest_state(monkeypatch, tmp_path):
+    from hydroilqr import replay
+
+    real_build = replay.build_diagram
+    fixed = []
+
+    class Port:
+        def __init__(self, port):
+            self.port = port
+
+        def FixValue(self, context, value):
+            fixed.append(np.array(value, dtype=float))
+            return self.port.FixValue(context, value)
+
+    class Diagram:
+        def __init__(self, diagram):
+            self.diagram = diagram
+
+        def get_input_port(self, i):
+            return Port(self.diagram.get_input_port(i))
+
+        def __getattr__(self, name):
+            return getattr(self.diagram, name)
+
+    def build(*args, **kwargs):
+        scene = real_build(*args, **kwargs)
+        scene.diagram = Diagram(scene.diagram)
+        return scene
+
+    monkeypatch.setattr(replay, "build_diagram", build)
+    task = Task.load("cartpole-wall", ["num_steps=9"])
+    t = np.arange(10) * 0.01
+    U = np.arange(9, dtype=float)[:, None] + 1.0  # u_k = k + 1
+    X = task.dynamics.rollout(task.x0, U)
+    replay.write_replay(task, X, t, tmp_path / "r.html", fps=100.0 / 3.0, inputs=U)
+    # frames every 0.03 s; each shows the nearest state x_k with its own input u_k
+    # (u_8 for the last state, which has none)
+    assert [float(u[0]) for u in fixed] == [1.0, 4.0, 7.0, 9.0]

@@ -128,3 +128,32 @@ def test_negative_values_after_values_flag():
     argv = ["sweep", "t", "--param", "k", "--values", "-5,1e6", "--param", "j", "--values", "1,2"]
     assert _join_negative_values(argv)[4:6] == ["--values=-5,1e6", "--param"]
     assert _join_negative_values(argv)[-2:] == ["--values", "1,2"]
+
+
+def test_sweep_plot_legend_names_markers_of_any_series(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from hydroilqr.sweep import plot_sweep
+
+    legends = []
+    real = matplotlib.figure.Figure.savefig
+
+    def spy(fig, *args, **kwargs):
+        for ax in fig.axes:
+            if ax.get_legend() is not None:
+                legends.append([t.get_text() for t in ax.get_legend().get_texts()])
+        return real(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", spy)
+    a, b = "tip.hydroelastic_modulus", "solver.regularization_min"
+
+    def row(x, y, **kw):
+        base = {f"param:{a}": x, f"param:{b}": y, "status": "ok", "final_cost": 1.0 + x / 10}
+        base.update({"max_overlap_m": 0.001, "tunnelled": False, "converged": True})
+        return {**base, **kw}
+
+    rows = [row(1.0, 0.1), row(2.0, 0.1), row(1.0, 0.2, tunnelled=True)]
+    rows += [row(2.0, 0.2, converged=False), row(3.0, 0.2, status="failed")]
+    plot_sweep(tmp_path / "s.png", "t", [a, b], rows, [[1.0, 2.0, 3.0], [0.1, 0.2]])
+    names = set().union(*map(set, legends))
+    assert {"tunnelled", "not converged", "failed"} <= names

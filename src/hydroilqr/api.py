@@ -81,6 +81,13 @@ def solve(
         elif np.shape(U0)[:1] != (N,):
             raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
         parts = []
+        task_initial_cost = None
+        if stages:  # the guess's cost on the task's own model (the stages' costs are theirs)
+            try:
+                X0 = task.dynamics.rollout(np.asarray(task.x0 if x0 is None else x0, float), U0)
+                task_initial_cost = task.cost.total(X0, U0)
+            except SimulationError:
+                pass
         for i, stage in enumerate(stages):  # continuation: each stage warm-starts the next
             try:
                 sol = ilqr_solve(
@@ -103,7 +110,7 @@ def solve(
                     task.problem(x0=x0), U0, task.config.solver, max_iterations=0
                 )
                 task_part.reason = sol.reason
-                return _join(task, parts + [task_part])
+                return _join(task, parts + [task_part], task_initial_cost)
         parts.append(
             ilqr_solve(
                 task.problem(x0=x0),
@@ -113,7 +120,7 @@ def solve(
                 stop_on_interrupt=stop_on_interrupt,
             )
         )
-        return _join(task, parts) if len(parts) > 1 else parts[0]
+        return _join(task, parts, task_initial_cost) if len(parts) > 1 else parts[0]
     finally:
         task.config.solver = saved
         for st, s in zip(stages, stage_saved):
@@ -132,7 +139,7 @@ def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> Solver
     return settings
 
 
-def _join(task: Task, parts: list[Solution]) -> Solution:
+def _join(task: Task, parts: list[Solution], task_initial_cost: float | None = None) -> Solution:
     """One Solution from continuation stages: the last stage's trajectory, gains and stop
     reason; the iteration histories of all stages in order (so times count every stage; each
     stage's costs are of its own model), and ``extra["continuation"]`` per stage."""
@@ -168,5 +175,9 @@ def _join(task: Task, parts: list[Solution]) -> Solution:
         derivatives=last.derivatives,
         eps=[e for p in parts for e in p.eps],
         mu=[m for p in parts for m in p.mu],
-        extra={**last.extra, "continuation": stages},
+        extra={
+            **last.extra,
+            "continuation": stages,
+            **({"task_initial_cost": task_initial_cost} if task_initial_cost is not None else {}),
+        },
     )

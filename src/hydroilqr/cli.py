@@ -216,7 +216,7 @@ def cmd_solve(args) -> int:
         if args.no_replay:  # the replay (published to the live page as it is written) is due
             from .replay import write_replay
 
-            write_replay(task, sol.X, sol.t, out / "replay.html")
+            write_replay(task, sol.X, sol.t, out / "replay.html", inputs=sol.U)
         console.print("serving the replay on the live page above; press Ctrl+C to stop")
         try:
             while True:

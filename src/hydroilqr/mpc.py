@@ -831,7 +831,7 @@ def cmd_mpc(args) -> int:
     if not args.no_replay:
         from .replay import write_replay
 
-        write_replay(task, res.X, res.t, out / "mpc.html")
+        write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
     elif (out / "mpc.html").exists():
         (out / "mpc.html").unlink()  # an earlier run's replay would pass for this one's
     s = stats["solve_seconds"]

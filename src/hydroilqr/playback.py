@@ -161,6 +161,7 @@ class PlaybackResult:
     obj: ObjectSpec
     metrics: dict
     wall_seconds: float
+    U_plan: np.ndarray | None = None  # [T, nu] the plan's input at plan time speed·t
 
 
 # ------------------------------------------------------------------------------------------
@@ -424,6 +425,7 @@ def playback(
 
     t = np.arange(n + 1) * dt
     X_plan = np.array([plan.state(s * tk) for tk in t])
+    U_plan = np.array([plan.input(s * tk) for tk in t[:-1]])
     reference = Reference(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
@@ -439,6 +441,7 @@ def playback(
         X=X,
         U=U,
         X_plan=X_plan,
+        U_plan=U_plan,
         reference=reference,
         joints=joint_names,
         joint_units=units,
@@ -697,7 +700,7 @@ def write_replay(task, r: PlaybackResult, path: Path) -> None:
     playback speed."""
     from . import replay
 
-    replay.write_replay(task, [r.X, r.X_plan], r.t, path)
+    replay.write_replay(task, [r.X, r.X_plan], r.t, path, inputs=[r.U, r.U_plan])
 
 
 def write_outputs(

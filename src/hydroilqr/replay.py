@@ -36,10 +36,16 @@ def camera_for(task):
     return np.array([0.0, -3.0, 1.0]), np.array([0.0, 0.0, 0.3])
 
 
-def write_replay(task, trajectories, t: np.ndarray, path: str | Path, fps: float = 30.0) -> Path:
-    """trajectories: X [T, nx] or a list of them (drawn in turn). t: [T] seconds."""
+def write_replay(
+    task, trajectories, t: np.ndarray, path: str | Path, fps: float = 30.0, inputs=None
+) -> Path:
+    """trajectories: X [T, nx] or a list of them (drawn in turn). t: [T] seconds.
+    inputs: U [T-1, nu] (or a list, one per trajectory; None: zero input), the actuation each
+    frame's contact forces are computed with (a discrete step's forces depend on u_k)."""
     if isinstance(trajectories, np.ndarray):
         trajectories = [trajectories]
+    if inputs is None or isinstance(inputs, np.ndarray):
+        inputs = [inputs] * len(trajectories)
     meshcat = meshcat_instance()
     meshcat.Delete()
     meshcat.DeleteRecording()
@@ -47,9 +53,8 @@ def write_replay(task, trajectories, t: np.ndarray, path: str | Path, fps: float
     diagram, plant = scene.diagram, scene.plant
     context = diagram.CreateDefaultContext()
     plant_context = plant.GetMyMutableContextFromRoot(context)
-    diagram.get_input_port(scene.actuation_port).FixValue(
-        context, np.zeros(plant.num_actuated_dofs())
-    )
+    actuation = diagram.get_input_port(scene.actuation_port)
+    zero = np.zeros(plant.num_actuated_dofs())
     pos, target = camera_for(task)
     meshcat.SetCameraPose(pos, target)
     vis = scene.visualizers[0]
@@ -57,9 +62,14 @@ def write_replay(task, trajectories, t: np.ndarray, path: str | Path, fps: float
     T = t[-1] - t[0] if len(t) > 1 else 1.0
     frames = max(2, int(T * fps) + 1)
     offset = 0.0
-    for X in trajectories:  # shown one after another, with a short pause between
+    for X, U in zip(trajectories, inputs):  # one after another, with a short pause between
         for tf in np.linspace(t[0], t[-1], frames):
+            # the state nearest the frame's time (not the next one)
             k = int(np.clip(np.searchsorted(t, tf), 0, len(t) - 1))
+            if k > 0 and tf - t[k - 1] < t[k] - tf:
+                k -= 1
+            u = zero if U is None or len(U) == 0 else U[min(k, len(U) - 1)]
+            actuation.FixValue(context, np.asarray(u, dtype=float))
             context.SetTime(float(tf - t[0] + offset))
             plant.SetPositionsAndVelocities(plant_context, X[k])
             try:

@@ -66,7 +66,20 @@ def plot_convergence(sol, path: Path, title: str) -> None:
     c = np.asarray(sol.costs, float)
     ax.semilogy(np.arange(len(c)), np.maximum(c, 1e-300), "o-", ms=3)
     windows = "resolves" in sol.extra  # receding horizon: one window's costs after another
-    ax.set_xlabel("iteration (all windows, each with its own cost)" if windows else "iteration")
+    stages = sol.extra.get("continuation") or []
+    if stages:  # continuation: each stage on its own model; mark where the next one starts
+        start = 0
+        for i, st in enumerate(stages[:-1]):
+            start += st["iterations"]
+            ax.axvline(start, color="0.5", ls=":", lw=1)
+            nxt = stages[i + 1]["start_cost"]
+            ax.plot([start], [max(nxt, 1e-300)], "o", mfc="none", mec="C0", ms=6)
+    label = "iteration"
+    if windows:
+        label = "iteration (all windows, each with its own cost)"
+    elif stages:
+        label = "iteration (continuation stages, each on its own model)"
+    ax.set_xlabel(label)
     ax.set_ylabel("cost")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
@@ -100,7 +113,7 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
     if replay:
         from .replay import write_replay
 
-        write_replay(task, sol.X, sol.t, out / "replay.html")
+        write_replay(task, sol.X, sol.t, out / "replay.html", inputs=sol.U)
     return summary
 
 

@@ -81,7 +81,8 @@ class Solution:
             "reason": self.reason,
             "iterations": self.iterations,
             "final_cost": self.final_cost,
-            "initial_cost": float(self.costs[0]),
+            # a continuation's first cost is its first stage model's: the task's own is kept
+            "initial_cost": float(self.extra.get("task_initial_cost", self.costs[0])),
             "costs": [float(c) for c in self.costs],
             "iteration_seconds": [float(s) for s in self.iteration_seconds],
             "phase_seconds": {k: [float(x) for x in v] for k, v in self.phase_seconds.items()},

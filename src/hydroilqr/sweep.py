@@ -379,6 +379,14 @@ def plot_sweep(
     )
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, metric in zip(axes[:, 0], panels):
+        labelled: set[str] = set()  # each marker kind in the legend once, whichever series
+
+        def once(kind: str, labelled=labelled) -> str | None:
+            if kind in labelled:
+                return None
+            labelled.add(kind)
+            return kind
+
         for j, (ov, rs) in enumerate(series):
             ok = sorted((r for r in rs if r.get("status") == "ok"), key=lambda r: r[f"param:{key}"])
             xs = [r[f"param:{key}"] for r in ok]
@@ -394,7 +402,7 @@ def plot_sweep(
                     color="red",
                     ms=11,
                     mew=2.5,
-                    label="tunnelled" if j == 0 else None,
+                    label=once("tunnelled"),
                 )
             nconv = [
                 (x, y) for x, y, r in zip(xs, ys, ok) if not r.get("converged") and y is not None
@@ -406,13 +414,11 @@ def plot_sweep(
                     mfc="none",
                     mec="k",
                     ms=10,
-                    label="not converged" if j == 0 else None,
+                    label=once("not converged"),
                 )
             bad = [r[f"param:{key}"] for r in rs if r.get("status") != "ok"]
-            for i, x in enumerate(bad):
-                ax.axvline(
-                    x, color="gray", ls=":", lw=1.2, label="failed" if (i == 0 and j == 0) else None
-                )
+            for x in bad:
+                ax.axvline(x, color="gray", ls=":", lw=1.2, label=once("failed"))
         ax.set_ylabel(labels.get(metric, metric))
         if metric == "final_cost":
             costs = [r.get("final_cost") for r in rows if r.get("status") == "ok"]
