@@ -581,3 +581,12 @@ def test_a_weld_names_a_frame_of_its_own_model(tmp_path, capsys):
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "models[1].weld.child: unknown frame 'arm'")
+
+
+def test_check_names_a_deep_initial_overlap_even_when_the_rollout_survives(capsys):
+    deep = "initial_state.ball_position=[0.4, 0, 0.06]"  # 4 cm into the floor
+    rc = cli.main(["check", "kinova-forward", "--set", deep])
+    out = capsys.readouterr().out
+    assert rc == 0 and "ball_collision (ball) and ground (world) overlap by 40 mm" in out
+    assert cli.main(["check", "kinova-forward"]) == 0  # resting 1.6 mm deep: no warning
+    assert "overlap by" not in capsys.readouterr().out

@@ -29,7 +29,9 @@ from .plant import SimulationError, hydroelastic_kind
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
-DEEP_OVERLAP = 0.005  # m: an initial overlap this deep is reported with a failed rollout
+DEEP_OVERLAP = 0.005  # m: an initial overlap this deep is reported with a failed rollout,
+LAUNCH_SPEED = 5.0  # or with a rollout that flings something faster than this
+VERY_DEEP_OVERLAP = 0.02  # m: reported in any case (a resting foot or ball sinks a few mm)
 BLOWUP_SPEED = 100.0
 
 
@@ -285,17 +287,20 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     x1 = dyn.step(x0, U[0])  # raises SimulationError with Drake's reason
     step_ms = 1e3 * (time.perf_counter() - tic)
     tic = time.perf_counter()
+    deep = sorted(
+        (p for p in pairs if p["distance"] is not None and p["distance"] < -DEEP_OVERLAP),
+        key=lambda p: p["distance"],
+    )
+    overlap = (
+        f"at x0 {deep[0]['a']} and {deep[0]['b']} overlap by {-1e3 * deep[0]['distance']:.3g} "
+        "mm: check initial_state; a free body not named there starts at the world origin"
+        if deep
+        else ""
+    )
     try:
         X = dyn.rollout(x0, U)
     except SimulationError as e:
-        deep = [p for p in pairs if p["distance"] is not None and p["distance"] < -DEEP_OVERLAP]
-        hint = (
-            f" (at x0 {deep[0]['a']} and {deep[0]['b']} overlap by "
-            f"{-1e3 * deep[0]['distance']:.3g} mm: check initial_state; a free body not named "
-            "there starts at the world origin)"
-            if deep
-            else ""
-        )
+        hint = f" ({overlap})" if deep else ""
         raise SimulationError(
             f"rollout of the initial guess ({cfg.initial_guess}): {e}{hint}"
         ) from None
@@ -315,7 +320,11 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         f"initial guess ({cfg.initial_guess}) ok, {rollout_ms:.2f} ms/step, "
         f"max |v| = {speed:.3g}"
     )
-    if speed > BLOWUP_SPEED:
+    if deep and speed > LAUNCH_SPEED:  # a body pushed out of a deep overlap
+        warn(f"the initial-guess rollout reaches |v| = {speed:.3g}; {overlap}")
+    elif deep and -deep[0]["distance"] > VERY_DEEP_OVERLAP:
+        warn(overlap)
+    elif speed > BLOWUP_SPEED:
         warn(
             f"the initial-guess rollout reaches |v| = {speed:.3g} (> {BLOWUP_SPEED:g}): "
             "check masses, the time step and initial penetrations"

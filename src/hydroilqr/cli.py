@@ -101,6 +101,7 @@ def cmd_tasks(args) -> int:
 
 def cmd_solve(args) -> int:
     from . import api, receding, report
+    from . import metrics as metrics_mod
 
     extra = []
     if args.derivatives:
@@ -184,11 +185,8 @@ def cmd_solve(args) -> int:
     summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
     summary["wall_seconds"] = wall
     report.write_json(out / "summary.json", summary)
-    m = summary["metrics"]
-    shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
-    console.print(
-        "metrics: " + ", ".join(f"{k}={_fmt(v)}" for k, v in shown.items()), soft_wrap=True
-    )
+    for line in metrics_mod.summary_lines(summary["metrics"]):
+        console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
@@ -240,10 +238,6 @@ def _clear_previous(out: Path, keep: tuple[str, ...] = ()) -> None:
             shutil.rmtree(p)
         else:
             p.unlink()
-
-
-def _fmt(v) -> str:
-    return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
 def cmd_check(args) -> int:

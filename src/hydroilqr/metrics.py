@@ -152,3 +152,16 @@ def cartpole_wall(task, sol) -> dict:
         "wall_contact_steps": int(steps),
         "tunnelled": tunnelled,
     }
+
+
+def summary_lines(m: dict) -> list[str]:
+    """Console lines for a metrics dict: its scalars, then the final error per Qf block."""
+    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
+    shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
+    lines = ["metrics: " + ", ".join(f"{k}={fmt(v)}" for k, v in shown.items())]
+    if m.get("final_error"):
+        lines.append(
+            "final error |x_N - x_nom| per Qf block: "
+            + ", ".join(f"{k}={fmt(v)}" for k, v in m["final_error"].items())
+        )
+    return lines

@@ -841,14 +841,8 @@ def cmd_mpc(args) -> int:
         f"{stats['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{stats['realtime_factor']:.2f}"
     )
-    shown = {k: v for k, v in task_metrics.items() if not isinstance(v, (dict, list))}
-    console.print(
-        "metrics: "
-        + ", ".join(
-            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in shown.items()
-        ),
-        soft_wrap=True,  # one line: a terminal wraps it, a log keeps it whole
-    )
+    for line in metrics.summary_lines(task_metrics):
+        console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     console.print(
         f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
     )

@@ -677,7 +677,7 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     qi = r.q_indices
     for i, name in enumerate(r.joints):
         ax.plot(r.t, r.X[:, qi[i]] - r.X_plan[:, qi[i]], lw=1, label=name)
-    ax.set_ylabel("joint error\n(actual − plan, rad or m)")
+    ax.set_ylabel("joint error\n(actual − plan)")
     ax.set_xlabel("playback time [s]")
     ax.grid(alpha=0.3)
     if 1 < len(r.joints) <= 12:

@@ -216,7 +216,11 @@ class StateLayout:
             if np.ndim(value) == 0 and b.kind != "quaternion":
                 vals = np.full(n, vals[0])
             if vals.size != n:
-                want = f"{n} values" if b.kind == "quaternion" else f"a number or {n} values"
+                want = (
+                    "4 values, a quaternion [w, x, y, z]"
+                    if b.kind == "quaternion"
+                    else f"a number or {n} values"
+                )
                 raise ConfigError(f"{key}.{name}: expected {want}, got {vals.size}")
             if not np.all(np.isfinite(vals)):
                 raise ConfigError(f"{key}.{name}: values must be finite")
