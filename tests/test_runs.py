@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 import yaml
 
-from hydroilqr import Solution, cli
+from hydroilqr import Solution, Task, cli, solve
 
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 TASK = {
@@ -140,3 +141,41 @@ def test_a_run_directory_loads_as_a_solution_and_playback_wants_the_directory(tm
     (out / "solution.npz").write_text("not an npz")
     assert cli.main(["playback", str(out)]) == 2
     assert "cannot read" in capsys.readouterr().err
+
+
+def test_one_run_per_output_directory_at_a_time(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    from hydroilqr.config import ConfigError
+    from hydroilqr.report import output_dir
+
+    out = tmp_path / "shared"
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from hydroilqr.report import output_dir; "
+            f"output_dir({str(out)!r}, 'cartpole-wall'); print('locked', flush=True); "
+            "time.sleep(60)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(ConfigError, match="in use by another hydroilqr run"):
+            output_dir(out, "cartpole-wall")
+    finally:
+        holder.kill()
+        holder.wait()
+    time.sleep(0.1)
+    assert output_dir(out, "cartpole-wall") == out  # released when its process ended
+    assert output_dir(out, "cartpole-wall") == out  # and this process may ask again
+
+
+def test_solution_files_are_written_whole(tmp_path):
+    task = Task.load("cartpole-wall", ["num_steps=5", "solver.max_iterations=1"])
+    path = solve(task).save(tmp_path / "s")
+    assert path.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]

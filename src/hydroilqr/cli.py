@@ -123,6 +123,10 @@ def cmd_solve(args) -> int:
     restart = False
     if ck.exists() and not resume_dir:
         if not receding.finished_run(out):
+            try:
+                receding.load_checkpoint(task, out)
+            except ConfigError:  # torn, or from other arguments: --resume cannot help; say why
+                raise
             raise ConfigError(
                 f"{out} holds the checkpoint of an unfinished run: pass --resume {out} to "
                 "continue it, or choose another --out"
@@ -388,6 +392,12 @@ def main(argv: list[str] | None = None) -> int:
         detail = f": {e}" if str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
+    except OSError as e:  # e.g. a full disk or a directory made read-only during the run
+        if os.environ.get("HYDROILQR_DEBUG"):
+            raise
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"hydroilqr: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 1
     except Exception as e:  # noqa: BLE001 - the promise is one line, never a traceback
         if os.environ.get("HYDROILQR_DEBUG"):
             raise

@@ -818,7 +818,10 @@ def cmd_mpc(args) -> int:
         "metrics": task_metrics,
         "environment": report.environment(),
     }
-    report.write_json(out / "mpc.json", data)
+    # An earlier run's files go first; mpc.json, written last, marks a complete set (an
+    # interrupted write never leaves this run's files beside an earlier run's).
+    for name in ("mpc.json", "mpc.npz", "mpc.png", "mpc.html"):
+        (out / name).unlink(missing_ok=True)
     np.savez_compressed(
         out / "mpc.npz",
         X=res.X,
@@ -832,8 +835,7 @@ def cmd_mpc(args) -> int:
         from .replay import write_replay
 
         write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
-    elif (out / "mpc.html").exists():
-        (out / "mpc.html").unlink()  # an earlier run's replay would pass for this one's
+    report.write_json(out / "mpc.json", data)
     s = stats["solve_seconds"]
     console.print(
         f"rate {stats['achieved_rate_hz']:.1f} Hz, solve p50 {1e3 * s['p50']:.1f} ms, "

@@ -122,7 +122,9 @@ def load_checkpoint(task, directory: str | Path) -> dict:
     try:
         st = _load(ck)
     except Exception as e:  # torn or foreign file
-        raise ConfigError(f"{ck}: not a readable checkpoint ({type(e).__name__})") from None
+        raise ConfigError(
+            f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
+        ) from None
     if st.get("fingerprint", fingerprint(task.config)) != fingerprint(task.config):
         raise ConfigError(
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
@@ -188,7 +190,7 @@ def _save(path: Path, st: dict) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
     keys = ("done", "costs", "iteration_seconds", "phase_seconds", "resolves", "fingerprint")
     meta = {k: st[k] for k in keys if k in st}
-    tmp = path.with_name(path.name + ".tmp.npz")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
     np.savez(
         tmp,
         X=st["X"],

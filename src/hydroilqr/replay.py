@@ -81,5 +81,7 @@ def write_replay(
     vis.PublishRecording()
     html = meshcat.StaticHtml()
     path = Path(path)
-    path.write_text(html)
+    tmp = path.with_name(f".{path.name}.tmp")  # atomic: a full disk leaves no torn replay
+    tmp.write_text(html)
+    tmp.replace(path)
     return path

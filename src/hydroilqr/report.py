@@ -167,7 +167,45 @@ def output_dir(out: str | Path, task_name: str | None = None) -> Path:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ConfigError(f"--out {out}: {e.strerror}") from None
+    _lock(out)
     return out
+
+
+_LOCKS: dict[str, int] = {}  # directory -> open lock file, held until this process ends
+
+
+def _lock(out: Path) -> None:
+    """One run per output directory at a time: an flock on ``out/.hydroilqr.lock``, held for
+    the life of this process (the system releases it when the process ends, even by kill -9).
+    Also proves the directory is writable before any work is done."""
+    import fcntl
+    import os
+
+    from .config import ConfigError
+
+    key = str(Path(out).resolve())
+    if key in _LOCKS:
+        return
+    path = Path(out) / ".hydroilqr.lock"
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        try:
+            other = path.read_text().strip()
+        except OSError:
+            other = ""
+        who = f" (process {other})" if other else ""
+        raise ConfigError(
+            f"{out} is in use by another hydroilqr run{who}: wait for it or choose another --out"
+        ) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    _LOCKS[key] = fd
 
 
 def solve_outputs(out: Path) -> list[Path]:

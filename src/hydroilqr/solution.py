@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -99,8 +100,9 @@ class Solution:
             path = path / "solution.npz"
         elif path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")  # atomic: never torn
         np.savez_compressed(
-            path,
+            tmp,
             X=self.X,
             U=self.U,
             K=self.K,
@@ -111,6 +113,7 @@ class Solution:
                 json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu, "extra": self.extra})
             ),
         )
+        os.replace(tmp, path)
         return path
 
     @staticmethod

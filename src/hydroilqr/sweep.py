@@ -27,6 +27,7 @@ import io
 import json
 import math
 import os
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -604,17 +605,28 @@ def _open_client(scheduler: str | None, workers: int | None):
         except (OSError, TimeoutError, ValueError) as e:
             raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
         return client, None
+    import signal
+
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-        # The scheduler's HTTP routes still bind a port: any free one, so
-        # parallel sweeps do not warn about 8787 being taken.
-        scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-    )
+    # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
+    # process group) then reaches only this process, which stops the sweep and the cluster,
+    # instead of every worker printing its own KeyboardInterrupt traceback.
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    try:
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+            # The scheduler's HTTP routes still bind a port: any free one, so
+            # parallel sweeps do not warn about 8787 being taken.
+            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+        )
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGINT, previous)
     return Client(cluster), cluster
 
 
