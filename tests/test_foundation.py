@@ -478,3 +478,27 @@ def test_full_steps_lower_mu():
     assert full
     for i in full:
         assert mus[i + 1] < mus[i] or mus[i + 1] == s.regularization_min
+
+
+def test_ctrl_c_during_the_final_gains_keeps_the_solution_unconverged():
+    from hydroilqr.derivatives import Linearizer
+
+    task = Task.load("cartpole-wall", ["num_steps=20"])
+    s = SolverConfig(max_iterations=2, derivatives="forward")
+    inner, calls = Linearizer.from_settings(task.dynamics, s), []
+
+    class Interrupting:  # Ctrl+C arrives during the third linearization: the final gains
+        last_computed = 0
+
+        def __call__(self, X, U, rollout=True):
+            calls.append(1)
+            if len(calls) == 3:
+                raise KeyboardInterrupt
+            out = inner(X, U, rollout=rollout)
+            self.last_computed = inner.last_computed
+            return out
+
+    sol = ilqr_solve(
+        task.problem(), np.zeros((20, 1)), s, linearizer=Interrupting(), stop_on_interrupt=True
+    )
+    assert sol.reason == "interrupted" and not sol.converged and sol.iterations == 2

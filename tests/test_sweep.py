@@ -157,3 +157,16 @@ def test_sweep_plot_legend_names_markers_of_any_series(tmp_path, monkeypatch):
     plot_sweep(tmp_path / "s.png", "t", [a, b], rows, [[1.0, 2.0, 3.0], [0.1, 0.2]])
     names = set().union(*map(set, legends))
     assert {"tunnelled", "not converged", "failed"} <= names
+
+
+def test_an_older_sweeps_point_files_are_kept_under_the_current_id(tmp_path):
+    from hydroilqr.sweep import _adopt_older_point
+
+    old = point_id({KEY: 1000000}, {KEY: repr(1000000)})  # hashed as typed, before 2026-11-23
+    assert old != point_id({KEY: 1e6})
+    (tmp_path / f"{old}.json").write_text(json.dumps({"id": old, "status": "ok"}))
+    (tmp_path / f"{old}.npz").write_bytes(b"npz")
+    new = point_id({KEY: 1e6})
+    _adopt_older_point(tmp_path, {KEY: 1e6}, new)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{new}.json", f"{new}.npz"]
+    assert json.loads((tmp_path / f"{new}.json").read_text())["id"] == new

@@ -399,7 +399,8 @@ def solve(
         except KeyboardInterrupt:
             if not stop_on_interrupt:
                 raise
-            reason = "interrupted"  # the trajectory is complete; its gains are the last pass's
+            # the trajectory is complete; its gains are the last pass's
+            reason, converged = "interrupted", False
         elapsed = time.perf_counter() - t
         if iter_seconds:
             phases["derivatives"][-1] += elapsed

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -123,9 +124,7 @@ class Solution:
         path = solution_file(path)
         try:
             d = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            if isinstance(e, FileNotFoundError):
-                raise
+        except (ValueError, EOFError, zipfile.BadZipFile):  # OSErrors pass as they are
             raise ValueError(f"{path}: not a file written by Solution.save") from None
         with d:
             meta = json.loads(str(d["meta"]))

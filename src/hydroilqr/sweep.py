@@ -123,17 +123,51 @@ def _canonical(v: Any) -> Any:
     return v
 
 
-def point_id(values: dict[str, Any]) -> str:
-    """Stable file name for a point: readable prefix + hash of the exact values."""
-    # Numbers in one form: 1000000 and 1e6 build the same task, so they are the same point.
+def point_id(values: dict[str, Any], spelled: dict[str, str] | None = None) -> str:
+    """Stable file name for a point: readable prefix + hash of the exact values. ``spelled``:
+    the values' text as hashed (default: numbers in one form, since 1000000 and 1e6 build the
+    same task; sweeps before 2026-11-23 hashed ``repr`` of the value as typed)."""
     canon = json.dumps(
-        {k: repr(_canonical(v)) for k, v in values.items()},
+        spelled or {k: repr(_canonical(v)) for k, v in values.items()},
         sort_keys=True,
     )
     digest = hashlib.sha1(canon.encode()).hexdigest()[:10]
     label = "_".join(f"{k.split('.')[-1][:12]}{v:.4g}" for k, v in values.items())
     label = "".join(c if c.isalnum() or c in "._-+" else "-" for c in label)
     return f"{label}_{digest}"
+
+
+def _older_ids(values: dict[str, Any]) -> list[str]:
+    """The ids an older sweep gave these values (each number hashed as typed: int or float)."""
+    import itertools
+
+    forms = []
+    for v in values.values():
+        f = {repr(v)}
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            f.add(repr(float(v)))
+            if float(v).is_integer():
+                f.add(repr(int(v)))
+        forms.append(sorted(f))
+    keys = list(values)
+    ids = {point_id(values, dict(zip(keys, combo))) for combo in itertools.product(*forms)}
+    return sorted(ids - {point_id(values)})
+
+
+def _adopt_older_point(points_dir: Path, values: dict[str, Any], pid: str) -> None:
+    """Renames an older sweep's files for these values to the current id (kept, not redone)."""
+    if (points_dir / f"{pid}.json").exists():
+        return
+    for old in _older_ids(values):
+        r = load_point(points_dir, old)
+        if r is None:
+            continue
+        r["id"] = pid
+        if (points_dir / f"{old}.npz").exists():
+            os.replace(points_dir / f"{old}.npz", points_dir / f"{pid}.npz")
+        _atomic_text(points_dir / f"{pid}.json", json.dumps(r, indent=1))
+        (points_dir / f"{old}.json").unlink()
+        return
 
 
 # ------------------------------------------------------------------------------------------
@@ -218,7 +252,7 @@ def solve_point(
             status="ok" if math.isfinite(cost) else "failed",
             error="" if math.isfinite(cost) else "final cost is not finite",
             final_cost=cost,
-            initial_cost=float(sol.costs[0]),
+            initial_cost=float(sol.stats()["initial_cost"]),  # the task model's (continuation)
             iterations=sol.iterations,
             converged=bool(sol.converged),
             reason=sol.reason,
@@ -722,6 +756,7 @@ def run_sweep(
     rows: dict[str, dict] = {}
     todo: list[int] = []
     for i, pid in enumerate(ids):
+        _adopt_older_point(points_dir, points[i], pid)
         r = load_point(points_dir, pid)
         if r is not None and not (retry_failed and r.get("status") != "ok"):
             rows[pid] = r
