@@ -43,6 +43,56 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     # (in contact only if the smoke run touches the wall; test_foundation checks contact steps)
     assert acc["central"]["max"].get("compliant-rigid", 0.0) < 1e-4
     assert set(r["threads"]["seconds"]) >= {"1"}
+    # the paper's method also timed at (b)'s own iterates: one per iteration (b) started
+    si = r["same_iterates"]
+    assert si["iterations"] == r["fast"]["iterations"] and not si["errors"]
+    assert si["speedup_median"] > 0 and len(si["paper_max_faces"]) == si["iterations"]
+
+
+def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
+    """The shadow sees U0 and then every iterate (b) continues from, with its μ, inside (b)'s
+    turn; and one (a) iteration from a nominal is timed without its initial rollout."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hydroilqr import Task, bench, ilqr
+
+    seen, order = [], []
+
+    def fake_solve(problem, U0, settings, callbacks, max_iterations, final_gains):
+        for k in range(max_iterations):
+            order.append(problem)
+            for cb in callbacks:
+                cb(SimpleNamespace(U=np.full(1, 10.0 * problem + k + 1), mu=0.5 * (k + 1)))
+        return problem
+
+    monkeypatch.setattr(ilqr, "solve", fake_solve)
+    tasks = [
+        SimpleNamespace(
+            problem=lambda i=i: i,
+            config=SimpleNamespace(solver=SimpleNamespace(regularization_init=7.0)),
+        )
+        for i in (0, 1)
+    ]
+
+    def shadow(U, mu):
+        seen.append((float(U[0]), mu))
+        order.append("shadow")
+
+    bench.run_alternating(tasks, np.zeros(1), 3, block=1, shadow=shadow)
+    assert seen == [(0.0, 7.0), (11.0, 0.5), (12.0, 1.0)]  # U0, then (b)'s first two iterates
+    assert order == [0, "shadow", 1, "shadow", 0, 1, "shadow", 0, 1]
+    monkeypatch.undo()
+
+    task = Task.load("cartpole-wall", bench.PAPER, smoke=True)
+    same = bench.SameIterates(task)
+    U0 = task.initial_guess(task.steps)
+    same(U0, 1e-3)
+    assert len(same.seconds) == 1 and same.seconds[0] > 0 and not same.errors
+    assert same.phases["rollout"] == [0.0] and same.phases["derivatives"][0] > 0
+    assert same.settings.regularization_init == 1e-3
+    assert task.config.solver.regularization_init != 1e-3  # the task's own settings unchanged
 
 
 def test_fast_derivative_paths_match_exact_ones():

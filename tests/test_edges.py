@@ -511,7 +511,7 @@ def _fake_solution(X, iteration_seconds, phases, costs):
 def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
     from hydroilqr import bench
 
-    def fake_runs(tasks, U0, iterations, block=1):
+    def fake_runs(tasks, U0, iterations, block=1, shadow=None):
         X = np.tile(tasks[0].x0, (3, 1))
         paper = _fake_solution(
             X,
@@ -543,7 +543,7 @@ def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
         {"rollout": 0.2, "derivatives": 0.6, "backward_pass": 0.1, "line_search": 0.1}
     )
 
-    def one_fails(tasks, U0, iterations, block=1):
+    def one_fails(tasks, U0, iterations, block=1, shadow=None):
         res = fake_runs(tasks, U0, iterations, block)
         return [res[0], RuntimeError("diverged")]
 

@@ -79,9 +79,13 @@ class _Baton:
             self.cond.notify_all()
 
 
-def run_alternating(tasks, U0, iterations: int, block: int = 1) -> list:
+def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> list:
     """Solves ``tasks[0]`` and ``tasks[1]`` from U0 for ``iterations`` iterations each,
-    alternating blocks of ``block`` iterations. Returns [Solution or Exception, ...]."""
+    alternating blocks of ``block`` iterations. Returns [Solution or Exception, ...].
+
+    ``shadow(U, mu)``, if given, is called in (b)'s turn with the nominal controls U: [N, nu]
+    that each of (b)'s iterations starts from (U0, then (b)'s iterates) and the μ it starts
+    with, outside (b)'s timed iterations (``same_iterates``)."""
     from .ilqr import solve
 
     baton = _Baton()
@@ -93,12 +97,16 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1) -> list:
 
         def cb(info) -> None:
             count[0] += 1
+            if shadow is not None and i == 1 and count[0] < iterations and info is not None:
+                shadow(info.U.copy(), info.mu)
             if count[0] % block == 0:
                 baton.give(i)
                 baton.wait(i)
 
         try:
             baton.wait(i)
+            if shadow is not None and i == 1:
+                shadow(U0.copy(), task.config.solver.regularization_init)
             results[i] = solve(
                 task.problem(),
                 U0.copy(),
@@ -118,6 +126,68 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1) -> list:
     for t in threads:
         t.join()
     return results
+
+
+class SameIterates:
+    """The paper's method timed at the fast run's own iterates: one iteration of (a) from each
+    nominal U that an iteration of (b) starts from (with (b)'s μ there), so both methods are
+    timed on the same trajectories and contact configurations. (The alternating runs compare
+    each method on its own path, which can differ: a TAMSI run that has not yet reached
+    contact differentiates cheap contact-free steps.) The time counted is the iteration's
+    without its initial rollout (in a normal run the nominal comes from the line search)."""
+
+    def __init__(self, task):
+        import copy
+
+        self.task = task
+        self.settings = copy.deepcopy(task.config.solver)
+        self.seconds: list[float] = []
+        self.phases: dict[str, list[float]] = {p: [] for p in PHASES}
+        self.polygons: list[int] = []
+        self.errors: list[str] = []
+
+    def __call__(self, U: np.ndarray, mu: float) -> None:
+        from .ilqr import solve
+        from .plant import SimulationError
+
+        self.settings.regularization_init = float(mu)
+        try:
+            sol = solve(self.task.problem(), U, self.settings, max_iterations=1, final_gains=False)
+        except (SimulationError, ValueError, ConfigError) as e:
+            self.errors.append(str(e).strip().splitlines()[0])
+            return
+        if not sol.iteration_seconds:
+            self.errors.append(sol.reason)
+            return
+        ph = {p: float(sol.phase_seconds[p][0]) for p in PHASES}
+        self.seconds.append(float(sol.iteration_seconds[0]) - ph["rollout"])
+        ph["rollout"] = 0.0
+        for p in PHASES:
+            self.phases[p].append(ph[p])
+        X = self.task.dynamics.rollout(self.task.x0, U)
+        self.polygons.append(max(contact_state(self.task.dynamics, x)[0] for x in X))
+
+    def stats(self, fast) -> dict:
+        """Against the fast run's Solution ``fast`` (its iterations without their rollout
+        phase, which only the first one has)."""
+        a = np.asarray(self.seconds, float)
+        b = np.asarray(fast.iteration_seconds, float) - np.asarray(fast.phase_seconds["rollout"])
+        n = min(a.size, b.size)
+        out: dict = {"iterations": int(a.size), "errors": self.errors}
+        if n == 0:
+            return out
+        b = b[:n]
+        out.update(
+            {
+                "paper_iteration_seconds": [float(v) for v in a],
+                "paper_median_s": float(np.median(a)),
+                "paper_phase_median_s": {p: float(np.median(v)) for p, v in self.phases.items()},
+                "paper_max_faces": [int(v) for v in self.polygons],
+                "fast_median_s": float(np.median(b)),
+                "speedup_median": float(np.median(a[:n]) / np.median(b)),
+            }
+        )
+        return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -286,6 +356,7 @@ def bench_task(
     fast: list[str] | None = None,
     block: int = 1,
     accuracy: bool = True,
+    same_iterates: bool = True,
 ) -> dict:
     from .task import Task
 
@@ -311,8 +382,9 @@ def bench_task(
     )
     for t in tasks:  # worker processes (if any) start here, not inside a timed iteration
         workers.warm_up(t.dynamics)
+    same = SameIterates(tasks[0]) if same_iterates else None
     t0 = time.perf_counter()
-    res = run_alternating(tasks, U0, iterations, block)
+    res = run_alternating(tasks, U0, iterations, block, shadow=same)
     wall = time.perf_counter() - t0
     out: dict = {
         "task": name,
@@ -346,6 +418,8 @@ def bench_task(
             sol_b = res[1]
             out["accuracy"] = derivative_accuracy(tasks[1], sol_b.X, sol_b.U, threads)
             out["threads"] = thread_scaling(tasks[1], sol_b.X, sol_b.U, threads)
+    if same is not None and not isinstance(res[1], Exception):
+        out["same_iterates"] = same.stats(res[1])
     return out
 
 
@@ -391,6 +465,21 @@ def print_table(rows: list[dict]) -> None:
             console.print(
                 f"{r['task']}: {', '.join(short)}: its cost is compared after fewer iterations",
                 soft_wrap=True,
+            )
+    for r in rows:
+        si = r.get("same_iterates")
+        if si and "speedup_median" in si:
+            ph = si["paper_phase_median_s"]
+            console.print(
+                f"{r['task']}: at (b)'s own iterates, (a) takes {si['paper_median_s']:.4f} s per "
+                f"iteration (derivatives {ph['derivatives']:.4f} s, line search "
+                f"{ph['line_search']:.4f} s; max faces {max(si['paper_max_faces'])}) against "
+                f"(b)'s {si['fast_median_s']:.4f} s: {si['speedup_median']:.1f}x",
+                soft_wrap=True,
+            )
+        elif si and si.get("errors"):
+            console.print(
+                f"{r['task']}: (a) at (b)'s iterates failed: {si['errors'][0]}", soft_wrap=True
             )
     for r in rows:
         acc = r.get("accuracy")
@@ -472,6 +561,7 @@ def run_bench(
     fast=None,
     block: int = 1,
     accuracy: bool = True,
+    same_iterates: bool = True,
 ) -> dict:
     from .config import load_task
     from .report import output_dir
@@ -485,7 +575,9 @@ def run_bench(
     out = output_dir(out, BENCH_MARK)  # refuses a directory holding a task's results
     rows = []
     for name in names:
-        rows.append(bench_task(name, iterations, threads, smoke, sets, fast, block, accuracy))
+        rows.append(
+            bench_task(name, iterations, threads, smoke, sets, fast, block, accuracy, same_iterates)
+        )
         _write(out, rows, iterations, threads)
     print_table(rows)
     return _write(out, rows, iterations, threads)
@@ -527,6 +619,7 @@ def cmd_bench(args) -> int:
         args.fast,
         args.block,
         not args.no_accuracy,
+        not args.no_same_iterates,
     )
     console.print(f"wrote {args.out}/bench.json, iterations.png")
     return 0
@@ -561,6 +654,11 @@ def setup(p) -> None:
         "--no-accuracy",
         action="store_true",
         help="skip the derivative-accuracy and thread-scaling sections",
+    )
+    p.add_argument(
+        "--no-same-iterates",
+        action="store_true",
+        help="skip timing the paper's method at the fast run's iterates",
     )
     p.add_argument(
         "--out", help="output directory (default runs/bench, runs/bench-smoke with --smoke)"
