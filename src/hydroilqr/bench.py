@@ -164,8 +164,11 @@ class SameIterates:
         ph["rollout"] = 0.0
         for p in PHASES:
             self.phases[p].append(ph[p])
-        X = self.task.dynamics.rollout(self.task.x0, U)
-        self.polygons.append(max(contact_state(self.task.dynamics, x)[0] for x in X))
+        try:  # the nominal it started from (a rollout that just succeeded inside solve)
+            X = self.task.dynamics.rollout(self.task.x0, U)
+            self.polygons.append(max(contact_state(self.task.dynamics, x)[0] for x in X))
+        except SimulationError:
+            self.polygons.append(-1)
 
     def stats(self, fast) -> dict:
         """Against the fast run's Solution ``fast`` (its iterations without their rollout
