@@ -524,14 +524,26 @@ def plot(rows: list[dict], path: Path) -> None:
         for r in rows
         if "iteration_seconds" in r.get("paper", {}) and "iteration_seconds" in r.get("fast", {})
     ]
-    fig, ax = plt.subplots(figsize=(max(4.0, 2.2 * len(rows) + 1), 4))
+    fig, ax = plt.subplots(figsize=(max(4.0, 2.8 * len(rows) + 1), 4))
     data, pos, labels, colors = [], [], [], []
+    names = {
+        "paper": "(a) paper: TAMSI, serial AutoDiff",
+        "fast": "(b) fast configuration",
+        "same": "(a) at (b)'s iterates",
+    }
+    first: dict[str, int] = {}  # the first box of each kind, for the legend
     for i, r in enumerate(rows):
-        for j, key in enumerate(("paper", "fast")):
-            data.append(r[key]["iteration_seconds"])
-            pos.append(3 * i + j)
-            colors.append(("tab:red", "tab:blue")[j])
-        labels.append((3 * i + 0.5, r["task"]))
+        series = [("paper", r["paper"]["iteration_seconds"])]
+        series.append(("fast", r["fast"]["iteration_seconds"]))
+        si = r.get("same_iterates") or {}
+        if si.get("paper_iteration_seconds"):
+            series.append(("same", si["paper_iteration_seconds"]))
+        for j, (key, values) in enumerate(series):
+            first.setdefault(key, len(data))
+            data.append(values)
+            pos.append(4 * i + j)
+            colors.append({"paper": "tab:red", "fast": "tab:blue", "same": "tab:orange"}[key])
+        labels.append((4 * i + (len(series) - 1) / 2, r["task"]))
     if data:
         bp = ax.boxplot(data, positions=pos, widths=0.8, patch_artist=True)
         for patch, c in zip(bp["boxes"], colors):
@@ -540,8 +552,8 @@ def plot(rows: list[dict], path: Path) -> None:
         ax.set_xticks([p for p, _ in labels], [n for _, n in labels])
         ax.set_yscale("log")
         ax.legend(
-            [bp["boxes"][0], bp["boxes"][1]],
-            ["(a) paper: TAMSI, serial AutoDiff", "(b) fast configuration"],
+            [bp["boxes"][i] for i in first.values()],
+            [names[k] for k in first],
             fontsize="small",
         )
     ax.set_ylabel("iteration time (s)")
