@@ -4,6 +4,7 @@ each test kills a mutation the rest of the suite let through). Smoke-sized."""
 
 from __future__ import annotations
 
+import io
 from types import SimpleNamespace
 
 import numpy as np
@@ -815,3 +816,96 @@ def test_a_trial_that_blows_up_in_a_worker_keeps_the_pool():
     out = workers.closed_loop_rollouts(dyn, task.x0, U, X, K, kappa, [0.0, 1.0])
     assert isinstance(out[1], SimulationError)
     assert workers.pool(dyn) is not None and workers.line_search_width(dyn) == 2
+
+
+# ------------------------------------------------------------------------------------------
+# effort limits
+# ------------------------------------------------------------------------------------------
+
+
+def test_commands_beyond_the_effort_limits_are_reported():
+    """Drake clips the actuation input to the effort limits (the same trajectory as a clipped
+    command, partials zero beyond it); a plan whose commands exceed them says so."""
+    from hydroilqr import Task
+    from hydroilqr.metrics import beyond_limits, summary_lines
+
+    task = Task.load("kinova-forward", ["solver.autodiff_workers=1"], smoke=True)
+    dyn = task.dynamics
+    lim = dyn.effort_limits
+    N = task.steps
+    U = task.initial_guess(N)
+    assert beyond_limits(dyn, U) == {"commands_beyond_limits": 0}
+    U[3, 5] = 2.5 * lim[5]
+    U[4, 1] = -1.5 * lim[1]
+    np.testing.assert_array_equal(  # the plant applies the limit
+        dyn.rollout(task.x0, U), dyn.rollout(task.x0, np.clip(U, -lim, lim))
+    )
+    m = beyond_limits(dyn, U)
+    assert m["commands_beyond_limits"] == 2 and m["max_command_over_limit"] == pytest.approx(2.5)
+    assert (
+        m["max_command_over_limit_actuator"]
+        == dyn.plant.get_joint_actuator(dyn.plant.GetJointActuatorIndices()[5]).name()
+    )
+    assert any("exceed" in line for line in summary_lines(m))
+
+
+def test_a_given_x0_has_its_quaternions_normalized_like_the_task_files():
+    from hydroilqr import Task
+
+    task = Task.load("kinova-forward", smoke=True)
+    lay = task.dynamics.layout
+    (qb,) = lay.quaternions
+    x = task.x0.copy()
+    x[list(qb.coords)] = [2.0, 0.0, 0.0, 0.0]
+    p = task.problem(x)
+    np.testing.assert_array_equal(p.x0[list(qb.coords)], [1.0, 0.0, 0.0, 0.0])
+    assert x[qb.coords[0]] == 2.0  # the caller's array is not changed
+    x[list(qb.coords)] = 0.0
+    with pytest.raises(ValueError, match="non-zero"):
+        task.problem(x)
+    with pytest.raises(ValueError, match="shape"):
+        task.problem(x[:-1])
+
+
+def test_python_dash_m_runs_the_command_line():
+    import subprocess
+    import sys
+
+    r = subprocess.run(
+        [sys.executable, "-m", "hydroilqr", "tasks"], capture_output=True, text=True, timeout=120
+    )
+    assert r.returncode == 0 and "cartpole-wall" in r.stdout
+
+
+def test_a_failed_command_leaves_no_empty_output_directory(tmp_path, monkeypatch):
+    from hydroilqr import api
+    from hydroilqr.cli import main
+    from hydroilqr.plant import SimulationError
+
+    def fail(*a, **k):
+        raise SimulationError("contact solver did not converge")
+
+    monkeypatch.setattr(api, "solve", fail)
+    new = tmp_path / "new" / "run"
+    assert main(["solve", "cartpole-wall", "--smoke", "--no-replay", "--out", str(new)]) == 3
+    assert not new.exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    assert main(["solve", "cartpole-wall", "--smoke", "--no-replay", "--out", str(kept)]) == 3
+    assert (kept / "notes.txt").exists()  # a directory the user made stays
+
+
+def test_check_warns_that_a_rigid_geometrys_modulus_is_unused():
+    from rich.console import Console
+
+    from hydroilqr import Task
+    from hydroilqr.check import check_task
+
+    task = Task.load(
+        "cartpole-wall",
+        ["geometry.tip.compliance=rigid", "geometry.tip.resolution_hint=0.01"],
+        smoke=True,
+    )
+    out = check_task(task, Console(file=io.StringIO()))
+    assert any("hydroelastic_modulus is not used" in w for w in out["warnings"])

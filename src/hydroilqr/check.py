@@ -107,6 +107,51 @@ def candidate_pairs(dyn, x: np.ndarray, geoms: list[dict]) -> list[dict]:
     return rows
 
 
+def _deepest_overlap(pairs: list[dict]) -> str:
+    """A sentence about the deepest overlap at x0 beyond DEEP_OVERLAP ("" if none)."""
+    deep = sorted(
+        (p for p in pairs if p["distance"] is not None and p["distance"] < -DEEP_OVERLAP),
+        key=lambda p: p["distance"],
+    )
+    if not deep:
+        return ""
+    return (
+        f"at x0 {deep[0]['a']} and {deep[0]['b']} overlap by {-1e3 * deep[0]['distance']:.3g} "
+        "mm: check initial_state; a free body not named there starts at the world origin"
+    )
+
+
+def _start_warning(pairs: list[dict], speed: float) -> str:
+    """The warning about the start ("" if none): a deep overlap at x0 that launches a body or
+    is very deep, or a rollout of the initial guess that blows up. ``speed``: its max |v|."""
+    overlap = _deepest_overlap(pairs)
+    depth = max((-p["distance"] for p in pairs if p["distance"] is not None), default=0.0)
+    if overlap and speed > LAUNCH_SPEED:  # a body pushed out of a deep overlap
+        return f"the initial-guess rollout reaches |v| = {speed:.3g}; {overlap}"
+    if overlap and depth > VERY_DEEP_OVERLAP:
+        return overlap
+    if speed > BLOWUP_SPEED:
+        return (
+            f"the initial-guess rollout reaches |v| = {speed:.3g} (> {BLOWUP_SPEED:g}): "
+            "check masses, the time step and initial penetrations"
+        )
+    return ""
+
+
+def start_warning(task, rollout_steps: int = ROLLOUT_STEPS) -> str:
+    """``check``'s warning about the start, for commands that solve without ``check`` ("" if
+    none, or if the rollout fails: the solve reports that itself)."""
+    dyn = task.dynamics
+    pairs = candidate_pairs(dyn, task.x0, geometry_table(dyn))
+    U = task.initial_guess(task.steps)[: min(task.steps, rollout_steps)]
+    try:
+        X = dyn.rollout(task.x0, U)
+    except SimulationError:
+        return ""
+    speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
+    return _start_warning(pairs, speed)
+
+
 def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     """Prints the report described in the module docstring; returns its facts as a dict."""
     from rich.table import Table
@@ -238,6 +283,11 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         )
     if not geoms:
         warn("no collision geometry: the task has no contact at all")
+    props = [(f"geometry.{k}", p) for k, p in cfg.geometry.items()]
+    props += [(f"scene {o.name}", o) for o in cfg.scene]
+    for key, p in props:
+        if p.compliance == "rigid" and p.hydroelastic_modulus is not None:
+            warn(f"{key}: compliance rigid, so its hydroelastic_modulus is not used")
 
     pairs = candidate_pairs(dyn, x0, geoms)
     t = Table(
@@ -287,20 +337,11 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     x1 = dyn.step(x0, U[0])  # raises SimulationError with Drake's reason
     step_ms = 1e3 * (time.perf_counter() - tic)
     tic = time.perf_counter()
-    deep = sorted(
-        (p for p in pairs if p["distance"] is not None and p["distance"] < -DEEP_OVERLAP),
-        key=lambda p: p["distance"],
-    )
-    overlap = (
-        f"at x0 {deep[0]['a']} and {deep[0]['b']} overlap by {-1e3 * deep[0]['distance']:.3g} "
-        "mm: check initial_state; a free body not named there starts at the world origin"
-        if deep
-        else ""
-    )
+    overlap = _deepest_overlap(pairs)
     try:
         X = dyn.rollout(x0, U)
     except SimulationError as e:
-        hint = f" ({overlap})" if deep else ""
+        hint = f" ({overlap})" if overlap else ""
         raise SimulationError(
             f"rollout of the initial guess ({cfg.initial_guess}): {e}{hint}"
         ) from None
@@ -320,15 +361,9 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         f"initial guess ({cfg.initial_guess}) ok, {rollout_ms:.2f} ms/step, "
         f"max |v| = {speed:.3g}"
     )
-    if deep and speed > LAUNCH_SPEED:  # a body pushed out of a deep overlap
-        warn(f"the initial-guess rollout reaches |v| = {speed:.3g}; {overlap}")
-    elif deep and -deep[0]["distance"] > VERY_DEEP_OVERLAP:
-        warn(overlap)
-    elif speed > BLOWUP_SPEED:
-        warn(
-            f"the initial-guess rollout reaches |v| = {speed:.3g} (> {BLOWUP_SPEED:g}): "
-            "check masses, the time step and initial penetrations"
-        )
+    w = _start_warning(pairs, speed)
+    if w:
+        warn(w)
     if out["contact_faces"] > 500:
         warn(
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "

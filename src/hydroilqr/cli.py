@@ -148,6 +148,11 @@ def cmd_solve(args) -> int:
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
         )
+    from .check import start_warning
+
+    warning = start_warning(task)
+    if warning:
+        console.print(f"[yellow]warning:[/yellow] {warning} (see `hydroilqr check`)")
     t0 = time.perf_counter()
     if cfg.receding_horizon is not None:
         from .progress import ResolveProgress
@@ -380,8 +385,14 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     parser = build_parser()
     args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
+    from .report import discard_empty_outputs
+
     try:
-        return int(args.func(args) or 0)
+        try:
+            return int(args.func(args) or 0)
+        except BaseException:
+            discard_empty_outputs()  # a failed command leaves no empty results directory
+            raise
     except ConfigError as e:
         print(f"hydroilqr: error: {e}", file=sys.stderr)
         return 2

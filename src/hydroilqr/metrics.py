@@ -115,7 +115,27 @@ def default_metrics(task, sol) -> dict:
         "final_error": final_err,
         "steps": int(N),
         "max_contact_faces": max_contact_faces(task, sol),
+        **beyond_limits(task.dynamics, sol.U),
     }
+
+
+def beyond_limits(dyn, U: np.ndarray) -> dict:
+    """Commands beyond the actuators' effort limits in U: [N, nu]. Drake's plant applies the
+    limit instead (the trajectory is the same as with the clipped command), so a plan may
+    list larger commands than act; the cost prices the commands. Returns
+    ``commands_beyond_limits`` (entries of U) and, if any, ``max_command_over_limit``
+    (max |u| / limit) with its actuator."""
+    lim = np.asarray(getattr(dyn, "effort_limits", np.full(U.shape[1], np.inf)), float)
+    ratio = np.abs(U) / lim  # 0 where there is no limit (inf)
+    n = int(np.sum(ratio > 1.0))
+    out: dict = {"commands_beyond_limits": n}
+    if n:
+        k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        out["max_command_over_limit"] = float(ratio[k, j])
+        out["max_command_over_limit_actuator"] = dyn.plant.get_joint_actuator(
+            dyn.plant.GetJointActuatorIndices()[j]
+        ).name()
+    return out
 
 
 @metric("cartpole_wall")
@@ -159,6 +179,13 @@ def summary_lines(m: dict) -> list[str]:
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
     lines = ["metrics: " + ", ".join(f"{k}={fmt(v)}" for k, v in shown.items())]
+    if m.get("commands_beyond_limits"):
+        lines.append(
+            f"note: {m['commands_beyond_limits']} planned commands exceed their actuator's "
+            f"effort limit (up to {m['max_command_over_limit']:.3g}x, "
+            f"{m['max_command_over_limit_actuator']}); the plant applies the limit there, so "
+            "the trajectory is what the clipped command gives (the cost prices the command)"
+        )
     if m.get("final_error"):
         lines.append(
             "final error |x_N - x_nom| per Qf block: "

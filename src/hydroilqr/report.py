@@ -163,12 +163,36 @@ def output_dir(out: str | Path, task_name: str | None = None) -> Path:
             raise ConfigError(
                 f"{out} holds {what}: choose another --out (or delete that directory)"
             )
+    new = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ConfigError(f"--out {out}: {e.strerror}") from None
     _lock(out)
+    if new:
+        _CREATED.append(out)
     return out
+
+
+_CREATED: list[Path] = []  # output directories this process created
+
+
+def discard_empty_outputs() -> None:
+    """Removes the output directories this process created that hold nothing but their lock
+    file (a command that failed before writing a result leaves no empty directory behind)."""
+    import os
+
+    while _CREATED:
+        out = _CREATED.pop()
+        try:
+            if {p.name for p in out.iterdir()} <= {".hydroilqr.lock"}:
+                fd = _LOCKS.pop(str(out.resolve()), None)
+                (out / ".hydroilqr.lock").unlink(missing_ok=True)
+                if fd is not None:
+                    os.close(fd)
+                out.rmdir()
+        except OSError:
+            pass
 
 
 _LOCKS: dict[str, int] = {}  # directory -> open lock file, held until this process ends

@@ -1,0 +1,7 @@
+"""``python -m hydroilqr ...``: the same command line as the ``hydroilqr`` script."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
