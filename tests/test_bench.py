@@ -55,6 +55,7 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     from types import SimpleNamespace
 
     import numpy as np
+    import pytest
 
     from hydroilqr import Task, bench, ilqr
 
@@ -82,7 +83,7 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
 
     bench.run_alternating(tasks, np.zeros(1), 3, block=1, shadow=shadow)
     assert seen == [(0.0, 7.0), (11.0, 0.5), (12.0, 1.0)]  # U0, then (b)'s first two iterates
-    assert order == [0, "shadow", 1, "shadow", 0, 1, "shadow", 0, 1]
+    assert order == [0, 1, "shadow", 0, 1, "shadow", 0, 1, "shadow"]
     monkeypatch.undo()
 
     task = Task.load("cartpole-wall", bench.PAPER, smoke=True)
@@ -92,6 +93,14 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     assert len(same.seconds) == 1 and same.seconds[0] > 0 and not same.errors
     assert same.phases["rollout"] == [0.0] and same.phases["derivatives"][0] > 0
     assert same.settings.regularization_init == 1e-3
+    same._failed("rollout failed")  # stays aligned with (b)'s iterations
+    fast = SimpleNamespace(
+        iteration_seconds=[0.5, 0.2], phase_seconds={"rollout": [0.4, 0.0]}
+    )  # (b) without its first rollout: 0.1, 0.2
+    st = same.stats(fast)
+    assert st["iterations"] == 2 and st["errors"] == ["rollout failed"]
+    assert st["fast_median_s"] == pytest.approx(0.1)  # only the pair where both ran
+    assert st["speedup_median"] == pytest.approx(same.seconds[0] / 0.1)
     assert task.config.solver.regularization_init != 1e-3  # the task's own settings unchanged
 
 

@@ -888,7 +888,7 @@ def test_a_failed_command_leaves_no_empty_output_directory(tmp_path, monkeypatch
     monkeypatch.setattr(api, "solve", fail)
     new = tmp_path / "new" / "run"
     assert main(["solve", "cartpole-wall", "--smoke", "--no-replay", "--out", str(new)]) == 3
-    assert not new.exists()
+    assert not (tmp_path / "new").exists()  # nor the parent made for it
     kept = tmp_path / "kept"
     kept.mkdir()
     (kept / "notes.txt").write_text("mine")

@@ -38,7 +38,8 @@ def solve(
     ``checkpoint_dir`` after every resolve).
 
     ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
-    state (default: the task's). Single solves only: a receding-horizon task takes both from
+    state (default: the task's; a quaternion in it that is not of unit norm is normalized, as
+    in a task file). Single solves only: a receding-horizon task takes both from
     its task file. ``settings``: solver settings for this solve, a SolverConfig or a dict of
     changes to the task's ``solver`` section (default: that section; the task itself is not
     changed). ``callbacks``: see

@@ -83,9 +83,10 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
     """Solves ``tasks[0]`` and ``tasks[1]`` from U0 for ``iterations`` iterations each,
     alternating blocks of ``block`` iterations. Returns [Solution or Exception, ...].
 
-    ``shadow(U, mu)``, if given, is called in (b)'s turn with the nominal controls U: [N, nu]
-    that each of (b)'s iterations starts from (U0, then (b)'s iterates) and the μ it starts
-    with, outside (b)'s timed iterations (``same_iterates``)."""
+    ``shadow(U, mu)``, if given, is called in (b)'s turn after each of (b)'s iterations with the
+    nominal controls U: [N, nu] that iteration started from (U0, then (b)'s iterates) and the μ
+    it started with, outside (b)'s timed iterations (``same_iterates``): one call per
+    iteration (b) ran, also when (b) stops early."""
     from .ilqr import solve
 
     baton = _Baton()
@@ -97,16 +98,19 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
 
         def cb(info) -> None:
             count[0] += 1
-            if shadow is not None and i == 1 and count[0] < iterations and info is not None:
-                shadow(info.U.copy(), info.mu)
+            if shadow is not None and i == 1:
+                shadow(*pending[0])  # the nominal this iteration started from
+                if info is not None:
+                    pending[0] = (info.U.copy(), info.mu)
             if count[0] % block == 0:
                 baton.give(i)
                 baton.wait(i)
 
+        pending = [None]
         try:
             baton.wait(i)
             if shadow is not None and i == 1:
-                shadow(U0.copy(), task.config.solver.regularization_init)
+                pending[0] = (U0.copy(), task.config.solver.regularization_init)
             results[i] = solve(
                 task.problem(),
                 U0.copy(),
@@ -154,10 +158,10 @@ class SameIterates:
         try:
             sol = solve(self.task.problem(), U, self.settings, max_iterations=1, final_gains=False)
         except (SimulationError, ValueError, ConfigError) as e:
-            self.errors.append(str(e).strip().splitlines()[0])
+            self._failed(str(e).strip().splitlines()[0])
             return
         if not sol.iteration_seconds:
-            self.errors.append(sol.reason)
+            self._failed(sol.reason)
             return
         ph = {p: float(sol.phase_seconds[p][0]) for p in PHASES}
         self.seconds.append(float(sol.iteration_seconds[0]) - ph["rollout"])
@@ -170,24 +174,34 @@ class SameIterates:
         except SimulationError:
             self.polygons.append(-1)
 
+    def _failed(self, why: str) -> None:
+        """A shadow iteration that could not run: NaN in its place (alignment with (b))."""
+        self.errors.append(why)
+        self.seconds.append(float("nan"))
+        for p in PHASES:
+            self.phases[p].append(float("nan"))
+        self.polygons.append(-1)
+
     def stats(self, fast) -> dict:
         """Against the fast run's Solution ``fast`` (its iterations without their rollout
         phase, which only the first one has)."""
         a = np.asarray(self.seconds, float)
         b = np.asarray(fast.iteration_seconds, float) - np.asarray(fast.phase_seconds["rollout"])
-        n = min(a.size, b.size)
+        n = min(a.size, b.size)  # equal unless (b) failed inside an iteration
         out: dict = {"iterations": int(a.size), "errors": self.errors}
-        if n == 0:
+        ok = np.isfinite(a[:n])  # iteration pairs where both methods ran
+        if not ok.any():
             return out
-        b = b[:n]
+        a, b = a[:n][ok], b[:n][ok]
+        phases = {p: np.asarray(v[:n], float)[ok] for p, v in self.phases.items()}
         out.update(
             {
                 "paper_iteration_seconds": [float(v) for v in a],
                 "paper_median_s": float(np.median(a)),
-                "paper_phase_median_s": {p: float(np.median(v)) for p, v in self.phases.items()},
-                "paper_max_faces": [int(v) for v in self.polygons],
+                "paper_phase_median_s": {p: float(np.median(v)) for p, v in phases.items()},
+                "paper_max_faces": [int(v) for v, k in zip(self.polygons, ok) if k],
                 "fast_median_s": float(np.median(b)),
-                "speedup_median": float(np.median(a[:n]) / np.median(b)),
+                "speedup_median": float(np.median(a) / np.median(b)),
             }
         )
         return out

@@ -150,7 +150,7 @@ def cmd_solve(args) -> int:
         )
     from .check import start_warning
 
-    warning = start_warning(task)
+    warning = "" if resume_dir else start_warning(task)  # a resumed run starts elsewhere
     if warning:
         console.print(f"[yellow]warning:[/yellow] {warning} (see `hydroilqr check`)")
     t0 = time.perf_counter()

@@ -163,18 +163,18 @@ def output_dir(out: str | Path, task_name: str | None = None) -> Path:
             raise ConfigError(
                 f"{out} holds {what}: choose another --out (or delete that directory)"
             )
-    new = not out.exists()
+    created = [p for p in [out, *out.parents] if not p.exists()]  # leaf first
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ConfigError(f"--out {out}: {e.strerror}") from None
     _lock(out)
-    if new:
-        _CREATED.append(out)
+    if created:
+        _CREATED.append(created)
     return out
 
 
-_CREATED: list[Path] = []  # output directories this process created
+_CREATED: list[list[Path]] = []  # directories this process created per output (leaf first)
 
 
 def discard_empty_outputs() -> None:
@@ -183,14 +183,16 @@ def discard_empty_outputs() -> None:
     import os
 
     while _CREATED:
-        out = _CREATED.pop()
+        dirs = _CREATED.pop()
+        out = dirs[0]
         try:
             if {p.name for p in out.iterdir()} <= {".hydroilqr.lock"}:
                 fd = _LOCKS.pop(str(out.resolve()), None)
                 (out / ".hydroilqr.lock").unlink(missing_ok=True)
                 if fd is not None:
                     os.close(fd)
-                out.rmdir()
+                for d in dirs:  # the output directory, then the parents made for it
+                    d.rmdir()  # OSError if not empty (e.g. another run started in it)
         except OSError:
             pass
 
@@ -200,7 +202,8 @@ _LOCKS: dict[str, int] = {}  # directory -> open lock file, held until this proc
 
 def _lock(out: Path) -> None:
     """One run per output directory at a time: an flock on ``out/.hydroilqr.lock``, held for
-    the life of this process (the system releases it when the process ends, even by kill -9).
+    the life of this process (the system releases it when the process ends, even by kill -9),
+    or until ``discard_empty_outputs`` removes a directory this process created for nothing.
     Also proves the directory is writable before any work is done."""
     import fcntl
     import os

@@ -233,15 +233,17 @@ class StateLayout:
         return x
 
     def normalized(self, x: np.ndarray, what: str = "x0") -> np.ndarray:
-        """A copy of the state x: [nx] with every quaternion scaled to unit norm (as the task
-        file's values are). ValueError for a zero quaternion."""
+        """A copy of the state x: [nx] with every quaternion that is not of unit norm (beyond
+        1e-9: a simulated state's rounding is kept bitwise) scaled to unit norm, as the task
+        file's values are. ValueError for a zero quaternion."""
         x = np.array(x, dtype=float)
         for b in self.quaternions:
             q = x[list(b.coords)]
             norm = np.linalg.norm(q)
             if not norm > 1e-9:
                 raise ValueError(f"{what}: the quaternion of {b.name} must be non-zero, got {q}")
-            x[list(b.coords)] = q / norm
+            if abs(norm - 1.0) > 1e-9:
+                x[list(b.coords)] = q / norm
         return x
 
     def default_nominal(self) -> np.ndarray:
