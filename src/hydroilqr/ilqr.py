@@ -230,6 +230,7 @@ def solve(
         return out
 
     interrupted = False
+    partials_current = False
     try:
         for it in range(max_it):
             # the first iteration's time includes the initial rollout (its "rollout" phase)
@@ -238,12 +239,14 @@ def solve(
             if it == 0:
                 ph["rollout"] = rollout_time
             t = time.perf_counter()
+            partials_current = False
             try:
                 A, B = partials(X, U)
             except SimulationError as e:
                 reason = f"derivatives failed: {e}"
                 break
             quad = cost.quadratize(X, U, t0)
+            partials_current = True  # A, B, quad are around the current (X, U)
             ph["derivatives"] = time.perf_counter() - t
 
             accepted = False
@@ -305,8 +308,9 @@ def solve(
                 if mu > s.regularization_max or searches > s.line_search_retries:
                     break
             if not accepted and first_gains is not None:
-                # No step: the gains returned are those around this X at the iteration's own μ,
-                # not those of the most-regularized retry (which have almost no feedback).
+                # No step: the gains kept are those around this X at the iteration's own μ, not
+                # those of the most-regularized retry (which have almost no feedback). With
+                # final_gains they are recomputed at the end at the smallest workable μ.
                 K, kappa = first_gains
 
             seconds = time.perf_counter() - t_it
@@ -316,6 +320,7 @@ def solve(
             if accepted:
                 rel = (J - Jn) / max(abs(J), 1e-12)
                 X, U, J = Xn, Un, Jn
+                partials_current = False
                 if eps < s.short_step:
                     # The quadratic model only held for a short step: regularize more (a trust
                     # region that shrinks while the model is poor) instead of less.
@@ -385,15 +390,20 @@ def solve(
             for v in phases.values():
                 v.append(0.0)
 
-    if final_gains and not interrupted and (accepted or max_it == 0):
-        # Gains of eq. (8) around the *final* trajectory (the last backward pass was around
-        # the previous one; with no iterations, there was none).
+    gains_mu = None
+    if final_gains and not interrupted:
+        # Gains of eq. (8) around the *final* trajectory, regularized only as much as Q_uu
+        # needs: the solver's μ at the end can be large (a run of short steps raises it), and
+        # gains at μ = 1e3 are ~0, no feedback at all. After an accepted step the last
+        # partials were around the previous trajectory (with no iterations, there were none).
         t = time.perf_counter()
         try:
-            A, B = partials(X, U)
-            bp = backward_pass(A, B, cost.quadratize(X, U, t0), max(mu, s.regularization_min))
-            if bp.ok:
-                K, kappa = bp.K, bp.kappa
+            if not partials_current:
+                A, B = partials(X, U)
+                quad = cost.quadratize(X, U, t0)
+            gains = feedback_gains(A, B, quad, s)
+            if gains is not None:
+                K, kappa, gains_mu = gains
         except SimulationError:
             pass
         except KeyboardInterrupt:
@@ -419,8 +429,21 @@ def solve(
         derivatives=method.value,
         eps=eps_hist,
         mu=mu_hist,
-        extra={"derivative_steps": derivative_steps},
+        extra={"derivative_steps": derivative_steps, "gains_mu": gains_mu},
     )
+
+
+def feedback_gains(A, B, quad, s: SolverConfig):
+    """The gains of eq. (8) around a trajectory: the backward pass at the smallest μ (from
+    ``regularization_min``, raised as ``_increase`` does) for which Q_uu is positive definite.
+    A: [N, nx, nx], B: [N, nx, nu]. Returns (K: [N, nu, nx], kappa: [N, nu], μ) or None."""
+    mu = s.regularization_min
+    while mu <= s.regularization_max:
+        bp = backward_pass(A, B, quad, mu)
+        if bp.ok:
+            return bp.K, bp.kappa, mu
+        mu = _increase(mu, s)
+    return None
 
 
 def _is_true(value) -> bool:
