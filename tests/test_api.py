@@ -179,6 +179,8 @@ def test_continuation_stages_warm_start_the_task(task):
     assert sum(s["iterations"] for s in st) == sol.iterations == len(sol.costs) - 1
     assert len(sol.iteration_seconds) == len(sol.phase_seconds["derivatives"]) == sol.iterations
     assert st[0]["final_cost"] <= st[0]["start_cost"] and sol.costs[0] == st[0]["start_cost"]
+    # every stage's linearizations (one per iteration, plus each stage's final gains)
+    assert len(sol.extra["derivative_steps"]) >= sol.iterations
 
 
 def test_continuation_is_checked_before_solving():

@@ -932,3 +932,17 @@ def test_final_gains_are_regularized_only_as_q_uu_needs():
         A, B = linearize(task.dynamics, sol.X, sol.U, "central", s.fd_epsilon)
         bp = backward_pass(A, B, task.cost.quadratize(sol.X, sol.U), s.regularization_min)
         np.testing.assert_allclose(sol.K, bp.K, rtol=1e-6, atol=1e-9)
+
+
+def test_mpc_smoke_runs_a_few_updates_unless_a_duration_is_given(tmp_path):
+    import json
+
+    from hydroilqr.cli import main
+    from hydroilqr.mpc import SMOKE_UPDATES
+
+    assert main(["mpc", "cartpole-wall", "--smoke", "--out", str(tmp_path / "a")]) == 0
+    doc = json.loads((tmp_path / "a" / "mpc.json").read_text())
+    assert doc["duration_s"] == pytest.approx(SMOKE_UPDATES / doc["requested_rate_hz"])
+    argv = ["mpc", "cartpole-wall", "--smoke", "--duration", "0.2", "--out", str(tmp_path / "b")]
+    assert main(argv) == 0
+    assert json.loads((tmp_path / "b" / "mpc.json").read_text())["duration_s"] == 0.2

@@ -196,3 +196,25 @@ def test_replay_frames_use_the_solved_inputs_and_the_nearest_state(monkeypatch, 
     # frames every 0.03 s; each shows the nearest state x_k with its own input u_k
     # (u_8 for the last state, which has none)
     assert [float(u[0]) for u in fixed] == [1.0, 4.0, 7.0, 9.0]
+
+
+def test_reference_lists_the_torques_that_acted_in_the_plan():
+    """A planned command beyond an effort limit acted at the limit in the plan: the exported
+    feed-forward (and the PD+ law's ū) hold the limit, not the command."""
+    from hydroilqr.solution import PHASES, Solution
+
+    task = Task.load("kinova-forward", ["solver.autodiff_workers=1"], smoke=True)
+    dyn = task.dynamics
+    lim = dyn.effort_limits
+    N = task.steps
+    U = task.initial_guess(N)
+    U[:, 5] = 3.0 * lim[5]  # beyond the wrist's limit all along
+    X = dyn.rollout(task.x0, U)
+    sol = Solution(
+        X, U, np.zeros((N, dyn.nu, dyn.nx)), np.zeros((N, dyn.nu)), dyn.dt * np.arange(N + 1),
+        np.array([task.cost.total(X, U)]), [], {p: [] for p in PHASES}, False, "max_iterations",
+        "autodiff",
+    )  # fmt: skip
+    r = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002))
+    assert np.all(np.abs(r.reference.u) <= lim + 1e-12)
+    assert np.allclose(r.reference.u[:, 5], lim[5])

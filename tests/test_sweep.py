@@ -70,6 +70,9 @@ def test_three_point_sweep(swept):
     for col in POINT_COLUMNS:
         assert col in rows[0]
     assert "max_contact_faces" in rows[0]  # the task's other scalar metrics are columns too
+    # and named scalars one level down: the final error per Qf block, the cost terms
+    assert any(c.startswith("final_error.") for c in rows[0])
+    assert any(c.startswith("cost_terms.") for c in rows[0])
     ok = [r for r in rows if r["status"] == "ok"]
     assert len(ok) == 2
     for r in ok:

@@ -180,6 +180,8 @@ def _join(task: Task, parts: list[Solution], task_initial_cost: float | None = N
         mu=[m for p in parts for m in p.mu],
         extra={
             **last.extra,
+            # steps differentiated per linearization, of every stage in order
+            "derivative_steps": [n for p in parts for n in p.extra.get("derivative_steps", [])],
             "continuation": stages,
             **({"task_initial_cost": task_initial_cost} if task_initial_cost is not None else {}),
         },

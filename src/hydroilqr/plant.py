@@ -447,6 +447,11 @@ class Dynamics:
                 raise SimulationError(f"step {k}: {e}") from None
         return X, U
 
+    def clip_to_limits(self, U: np.ndarray) -> np.ndarray:
+        """U: [..., nu] clipped to ±effort limit per actuator (no limit: unchanged): what
+        Drake's plant applies for the command U (bitwise the same trajectory)."""
+        return np.clip(U, -self.effort_limits, self.effort_limits)
+
     # -------------------------------------------------------------------------- helpers
     def autodiff(self):
         """(AutoDiffXd diagram, its context, plant, plant context, input port): built once."""

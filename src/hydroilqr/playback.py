@@ -380,7 +380,8 @@ def playback(
                     next_update += settings.update_period  # update period < truth step
                 xr = plan.state(s * next_update)
                 qbar, vbar = xr[qi], vscale * xr[vi]
-                ubar = plan.input(s * next_update)
+                # the torque that acted in the plan (its commands beyond a limit acted at it)
+                ubar = task.dynamics.clip_to_limits(plan.input(s * next_update))
                 ref_t.append(next_update)
                 ref_q.append(qbar)
                 ref_v.append(vbar)
@@ -430,7 +431,9 @@ def playback(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
         np.array(ref_v).reshape(len(ref_t), -1),
-        np.array(ref_u).reshape(len(ref_t), -1),
+        # the torques that acted in the plan: a plan's commands beyond an effort limit were
+        # applied at the limit by the planner's plant (metrics.beyond_limits)
+        task.dynamics.clip_to_limits(np.array(ref_u).reshape(len(ref_t), -1)),
     )
     result = PlaybackResult(
         settings=settings,

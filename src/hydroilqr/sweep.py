@@ -260,6 +260,10 @@ def solve_point(
         arrays = {"X": sol.X, "U": sol.U, "t": sol.t, "costs": np.asarray(sol.costs)}
         m = metrics_mod.compute(task, sol)
         row.update({k: v for k, v in m.items() if _scalar(v)})
+        # one level of named scalars too: final_error.<Qf block>, cost_terms.<term>, ...
+        for k, v in m.items():
+            if isinstance(v, dict):
+                row.update({f"{k}.{kk}": vv for kk, vv in v.items() if _scalar(vv)})
         if "cartpole_wall" in task.config.metrics:
             arrays.update(_cartpole_geometry(task, sol.X))
             from .metrics import geometry_ids, signed_distance
