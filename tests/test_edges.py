@@ -946,3 +946,44 @@ def test_mpc_smoke_runs_a_few_updates_unless_a_duration_is_given(tmp_path):
     argv = ["mpc", "cartpole-wall", "--smoke", "--duration", "0.2", "--out", str(tmp_path / "b")]
     assert main(argv) == 0
     assert json.loads((tmp_path / "b" / "mpc.json").read_text())["duration_s"] == 0.2
+
+
+def test_worker_processes_exit_when_their_parent_is_killed(tmp_path):
+    """kill -9 of a solve must not leave its worker processes (each holding a plant) behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "pool.py"
+    script.write_text(
+        "import sys, time\n"
+        "from hydroilqr import Task, workers\n"
+        "task = Task.load('kinova-forward', ['solver.autodiff_workers=2'], smoke=True)\n"
+        "workers.warm_up(task.dynamics)\n"
+        "pool = workers.pool(task.dynamics)\n"
+        "print(' '.join(str(p) for p in pool._processes), flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in proc.stdout.readline().split()]
+        assert pids
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        # a zombie child of init counts as gone
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+
+    deadline = time.time() + 20
+    while any(alive(p) for p in pids) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(p) for p in pids)

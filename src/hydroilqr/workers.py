@@ -150,7 +150,22 @@ def _init(config: dict, base_dir: str) -> None:
     global _DYN
     from .config import task_from_dict
 
+    _exit_with_parent(os.getppid())
     _DYN = Dynamics(task_from_dict(config, base_dir))
+
+
+def _exit_with_parent(parent: int, period: float = 1.0) -> None:
+    """A worker whose parent was killed (SIGKILL, or SIGTERM without cleanup) would otherwise
+    wait forever on the pool's queue, holding its plant: it exits once it is orphaned."""
+
+    def watch() -> None:
+        import time
+
+        while os.getppid() == parent:
+            time.sleep(period)
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True, name="hydroilqr-parent-watch").start()
 
 
 def _ready() -> bool:
