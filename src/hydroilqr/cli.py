@@ -214,10 +214,17 @@ def cmd_solve(args) -> int:
             "section 3)"
         )
     if sol.reason == "interrupted":
-        console.print(
-            f"interrupted: {out} holds the best trajectory found before Ctrl+C "
-            f"({sol.iterations} iterations)"
+        in_stage = any(
+            st.get("overrides") and st.get("reason") == "interrupted"
+            for st in sol.extra.get("continuation", [])
         )
+        what = (
+            "the controls of the continuation stage that was running, simulated on the task's "
+            "own model (its cost is the task's, not the stage's)"
+            if in_stage
+            else "the best trajectory found before Ctrl+C"
+        )
+        console.print(f"interrupted: {out} holds {what} ({sol.iterations} iterations)")
         return 130
     if args.view:
         if args.no_replay:  # the replay (published to the live page as it is written) is due
