@@ -261,3 +261,34 @@ def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch):
     for (_, _, U_prev), (_, U0, _) in zip(calls, calls[1:]):
         np.testing.assert_array_equal(U0[:-S], U_prev[S:])
         np.testing.assert_array_equal(U0[-S:], np.tile(U_prev[-1], (S, 1)))
+
+
+def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
+    """The checkpoint also fingerprints the files the task reads: resuming after the model
+    changed would stitch two models into one trajectory."""
+    import shutil
+
+    from hydroilqr.config import TASKS_DIR, ConfigError
+    from hydroilqr.receding import load_checkpoint
+
+    model = tmp_path / "cheetah.sdf"
+    shutil.copy(TASKS_DIR.parent / "models" / "mini_cheetah" / "mini_cheetah.sdf", model)
+    task_file = tmp_path / "t.yaml"
+    task_file.write_text(
+        f"extends: {TASKS_DIR / 'cheetah-trot-1.0.yaml'}\nmodels:\n  - file: {model}\n"
+    )
+
+    def stop_after_one(done, total, sol):
+        if done == 1:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(
+            Task.load(str(task_file), smoke=True),
+            checkpoint_dir=tmp_path,
+            on_resolve=stop_after_one,
+        )
+    load_checkpoint(Task.load(str(task_file), smoke=True), tmp_path)  # unchanged: accepted
+    model.write_text(model.read_text().replace("<mass>3.3</mass>", "<mass>4.5</mass>"))
+    with pytest.raises(ConfigError, match="changed since its checkpoint"):
+        load_checkpoint(Task.load(str(task_file), smoke=True), tmp_path)

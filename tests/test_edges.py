@@ -857,14 +857,15 @@ def test_a_given_x0_has_its_quaternions_normalized_like_the_task_files():
     (qb,) = lay.quaternions
     x = task.x0.copy()
     x[list(qb.coords)] = [2.0, 0.0, 0.0, 0.0]
-    p = task.problem(x)
-    np.testing.assert_array_equal(p.x0[list(qb.coords)], [1.0, 0.0, 0.0, 0.0])
+    x0 = task.checked_state(x)
+    np.testing.assert_array_equal(x0[list(qb.coords)], [1.0, 0.0, 0.0, 0.0])
     assert x[qb.coords[0]] == 2.0  # the caller's array is not changed
+    np.testing.assert_array_equal(task.problem(x).x0, x)  # a window's start: used as given
     x[list(qb.coords)] = 0.0
     with pytest.raises(ValueError, match="non-zero"):
-        task.problem(x)
+        task.checked_state(x)
     with pytest.raises(ValueError, match="shape"):
-        task.problem(x[:-1])
+        task.checked_state(x[:-1])
 
 
 def test_python_dash_m_runs_the_command_line():
@@ -987,3 +988,16 @@ def test_worker_processes_exit_when_their_parent_is_killed(tmp_path):
     while any(alive(p) for p in pids) and time.time() < deadline:
         time.sleep(0.2)
     assert not any(alive(p) for p in pids)
+
+
+def test_one_value_per_coordinate_in_initial_state_and_nominal():
+    from hydroilqr import Task
+    from hydroilqr.config import ConfigError
+
+    for key in ("initial_state", "cost.nominal"):
+        with pytest.raises(ConfigError, match="same coordinates"):
+            Task.load(
+                "cheetah-trot-1.0",
+                [f"{key}.body.position=[0,0,0.5]", f"{key}.position=[0,0,0.3]"],
+                smoke=True,
+            ).validate()

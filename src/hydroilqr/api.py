@@ -78,7 +78,7 @@ def solve(
             return solve_receding(task, callbacks, checkpoint_dir, on_resolve)
         N = task.config.steps
         if x0 is not None:
-            x0 = task.problem(x0).x0  # checked, quaternions normalized
+            x0 = task.checked_state(x0)  # quaternions normalized
         if U0 is None:
             U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
         elif np.shape(U0)[:1] != (N,):

@@ -329,6 +329,14 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             console.print(f"  {a} / {b}: " + (f"{n} polygons" if n else "point contact"))
     else:
         console.print("[bold]contact at the initial state[/bold]: none")
+    n_touch = len(contacts)
+    overlapping = [p for p in pairs if p["distance"] is not None and p["distance"] < 0]
+    if len(overlapping) > n_touch:
+        console.print(
+            f"  ({len(overlapping)} pair(s) overlap in the exact shapes, {n_touch} touch: a "
+            "hydroelastic mesh of a curved shape lies inside the exact surface, by up to a "
+            "fraction of its resolution_hint, so a shallow overlap can have no contact)"
+        )
 
     # ---------------------------------------------------------------- simulation
     N = min(task.steps, rollout_steps)

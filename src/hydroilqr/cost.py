@@ -2,9 +2,10 @@
 
     J = Σ_{k<N} [ x̃_kᵀ Q x̃_k + u_kᵀ R u_k ] + x̃_Nᵀ Q_f x̃_N,   x̃_k = x_k ⊖ x_nom(t_k)
 
-``⊖`` is the tangent-space difference of ``state.StateLayout`` (rotation-vector error on
-quaternion blocks), so Q and Q_f are diagonal over the tangent space (size 2 nv) and given
-per named block in the task file. The nominal may move linearly in time,
+``⊖`` is the tangent-space difference of ``state.StateLayout`` (on quaternion blocks
+2 sin(θ/2)·axis, the rotation vector to first order), so Q and Q_f are diagonal over the
+tangent space (size 2 nv) and given per named block in the task file. The nominal may move
+linearly in time,
 ``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed),
 or follow a solved run (``cost.reference``: its states X_ref(t), linearly interpolated in time
 with quaternions renormalized, held after its end) on some or all blocks.

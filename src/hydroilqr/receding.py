@@ -48,6 +48,7 @@ def solve_receding(
     if ck is not None and ck.exists():
         st = load_checkpoint(task, ck.parent)
     st["fingerprint"] = run_id
+    st["files"] = files_fingerprint(cfg)
     while st["done"] < R:
         r = st["done"]
         x0 = st["X"][-1]
@@ -130,6 +131,12 @@ def load_checkpoint(task, directory: str | Path) -> dict:
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
         )
+    if st.get("files", files_fingerprint(task.config)) != files_fingerprint(task.config):
+        raise ConfigError(
+            f"{directory}: a model or initial-guess file of the task changed since its "
+            "checkpoint was written; resuming would mix two models (restore the file, or "
+            "choose another --out)"
+        )
     rh = task.config.receding_horizon
     done, S = st.get("done"), rh.shift_steps
     nx, nu = task.dynamics.nx, task.dynamics.nu
@@ -186,9 +193,34 @@ def fingerprint(cfg) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def files_fingerprint(cfg) -> str:
+    """The contents of the files the task reads (model files given by path, an initial-guess
+    file): a run resumed after one of them changed would mix two models."""
+    h = hashlib.sha256()
+    paths = [m.file for m in cfg.models if not m.file.startswith("package://")]
+    if cfg.initial_guess not in ("zeros", "gravity_compensation", "hold"):
+        paths.append(cfg.initial_guess)
+    for p in paths:
+        f = cfg.resolve_path(p)
+        h.update(str(p).encode())
+        try:
+            h.update(f.read_bytes())
+        except OSError:
+            h.update(b"<unreadable>")
+    return h.hexdigest()[:16]
+
+
 def _save(path: Path, st: dict) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
-    keys = ("done", "costs", "iteration_seconds", "phase_seconds", "resolves", "fingerprint")
+    keys = (
+        "done",
+        "costs",
+        "iteration_seconds",
+        "phase_seconds",
+        "resolves",
+        "fingerprint",
+        "files",
+    )
     meta = {k: st[k] for k in keys if k in st}
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
     np.savez(

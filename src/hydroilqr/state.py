@@ -12,8 +12,11 @@ A task may name *groups* of primitive blocks (``blocks: {arm_q: [joint_1, ..., j
 use either kind of name for weights, nominal values and initial states.
 
 The difference ``dx = x ⊖ x_ref`` lives in the tangent space, of size ``2 nv``: plain
-subtraction everywhere except quaternion blocks, whose error is the rotation vector
-``e = 2 sign(w) vec(q_ref* ⊗ q)`` (exact to first order, and the log map's small-angle form).
+subtraction everywhere except quaternion blocks, whose error is
+``e = 2 sign(w) vec(q_ref* ⊗ q) = 2 sin(θ/2) · axis`` for a rotation by θ about ``axis``: the
+rotation vector θ·axis to first order (the log map's small-angle form), but shorter at large
+angles (|e| = 1.41 at 90°, 2 at 180°; ``final_error`` of an orientation block reports |e|, not
+radians).
 ``diff_jacobian`` returns ``∂dx/∂x`` so costs in the tangent space can be pulled back to the
 coordinates in which Drake's dynamics are linearized.
 """
@@ -206,8 +209,16 @@ class StateLayout:
     def coordinate_vector(self, spec: dict, key: str, base: np.ndarray) -> np.ndarray:
         """Values by block name written into a copy of ``base`` (shape [nx])."""
         x = np.array(base, dtype=float)
+        owner: dict[int, str] = {}  # coordinate -> the name that set it
         for name, value in spec.items():
             b = self.block(name, f"{key}.{name}")
+            twice = sorted({owner[c] for c in b.coords if c in owner})
+            if twice:
+                raise ConfigError(
+                    f"{key}: {name} and {twice[0]} set the same coordinates (a group and its "
+                    "member, or a name given twice): give each coordinate one value"
+                )
+            owner.update(dict.fromkeys(b.coords, name))
             try:
                 vals = np.asarray(value, dtype=float).reshape(-1)
             except (TypeError, ValueError):
@@ -234,8 +245,8 @@ class StateLayout:
 
     def normalized(self, x: np.ndarray, what: str = "x0") -> np.ndarray:
         """A copy of the state x: [nx] with every quaternion that is not of unit norm (beyond
-        1e-9: a simulated state's rounding is kept bitwise) scaled to unit norm, as the task
-        file's values are. ValueError for a zero quaternion."""
+        1e-9) scaled to unit norm, as the task file's values are. ValueError for a zero
+        quaternion."""
         x = np.array(x, dtype=float)
         for b in self.quaternions:
             q = x[list(b.coords)]

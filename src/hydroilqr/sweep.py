@@ -247,7 +247,8 @@ def solve_point(
             warnings.simplefilter("ignore", RuntimeWarning)
             sol = api.solve(task)
         row["solve_seconds"] = time.perf_counter() - ts
-        cost = sol.final_cost
+        # a receding-horizon run's final_cost is its last window's: compare whole trajectories
+        cost = float(sol.extra.get("trajectory_cost", sol.final_cost))
         row.update(
             status="ok" if math.isfinite(cost) else "failed",
             error="" if math.isfinite(cost) else "final cost is not finite",
