@@ -292,3 +292,28 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
     model.write_text(model.read_text().replace("<mass>3.3</mass>", "<mass>4.5</mass>"))
     with pytest.raises(ConfigError, match="changed since its checkpoint"):
         load_checkpoint(Task.load(str(task_file), smoke=True), tmp_path)
+
+
+def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
+    from hydroilqr import receding
+
+    def stop_after_one(done, total, sol):
+        if done == 1:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(
+            Task.load("cheetah-trot-1.0", smoke=True),
+            checkpoint_dir=tmp_path,
+            on_resolve=stop_after_one,
+        )
+    assert receding.environment_change(tmp_path) == ""  # same environment: nothing to say
+    here = receding.numeric_environment()
+    monkeypatch.setattr(
+        receding, "numeric_environment", lambda: {**here, "blas_core": "Haswell-elsewhere"}
+    )
+    assert "blas_core" in receding.environment_change(tmp_path)
+    sol = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
+    envs = sol.extra["environments"]
+    assert [e["from_resolve"] for e in envs] == [0, 1]
+    assert envs[1]["environment"]["blas_core"] == "Haswell-elsewhere"

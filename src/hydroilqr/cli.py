@@ -118,6 +118,13 @@ def cmd_solve(args) -> int:
         if args.out and Path(args.out) != Path(resume_dir):
             raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
         receding.load_checkpoint(task, resume_dir)  # refuses a foreign or missing checkpoint
+        changed = receding.environment_change(resume_dir)
+        if changed:
+            console.print(
+                f"[yellow]warning:[/yellow] resuming in another environment ({changed}): the "
+                "finished windows keep their last bits and the rest get this environment's, so "
+                "the result will match an uninterrupted run in neither (extra.environments)"
+            )
     out = Path(args.out or resume_dir or f"runs/{task.name}{'-smoke' if args.smoke else ''}")
     ck = out / receding.CHECKPOINT
     restart = False

@@ -49,6 +49,12 @@ def solve_receding(
         st = load_checkpoint(task, ck.parent)
     st["fingerprint"] = run_id
     st["files"] = files_fingerprint(cfg)
+    # The environments that computed the windows (a resumed run may mix two: its results
+    # then match neither, as last bits differ; summary.json's extra lists them).
+    env = numeric_environment()
+    envs = st.setdefault("environments", [])
+    if not envs or envs[-1]["environment"] != env:
+        envs.append({"from_resolve": st["done"], "environment": env})
     while st["done"] < R:
         r = st["done"]
         x0 = st["X"][-1]
@@ -110,6 +116,7 @@ def solve_receding(
             "window_steps": W,
             "shift_steps": S,
             "trajectory_cost": float(task.cost.total(st["X"], st["U"], 0.0)),
+            "environments": st.get("environments", []),
         },
     )
 
@@ -193,6 +200,29 @@ def fingerprint(cfg) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def numeric_environment() -> dict:
+    """What decides a run's last bits: code, package versions, BLAS kernels, vector units."""
+    from .report import environment
+
+    env = environment()
+    keys = ("code", "drake", "numpy", "scipy", "blas_core", "cpu_features")
+    return {k: env.get(k) for k in keys}
+
+
+def environment_change(directory: str | Path) -> str:
+    """ "" if the checkpoint in ``directory`` was computed in this environment, else what
+    differs (a resumed run mixes both: bitwise reproducible in neither)."""
+    try:
+        envs = _load(Path(directory) / CHECKPOINT).get("environments") or []
+    except Exception:  # noqa: BLE001 - load_checkpoint reports unreadable checkpoints
+        return ""
+    if not envs:
+        return ""
+    old, new = envs[-1]["environment"], numeric_environment()
+    diff = [f"{k} {old.get(k)} -> {new.get(k)}" for k in new if old.get(k) != new.get(k)]
+    return "; ".join(diff)
+
+
 def files_fingerprint(cfg) -> str:
     """The contents of the files the task reads (model files given by path, an initial-guess
     file): a run resumed after one of them changed would mix two models."""
@@ -220,6 +250,7 @@ def _save(path: Path, st: dict) -> None:
         "resolves",
         "fingerprint",
         "files",
+        "environments",
     )
     meta = {k: st[k] for k in keys if k in st}
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
