@@ -860,7 +860,7 @@ def test_a_given_x0_has_its_quaternions_normalized_like_the_task_files():
     x0 = task.checked_state(x)
     np.testing.assert_array_equal(x0[list(qb.coords)], [1.0, 0.0, 0.0, 0.0])
     assert x[qb.coords[0]] == 2.0  # the caller's array is not changed
-    np.testing.assert_array_equal(task.problem(x).x0, x)  # a window's start: used as given
+    np.testing.assert_array_equal(task.problem(x).x0, x0)  # the same rule for problem()
     x[list(qb.coords)] = 0.0
     with pytest.raises(ValueError, match="non-zero"):
         task.checked_state(x)
@@ -1001,3 +1001,32 @@ def test_one_value_per_coordinate_in_initial_state_and_nominal():
                 [f"{key}.body.position=[0,0,0.5]", f"{key}.position=[0,0,0.3]"],
                 smoke=True,
             ).validate()
+
+
+def test_sibling_defaults_agree():
+    """Linearizer and linearize read X the same way by default (not as a rollout of U);
+    PlaybackSettings picks the CLI's default speed per policy; batch_step is step, batched."""
+    from hydroilqr import Task
+    from hydroilqr.derivatives import Linearizer, batch_step, linearize
+    from hydroilqr.playback import PlaybackSettings
+
+    task = Task.load("cartpole-wall", ["num_steps=5", "solver.derivatives=forward"])
+    dyn = task.dynamics
+    U = np.zeros((5, 1))
+    X = dyn.rollout(task.x0, U) + 0.01  # not a rollout of U
+    A1, B1 = linearize(dyn, X, U, "forward")
+    A2, B2 = Linearizer.from_settings(dyn, task.config.solver)(X, U)
+    np.testing.assert_array_equal(A1, A2)
+    np.testing.assert_array_equal(B1, B2)
+    assert PlaybackSettings(policy="ilqr").speed == 1.0 and PlaybackSettings().speed == 0.5
+    nxt = batch_step(dyn, X[:5], U)
+    np.testing.assert_array_equal(nxt[2], dyn.step(X[2], U[2]))
+
+
+def test_debug_variable_shows_tracebacks_for_config_errors(monkeypatch):
+    from hydroilqr.cli import main
+    from hydroilqr.config import ConfigError
+
+    monkeypatch.setenv("HYDROILQR_DEBUG", "1")
+    with pytest.raises(ConfigError):
+        main(["check", "cartpole-wall", "--set", "solver.max_iterations=-1"])

@@ -30,6 +30,7 @@ import numpy as np
 from . import workers
 from .cli import console, register
 from .config import ConfigError
+from .plant import hydroelastic_kind
 from .solution import PHASES
 
 PAPER = [
@@ -212,14 +213,6 @@ class SameIterates:
 # ------------------------------------------------------------------------------------------
 
 
-def _kind(props) -> str:
-    if props is None or not props.HasGroup("hydroelastic"):
-        return "none"
-    if props.HasProperty("hydroelastic", "hydroelastic_modulus"):
-        return "compliant"
-    return "rigid"
-
-
 def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
     """(contact polygons at x, class): class is "free", "compliant-rigid" (AutoDiff exact)
     or "compliant-compliant"/"point" (AutoDiff approximate, see drake-notes.md). A geometry
@@ -229,7 +222,9 @@ def contact_state(dyn, x: np.ndarray) -> tuple[int, str]:
     faces, cls = 0, "free"
     for s in surfaces:
         faces += s.num_faces()
-        kinds = {_kind(inspector.GetProximityProperties(g)) for g in (s.id_M(), s.id_N())}
+        kinds = {
+            hydroelastic_kind(inspector.GetProximityProperties(g)) for g in (s.id_M(), s.id_N())
+        }
         if kinds == {"compliant"}:
             cls = "compliant-compliant"
         elif cls == "free":

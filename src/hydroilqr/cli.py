@@ -408,9 +408,13 @@ def main(argv: list[str] | None = None) -> int:
             discard_empty_outputs()  # a failed command leaves no empty results directory
             raise
     except ConfigError as e:
+        if os.environ.get("HYDROILQR_DEBUG"):
+            raise
         print(f"hydroilqr: error: {e}", file=sys.stderr)
         return 2
     except SimulationError as e:
+        if os.environ.get("HYDROILQR_DEBUG"):
+            raise
         print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
         return 3
     except KeyboardInterrupt as e:

@@ -239,8 +239,9 @@ class MPCConfig:
     # failed search keeps the previous plan (shifted); it is not an error.
     line_search_steps: int = 3
     line_search_retries: int = 0
-    # > 0: an update starts no line-search trial after this fraction of the control period
-    # (it keeps the warm start, with fresh gains): late updates return in time. 0 = off.
+    # > 0 and --realtime: an update starts no line-search trial after this fraction of the
+    # control period (it keeps the warm start, with fresh gains): late updates return in time.
+    # 0 = off; lock-step runs ignore it.
     deadline: float = 0.0
 
 

@@ -174,7 +174,7 @@ class Linearizer:
             self.A = np.concatenate([self.A, np.zeros((m, dyn.nx, dyn.nx))])
             self.B = np.concatenate([self.B, np.zeros((m, dyn.nx, dyn.nu))])
 
-    def __call__(self, X: np.ndarray, U: np.ndarray, rollout: bool = True):
+    def __call__(self, X: np.ndarray, U: np.ndarray, rollout: bool = False):
         """X: [N+1, nx] (a rollout of U if ``rollout``), U: [N, nu] -> A: [N, nx, nx],
         B: [N, nx, nu]. Raises SimulationError if a step fails."""
         N = U.shape[0]

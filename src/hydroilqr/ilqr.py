@@ -149,7 +149,7 @@ def solve(
     problem: Problem,
     U0: np.ndarray,
     settings: SolverConfig | None = None,
-    callbacks: list[Callable[[IterationInfo], None]] | None = None,
+    callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
     max_iterations: int | None = None,
     final_gains: bool = True,
     linearizer: Linearizer | None = None,

@@ -1,8 +1,8 @@
 """Task metrics, by name (``metrics: [default, cartpole_wall]`` in a task file).
 
 Each metric function takes (task, solution) and returns a dict of JSON-able numbers. Contact
-metrics replay the trajectory through the plant and read Drake's contact results and
-signed-distance queries, so they measure the simulated physics, not the plan's intent.
+metrics query the geometry of every stored state (touching pairs and their contact polygons,
+``Dynamics.contact_query``; signed distances): no contact solve, the states themselves.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@
   (the whole run if it is shorter); ``velocity_error_fraction``: |mean − target| / target;
 * ``min_body_height_m``: lowest base (body frame origin) height for t ≥ 0.2 s;
 * ``body_ground_contact_steps``: states with t ≥ 0.2 s where the body's collision box touches
-  the ground (Drake contact results of the replayed states);
+  the ground (a geometry query of the touching pairs at each state);
 * ``duty_factor``: per foot, the fraction of states with t ≥ 0.2 s in which the foot touches the
   ground;
 * ``diagonal_pair_overlap`` / ``lateral_pair_overlap``: fraction of those states in which both

@@ -8,7 +8,7 @@
 * ``target_error_xyz_m``: the signed per-axis errors (final − nominal, 0 on unweighted axes);
 * ``max_ball_height_gain_m``: highest ball centre over the trajectory minus its start height;
 * ``contact_links``: bodies (other than the world/ground) that touched the ball at any step,
-  from Drake's contact results along the replayed trajectory; ``contact_steps`` per link;
+  from a geometry query of the touching pairs at every state; ``contact_steps`` per link;
   ``max_arm_ball_faces``: most contact polygons between the arm and the ball at one step.
 
 ``metric_params.ball`` names the ball's body (default ``ball``). The plot ``ball.png`` shows the

@@ -67,7 +67,9 @@ POLICIES = ("pd", "ilqr")
 class PlaybackSettings:
     """How the plan is executed. Times in seconds of playback (wall) time unless noted."""
 
-    speed: float = 0.5  # plan time advances s per second of playback
+    # plan time advances s per second of playback; None: 0.5 for pd, 1 for ilqr (its gains
+    # hold only at the plan's own timing)
+    speed: float | None = None
     kp: float = 500.0  # PD+ stiffness (N·m/rad or N/m), same for every actuated joint
     kd: float = 5.0  # PD+ damping (N·m·s/rad or N·s/m)
     rate: float = 1000.0  # Hz, PD+ control loop
@@ -97,6 +99,10 @@ class PlaybackSettings:
                 f"playback truth-time-step {self.truth_time_step:g} s: coarser than the plan's "
                 f"time step ({dt:g} s); the 'real' system must be simulated at least as finely"
             )
+
+    def __post_init__(self) -> None:
+        if self.speed is None:
+            self.speed = 0.5 if self.policy == "pd" else 1.0
 
     def validate(self) -> None:
         for name in ("speed", "rate", "update_period", "truth_time_step"):
@@ -745,9 +751,8 @@ def write_outputs(
 
 def cmd_playback(args) -> int:
     task, sol, _ = load_run(args.dir)
-    speed = args.speed if args.speed is not None else (0.5 if args.policy == "pd" else 1.0)
     settings = PlaybackSettings(
-        speed=speed,
+        speed=args.speed,
         kp=args.kp,
         kd=args.kd,
         rate=args.rate,
@@ -768,7 +773,7 @@ def cmd_playback(args) -> int:
     con = cli.console
     truth_contact = settings.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
     con.print(
-        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {speed:g}, "
+        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}, "
         f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
         f"(plan dt={task.config.plant.time_step:g} "
         f"contact={task.config.plant.contact_approximation}) -> {out}"

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError
-from .ilqr import IterationInfo, solve
+from .config import GUESS_KEYWORDS, ConfigError
+from .ilqr import IterationInfo, Problem, solve
 from .plant import SimulationError
 from .solution import PHASES, Solution
 
@@ -32,7 +32,7 @@ def shift_guess(U: np.ndarray, shift: int) -> np.ndarray:
 
 def solve_receding(
     task,
-    callbacks: list[Callable[[IterationInfo], None]] | None = None,
+    callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
     checkpoint_dir: str | Path | None = None,
     on_resolve: Callable[[int, int, Solution], None] | None = None,
 ) -> Solution:
@@ -65,7 +65,13 @@ def solve_receding(
             # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
             # trajectory (one more linearization per window), as playback --policy ilqr needs.
             sol = solve(
-                task.problem(x0, t0), st["guess"], cfg.solver, callbacks, max_it, final_gains=True
+                # exactly the kept state (not re-normalized: the stitched X is a replay of U)
+                Problem(dyn, task.cost, x0, t0),
+                st["guess"],
+                cfg.solver,
+                callbacks,
+                max_it,
+                final_gains=True,
             )
         except SimulationError as e:
             raise SimulationError(f"resolve {r}: {e}") from None
@@ -228,7 +234,7 @@ def files_fingerprint(cfg) -> str:
     file): a run resumed after one of them changed would mix two models."""
     h = hashlib.sha256()
     paths = [m.file for m in cfg.models if not m.file.startswith("package://")]
-    if cfg.initial_guess not in ("zeros", "gravity_compensation", "hold"):
+    if cfg.initial_guess not in GUESS_KEYWORDS:
         paths.append(cfg.initial_guess)
     for p in paths:
         f = cfg.resolve_path(p)

@@ -247,6 +247,12 @@ def solve_outputs(out: Path) -> list[Path]:
     return found
 
 
+def _cores() -> int:
+    from .workers import cores
+
+    return cores()
+
+
 def code_version() -> str:
     """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
     a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
@@ -278,7 +284,6 @@ def environment() -> dict:
     sensitive to last-bit floating-point differences, so a number is only comparable with
     numbers from the same environment."""
     import importlib.metadata as md
-    import os
     import platform
 
     def version(pkg: str) -> str | None:
@@ -310,7 +315,7 @@ def environment() -> dict:
         "cpu": cpu,
         "cpu_features": simd,
         "blas_core": blas_core(),
-        "cores": os.cpu_count(),
+        "cores": _cores(),
     }
 
 

@@ -243,20 +243,6 @@ class StateLayout:
             x[list(b.coords)] = vals
         return x
 
-    def normalized(self, x: np.ndarray, what: str = "x0") -> np.ndarray:
-        """A copy of the state x: [nx] with every quaternion that is not of unit norm (beyond
-        1e-9) scaled to unit norm, as the task file's values are. ValueError for a zero
-        quaternion."""
-        x = np.array(x, dtype=float)
-        for b in self.quaternions:
-            q = x[list(b.coords)]
-            norm = np.linalg.norm(q)
-            if not norm > 1e-9:
-                raise ValueError(f"{what}: the quaternion of {b.name} must be non-zero, got {q}")
-            if abs(norm - 1.0) > 1e-9:
-                x[list(b.coords)] = q / norm
-        return x
-
     def default_nominal(self) -> np.ndarray:
         x = np.zeros(self.nx)
         for b in self.quaternions:
@@ -304,10 +290,14 @@ class StateLayout:
             self._euclid = (np.array(c, dtype=int), np.array(t, dtype=int))
         return self._euclid
 
-    def normalize(self, x: np.ndarray) -> np.ndarray:
-        """Re-normalizes quaternion blocks. x: [..., nx]."""
+    def normalize(self, x: np.ndarray, what: str = "state") -> np.ndarray:
+        """A copy of x: [..., nx] with every quaternion block scaled to unit norm. ValueError
+        for a zero quaternion."""
         x = np.array(x, dtype=float)
         for b in self.quaternions:
             q = x[..., list(b.coords)]
-            x[..., list(b.coords)] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+            norm = np.linalg.norm(q, axis=-1, keepdims=True)
+            if not np.all(norm > 1e-9):
+                raise ValueError(f"{what}: the quaternion of {b.name} must be non-zero")
+            x[..., list(b.coords)] = q / norm
         return x

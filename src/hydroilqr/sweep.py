@@ -646,7 +646,9 @@ def _open_client(scheduler: str | None, workers: int | None):
         return client, None
     import signal
 
-    n = workers or os.cpu_count() or 1
+    from .workers import cores
+
+    n = workers or cores()
     # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
     # process group) then reaches only this process, which stops the sweep and the cluster,
     # instead of every worker printing its own KeyboardInterrupt traceback.

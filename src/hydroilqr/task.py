@@ -187,9 +187,11 @@ class Task:
         return U[np.minimum(np.arange(start, start + N), U.shape[0] - 1)].copy()
 
     def problem(self, x0: np.ndarray | None = None, t0: float = 0.0) -> Problem:
-        """The optimal control problem from x0: [nx] (default: the task's initial state),
-        used as given (a receding window starts exactly where the previous one left off)."""
-        return Problem(self.dynamics, self.cost, self.x0 if x0 is None else x0, t0)
+        """The optimal control problem from x0: [nx] (default: the task's initial state; a
+        given x0 is checked and its quaternions normalized, ``checked_state``)."""
+        return Problem(
+            self.dynamics, self.cost, self.x0 if x0 is None else self.checked_state(x0), t0
+        )
 
     def checked_state(self, x0) -> np.ndarray:
         """A user's initial state x0: [nx] checked (shape, finite) with its quaternions
@@ -199,4 +201,4 @@ class Task:
             raise ValueError(f"x0 must have shape [{self.dynamics.nx}] (nx), got {x0.shape}")
         if not np.isfinite(x0).all():
             raise ValueError("x0 must be finite (no NaN or infinite entries)")
-        return self.dynamics.layout.normalized(x0)
+        return self.dynamics.layout.normalize(x0, "x0")
