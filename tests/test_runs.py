@@ -70,6 +70,10 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     # what produced it.
     env = summary["environment"]
     assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
+    assert env["command"] == f"hydroilqr solve {task} --out {out} --no-replay"
+    from hydroilqr import report
+
+    assert report.COMMAND is None  # not carried into later Python calls
 
 
 def test_a_failed_resolve_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):

@@ -398,7 +398,13 @@ def main(argv: list[str] | None = None) -> int:
         print("hydroilqr: interrupted", file=sys.stderr)
         return 130
     parser = build_parser()
-    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else argv))
+    argv = _join_negative_values(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(argv)
+    import shlex
+
+    from . import report
+
+    report.COMMAND = shlex.join(["hydroilqr", *argv])
     from .report import discard_empty_outputs
 
     try:
@@ -437,6 +443,8 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+    finally:
+        report.COMMAND = None  # a later Python call in this process is not this command
 
 
 if __name__ == "__main__":

@@ -316,7 +316,12 @@ def environment() -> dict:
         "cpu_features": simd,
         "blas_core": blas_core(),
         "cores": _cores(),
+        # the command line that produced the result (None from Python)
+        "command": COMMAND,
     }
+
+
+COMMAND: str | None = None  # set by the command-line entry point
 
 
 def blas_core() -> str | None:
