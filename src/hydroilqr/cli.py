@@ -117,8 +117,10 @@ def cmd_solve(args) -> int:
             raise ConfigError(f"--resume: {task.name} is not a receding-horizon task")
         if args.out and Path(args.out) != Path(resume_dir):
             raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
-        receding.load_checkpoint(task, resume_dir)  # refuses a foreign or missing checkpoint
-        changed = receding.environment_change(resume_dir)
+        # refuses a foreign or missing checkpoint
+        ck_state = receding.load_checkpoint(task, resume_dir)
+        unfinished = ck_state["done"] < task.config.receding_horizon.resolves
+        changed = receding.environment_change(resume_dir) if unfinished else ""
         if changed:
             console.print(
                 f"[yellow]warning:[/yellow] resuming in another environment ({changed}): the "

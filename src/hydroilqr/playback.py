@@ -252,7 +252,8 @@ def actuated_joints(plant):
 
 
 def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
-    """The floating body if any (ball, quadruped body), else the first unactuated joint."""
+    """The floating body if any (ball, quadruped body), else the first unactuated joint, else
+    the first joint."""
     layout, plant = dyn.layout, dyn.plant
     if requested:
         b = layout.block(requested, "playback object")
@@ -860,7 +861,7 @@ def setup(p) -> None:
     p.add_argument(
         "--object",
         help="state block compared planned vs actual (default: the "
-        "floating body, else the first unactuated joint)",
+        "floating body, else the first unactuated joint, else the first joint)",
     )
     p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
     p.add_argument(

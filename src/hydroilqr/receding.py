@@ -53,7 +53,7 @@ def solve_receding(
     # then match neither, as last bits differ; summary.json's extra lists them).
     env = numeric_environment()
     envs = st.setdefault("environments", [])
-    if not envs or envs[-1]["environment"] != env:
+    if st["done"] < R and (not envs or envs[-1]["environment"] != env):
         envs.append({"from_resolve": st["done"], "environment": env})
     while st["done"] < R:
         r = st["done"]

@@ -997,6 +997,6 @@ def setup(p) -> None:
         help="on resume, also recompute points recorded as failed",
     )
     p.add_argument(
-        "--out", help="output directory, resumable (default runs/TASK-sweep, TASK-smoke-sweep)"
+        "--out", help="output directory, resumable (default runs/TASK-sweep, runs/TASK-smoke-sweep)"
     )
     p.set_defaults(func=cmd_sweep)
