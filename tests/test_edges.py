@@ -5,6 +5,7 @@ each test kills a mutation the rest of the suite let through). Smoke-sized."""
 from __future__ import annotations
 
 import io
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -1030,3 +1031,82 @@ def test_debug_variable_shows_tracebacks_for_config_errors(monkeypatch):
     monkeypatch.setenv("HYDROILQR_DEBUG", "1")
     with pytest.raises(ConfigError):
         main(["check", "cartpole-wall", "--set", "solver.max_iterations=-1"])
+
+
+def test_a_runs_resolved_config_is_a_task_file_and_parent_smoke_paths_anchor(tmp_path):
+    """summary.json's config solves as a YAML task file (one trajectory length), and a
+    parent's smoke: paths are relative to the parent's own directory."""
+    import json
+
+    import yaml
+
+    from hydroilqr import Task
+    from hydroilqr.cli import main
+
+    out = tmp_path / "run"
+    argv = ["solve", "cartpole-wall", "--smoke", "--set", "num_steps=12", "--no-replay"]
+    assert main([*argv, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    cfg = summary["config"]
+    assert "horizon" not in cfg and cfg["num_steps"] == 12
+    for m in cfg["models"]:  # relative to base_dir, as documented
+        m["file"] = str(Path(summary["base_dir"]) / m["file"])
+    f = tmp_path / "again.yaml"
+    f.write_text(yaml.safe_dump(cfg))
+    assert Task.from_yaml(f).steps == 12
+
+    parent_dir = tmp_path / "p"
+    parent_dir.mkdir()
+    np.savetxt(parent_dir / "U.csv", np.zeros((5, 1)), delimiter=",")
+    (parent_dir / "parent.yaml").write_text(
+        yaml.safe_dump({**cfg, "smoke": {"num_steps": 5, "initial_guess": "U.csv"}})
+    )
+    (tmp_path / "child.yaml").write_text("extends: p/parent.yaml\nname: child\n")
+    task = Task.load(str(tmp_path / "child.yaml"), smoke=True)
+    assert Path(task.config.initial_guess) == parent_dir / "U.csv"
+
+
+def test_ctrl_c_while_results_are_written_waits_for_them():
+    import os
+    import signal
+
+    from hydroilqr.report import deferred_interrupt
+
+    done = []
+    with pytest.raises(KeyboardInterrupt, match="written first"):
+        with deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("the rest of the block ran")
+    assert done
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_path):
+    import json
+
+    from hydroilqr import report
+    from hydroilqr.config import ConfigError
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "summary.json").write_text(json.dumps({"task": "t"}))
+    with pytest.raises(ConfigError, match="playback directory"):
+        report.output_dir(run / "playback-pd", "t")
+    assert report.output_dir(run / "playback-pd", "t", playback=True).is_dir()
+    # another process reads (plays) the run: a solve into it is refused meanwhile
+    import subprocess
+    import sys
+
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time; from pathlib import Path; from hydroilqr import report; "
+         f"report.read_lock(Path({str(run)!r})); print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(ConfigError, match="in use by another hydroilqr run"):
+            report._lock(run)
+    finally:
+        holder.kill()
+        holder.wait()

@@ -199,10 +199,11 @@ def cmd_solve(args) -> int:
         console.print(f"live view: {meshcat_instance().web_url()}")
     # An earlier solve's results are replaced only now that this one has a trajectory: a
     # failed or killed solve leaves them as they were.
-    _clear_previous(out, keep=(receding.CHECKPOINT,))
-    summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
-    summary["wall_seconds"] = wall
-    report.write_json(out / "summary.json", summary)
+    with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
+        _clear_previous(out, keep=(receding.CHECKPOINT,))
+        summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
+        summary["wall_seconds"] = wall
+        report.write_json(out / "summary.json", summary)
     for line in metrics_mod.summary_lines(summary["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]

@@ -287,8 +287,12 @@ class TaskConfig:
         return p
 
     def to_dict(self) -> dict[str, Any]:
+        """The resolved task as plain data (a task file with the same content solves it: the
+        trajectory length is given once, as num_steps when set, else as horizon)."""
         d = dataclasses.asdict(self)
         d.pop("base_dir", None)
+        if d.get("num_steps"):
+            d.pop("horizon", None)
         return d
 
 
@@ -675,6 +679,14 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     mpc = data.get("mpc")
     if isinstance(mpc, dict) and isinstance(mpc.get("warm_start_plan"), str):
         mpc["warm_start_plan"] = anchor(mpc["warm_start_plan"])
+    # dotted overrides (smoke:, continuation stages) name paths too
+    if isinstance(data.get("smoke"), dict):
+        data["smoke"] = {k: _cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
+    if isinstance(data.get("continuation"), list):
+        data["continuation"] = [
+            {k: _cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
+            for st in data["continuation"]
+        ]
 
 
 def _cwd_path(key: str, value: Any, base: Path | None = None) -> Any:

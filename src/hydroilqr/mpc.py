@@ -825,22 +825,23 @@ def cmd_mpc(args) -> int:
     }
     # An earlier run's files go first; mpc.json, written last, marks a complete set (an
     # interrupted write never leaves this run's files beside an earlier run's).
-    for name in ("mpc.json", "mpc.npz", "mpc.png", "mpc.html"):
-        (out / name).unlink(missing_ok=True)
-    np.savez_compressed(
-        out / "mpc.npz",
-        X=res.X,
-        U=res.U,
-        t=res.t,
-        update_times=np.array(res.update_times),
-        solve_seconds=np.array(res.solve_seconds),
-    )
-    plot_mpc(task, res, out / "mpc.png")
-    if not args.no_replay:
-        from .replay import write_replay
+    with report.deferred_interrupt():  # Ctrl+C here: after the set is complete
+        for name in ("mpc.json", "mpc.npz", "mpc.png", "mpc.html"):
+            (out / name).unlink(missing_ok=True)
+        np.savez_compressed(
+            out / "mpc.npz",
+            X=res.X,
+            U=res.U,
+            t=res.t,
+            update_times=np.array(res.update_times),
+            solve_seconds=np.array(res.solve_seconds),
+        )
+        plot_mpc(task, res, out / "mpc.png")
+        if not args.no_replay:
+            from .replay import write_replay
 
-        write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
-    report.write_json(out / "mpc.json", data)
+            write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
+        report.write_json(out / "mpc.json", data)
     s = stats["solve_seconds"]
     console.print(
         f"rate {stats['achieved_rate_hz']:.1f} Hz, solve p50 {1e3 * s['p50']:.1f} ms, "

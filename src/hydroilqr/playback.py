@@ -751,6 +751,9 @@ def write_outputs(
 
 
 def cmd_playback(args) -> int:
+    from .report import read_lock
+
+    read_lock(Path(args.dir))  # no solve replaces the plan while it plays
     task, sol, _ = load_run(args.dir)
     settings = PlaybackSettings(
         speed=args.speed,
@@ -770,7 +773,9 @@ def cmd_playback(args) -> int:
     settings.check_against(task)
     from .report import output_dir
 
-    out = output_dir(args.out or Path(args.dir) / f"playback-{args.policy}", task.name)
+    out = output_dir(
+        args.out or Path(args.dir) / f"playback-{args.policy}", task.name, playback=True
+    )
     con = cli.console
     truth_contact = settings.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
     con.print(
@@ -783,7 +788,10 @@ def cmd_playback(args) -> int:
     for w in early:
         con.print(f"[yellow]warning:[/yellow] {w}")
     r = playback(task, sol, settings)
-    data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
+    from .report import deferred_interrupt
+
+    with deferred_interrupt():  # Ctrl+C here: after the set is complete
+        data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
     ob = data["object"]
     unit = ob["unit"]
     con.print(

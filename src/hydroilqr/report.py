@@ -88,6 +88,34 @@ def plot_convergence(sol, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+class deferred_interrupt:
+    """``with deferred_interrupt(): ...`` writes results without a Ctrl+C in the middle: a
+    SIGINT that arrives inside is held until the block ends, then raised as KeyboardInterrupt
+    (so a directory never holds half of the old results and half of the new)."""
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        self.got = False
+        self.old = None
+        if threading.current_thread() is threading.main_thread():
+            self.old = signal.signal(signal.SIGINT, self._hold)
+        return self
+
+    def _hold(self, signum, frame) -> None:
+        self.got = True
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        import signal
+
+        if self.old is not None:
+            signal.signal(signal.SIGINT, self.old)
+        if self.got and exc_type is None:
+            raise KeyboardInterrupt("the results were written first")
+        return False
+
+
 def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
     """Writes the standard outputs; returns the summary dict."""
     out = Path(out)
@@ -140,14 +168,21 @@ def previous_task(out: Path) -> str | None:
     return None
 
 
-def output_dir(out: str | Path, task_name: str | None = None) -> Path:
+def output_dir(out: str | Path, task_name: str | None = None, playback: bool = False) -> Path:
     """``out`` ready to write into: created if missing; ConfigError if it is a file or holds
-    another task's results (results are never mixed or overwritten across tasks)."""
+    another task's results (results are never mixed or overwritten across tasks), or (unless
+    ``playback``) if it is a ``playback-*`` directory of a solved run, which the next solve
+    of that run clears."""
     from .config import ConfigError
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
+    if not playback and out.name.startswith("playback-") and (out.parent / "summary.json").exists():
+        raise ConfigError(
+            f"--out {out}: a playback directory of the run in {out.parent} (the next solve "
+            "there removes it): choose another --out"
+        )
     if task_name is not None:
         previous = previous_task(out)
         torn = [m for m in RESULT_MARKERS if (out / m).exists()] if previous is None else []
@@ -226,12 +261,38 @@ def _lock(out: Path) -> None:
             other = path.read_text().strip()
         except OSError:
             other = ""
-        who = f" (process {other})" if other else ""
+        who = f" (process {other}, or a playback reading its plan)" if other else ""
         raise ConfigError(
             f"{out} is in use by another hydroilqr run{who}: wait for it or choose another --out"
         ) from None
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
+    _LOCKS[key] = fd
+
+
+def read_lock(run_dir: Path) -> None:
+    """A shared lock on a run directory this process reads (playback of its plan): a solve
+    into it is refused meanwhile, so a playback never pairs an old plan with new results.
+    Nothing to do where the directory is not writable (nothing can replace it either)."""
+    import fcntl
+    import os
+
+    from .config import ConfigError
+
+    key = str(Path(run_dir).resolve())
+    if key in _LOCKS:
+        return
+    try:
+        fd = os.open(Path(run_dir) / ".hydroilqr.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise ConfigError(
+            f"{run_dir} is being written by another hydroilqr run: wait for it"
+        ) from None
     _LOCKS[key] = fd
 
 
