@@ -793,11 +793,11 @@ def cmd_playback(args) -> int:
     with deferred_interrupt():  # Ctrl+C here: after the set is complete
         data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)
     ob = data["object"]
-    unit = ob["unit"]
+    unit = f" {ob['unit']}" if ob["unit"] else ""
     con.print(
         f"{data['truth_steps']} truth steps in {r.wall_seconds:.2f} s; object "
-        f"{ob['name']}: final gap {ob['final_gap']:.4g} {unit}, max deviation "
-        f"{ob['max_deviation']:.4g} {unit}, progress ratio "
+        f"{ob['name']}: final gap {ob['final_gap']:.4g}{unit}, max deviation "
+        f"{ob['max_deviation']:.4g}{unit}, progress ratio "
         f"{_fmt(ob['progress_ratio'])}"
     )
     con.print(
