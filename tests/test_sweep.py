@@ -173,3 +173,54 @@ def test_an_older_sweeps_point_files_are_kept_under_the_current_id(tmp_path):
     _adopt_older_point(tmp_path, {KEY: 1e6}, new)
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"{new}.json", f"{new}.npz"]
     assert json.loads((tmp_path / f"{new}.json").read_text())["id"] == new
+
+
+def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_path, monkeypatch):
+    """A lost scheduler (futures cancelled) leaves its points missing, so a plain rerun
+    computes them, and says so in one line; relative paths in --set are made absolute on the
+    client (remote workers run elsewhere)."""
+    from concurrent.futures import CancelledError
+
+    import distributed
+
+    from hydroilqr import sweep as sweep_mod
+    from hydroilqr.config import ConfigError
+
+    class Lost:
+        def result(self):
+            raise CancelledError("scheduler-connection-lost")
+
+    class FakeClient:
+        def submit(self, *a, **k):
+            return Lost()
+
+        def subscribe_topic(self, *a, **k):
+            pass
+
+        def unsubscribe_topic(self, *a, **k):
+            pass
+
+        def nthreads(self):
+            return {"w": 1}
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(sweep_mod, "_open_client", lambda s, w: (FakeClient(), None))
+    monkeypatch.setattr(distributed, "as_completed", lambda futs: list(futs))
+    out = tmp_path / "sw"
+    with pytest.raises(ConfigError, match="2 point"):
+        sweep_mod.run_sweep("cartpole-wall", [(KEY, [1e5, 1e6])], out, sets=SMALL, plots=False)
+    assert not list((out / "points").glob("*.json"))  # missing, not failed
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "U.csv").write_text("0\n" * 400)
+    with pytest.raises(ConfigError):
+        sweep_mod.run_sweep(
+            "cartpole-wall",
+            [(KEY, [1e5])],
+            tmp_path / "sw2",
+            sets=[*SMALL, "initial_guess=U.csv"],
+            plots=False,
+        )
+    spec = json.loads((tmp_path / "sw2" / "sweep_spec.json").read_text())
+    assert f"initial_guess={tmp_path / 'U.csv'}" in spec["set"]

@@ -30,13 +30,14 @@ import os
 import threading
 import time
 import warnings
+from concurrent.futures import CancelledError
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .cli import add_task_args, console, register, task_name_from_args
-from .config import ConfigError, parse_override, task_file
+from .config import ConfigError, _cwd_path, parse_override, task_file
 
 POINT_COLUMNS = (
     "final_cost",
@@ -225,6 +226,12 @@ def solve_point(
     """Runs on a worker. Never raises: a failure comes back as status "failed" + reason."""
     t0 = time.perf_counter()
     row: dict[str, Any] = {"id": pid, **{f"param:{k}": v for k, v in values.items()}}
+    try:
+        from .report import code_version
+
+        row["code"] = code_version()  # the worker's: a remote one may run other code
+    except Exception:  # noqa: BLE001 - recorded by the client then
+        pass
     try:
         from distributed import get_worker
 
@@ -639,6 +646,13 @@ def _open_client(scheduler: str | None, workers: int | None):
     from distributed import Client, LocalCluster
 
     if scheduler:
+        if workers:
+            console.print(
+                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
+                "cluster's own workers run the points)"
+            )
+        # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         try:
             client = Client(scheduler, timeout="15s")
         except (OSError, TimeoutError, ValueError) as e:
@@ -704,7 +718,8 @@ def run_sweep(
     overrides: dict[str, Any] = {}
     for s in sets or []:
         k, v = parse_override(s)
-        overrides[k] = v
+        # a relative file path is the user's working directory's, here and on remote workers
+        overrides[k] = _cwd_path(k, v)
     user_set = sorted(f"{k}={v}" for k, v in overrides.items())
     # One thread per solve: the cluster already runs one worker process per core.
     if not any(k == "solver.threads" for k in overrides):
@@ -792,6 +807,7 @@ def run_sweep(
         + f" -> {out}"
     )
     computed = 0
+    lost = 0  # points whose futures the scheduler cancelled or lost
     log = out / "computed.log"
     from .report import code_version
 
@@ -833,6 +849,11 @@ def run_sweep(
                     i = futures[fut]
                     try:
                         result = fut.result()
+                    except CancelledError:
+                        # the scheduler went away (or cancelled it): the point was not computed,
+                        # so it stays missing and a plain rerun computes it
+                        lost += 1
+                        continue
                     except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
                         msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
                         result = {
@@ -844,7 +865,7 @@ def run_sweep(
                             },
                             "arrays": {},
                         }
-                    result["row"]["code"] = code
+                    result["row"].setdefault("code", code)
                     save_point(points_dir, result)
                     row = result["row"]
                     rows[ids[i]] = row
@@ -864,6 +885,11 @@ def run_sweep(
                 cluster.close()
     all_rows = ordered()  # this grid's points and those kept from earlier runs
     write_tables(out, spec, keys, all_rows, len(points) - len(rows))
+    if lost:
+        raise ConfigError(
+            f"the Dask scheduler went away (or cancelled the work): {lost} point(s) not "
+            "computed; run the same command again to compute them (finished points are kept)"
+        )
     wrote = ["sweep.csv", "sweep.json"]
     if plots and all_rows:
         grid_values = [
