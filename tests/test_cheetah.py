@@ -121,20 +121,22 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
     assert len(saved["extra"]["resolves"]) == rh.resolves
 
 
+def _interrupt_after(resolves: int, task, directory) -> None:
+    """Runs a receding-horizon task into ``directory`` and stops it after some resolves."""
+
+    def stop(done, total, sol):
+        if done == resolves:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(task, checkpoint_dir=directory, on_resolve=stop)
+
+
 def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     _, full, full_dir = smoke_run
     assert (full_dir / CHECKPOINT).exists()
 
-    def stop_after_two(done, total, sol):
-        if done == 2:
-            raise _Stop
-
-    with pytest.raises(_Stop):
-        solve(
-            Task.load("cheetah-trot-1.0", smoke=True),
-            checkpoint_dir=tmp_path,
-            on_resolve=stop_after_two,
-        )
+    _interrupt_after(2, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
     # A fresh process would rebuild the task; so does this.
     resumed = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
     np.testing.assert_array_equal(resumed.X, full.X)
@@ -278,16 +280,7 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
         f"extends: {TASKS_DIR / 'cheetah-trot-1.0.yaml'}\nmodels:\n  - file: {model}\n"
     )
 
-    def stop_after_one(done, total, sol):
-        if done == 1:
-            raise _Stop
-
-    with pytest.raises(_Stop):
-        solve(
-            Task.load(str(task_file), smoke=True),
-            checkpoint_dir=tmp_path,
-            on_resolve=stop_after_one,
-        )
+    _interrupt_after(1, Task.load(str(task_file), smoke=True), tmp_path)
     load_checkpoint(Task.load(str(task_file), smoke=True), tmp_path)  # unchanged: accepted
     model.write_text(model.read_text().replace("<mass>3.3</mass>", "<mass>4.5</mass>"))
     with pytest.raises(ConfigError, match="changed since its checkpoint"):
@@ -297,16 +290,7 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
 def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
     from hydroilqr import receding
 
-    def stop_after_one(done, total, sol):
-        if done == 1:
-            raise _Stop
-
-    with pytest.raises(_Stop):
-        solve(
-            Task.load("cheetah-trot-1.0", smoke=True),
-            checkpoint_dir=tmp_path,
-            on_resolve=stop_after_one,
-        )
+    _interrupt_after(1, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
     assert receding.environment_change(tmp_path) == ""  # same environment: nothing to say
     here = receding.numeric_environment()
     monkeypatch.setattr(
