@@ -991,17 +991,17 @@ def test_worker_processes_exit_when_their_parent_is_killed(tmp_path):
     assert not any(alive(p) for p in pids)
 
 
-def test_one_value_per_coordinate_in_initial_state_and_nominal():
+def test_a_member_given_after_its_group_overrides_it():
+    """--set initial_state.joint_2=... over a task's group arm_q changes that joint only."""
     from hydroilqr import Task
-    from hydroilqr.config import ConfigError
 
-    for key in ("initial_state", "cost.nominal"):
-        with pytest.raises(ConfigError, match="same coordinates"):
-            Task.load(
-                "cheetah-trot-1.0",
-                [f"{key}.body.position=[0,0,0.5]", f"{key}.position=[0,0,0.3]"],
-                smoke=True,
-            ).validate()
+    base = Task.load("kinova-forward", smoke=True)
+    task = Task.load("kinova-forward", ["initial_state.joint_2=1.0"], smoke=True)
+    j2 = task.dynamics.layout.block("joint_2").coords[0]
+    assert task.x0[j2] == 1.0
+    others = np.ones(task.dynamics.nx, bool)
+    others[j2] = False
+    np.testing.assert_array_equal(task.x0[others], base.x0[others])
 
 
 def test_sibling_defaults_agree():
@@ -1110,3 +1110,23 @@ def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_an_ignored_sigint_stays_ignored_and_a_read_lock_upgrades(tmp_path):
+    import os
+    import signal
+
+    from hydroilqr import report
+
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # e.g. a background job
+    try:
+        with report.deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)  # ignored: nothing raised afterwards
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, old)
+    report.read_lock(tmp_path)  # playback RUN --out RUN: reads, then writes the same dir
+    report._lock(tmp_path)
+    key = str(tmp_path.resolve())
+    assert key in report._LOCKS and key not in report._READ_LOCKS
+    os.close(report._LOCKS.pop(key))

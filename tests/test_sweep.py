@@ -224,3 +224,27 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
         )
     spec = json.loads((tmp_path / "sw2" / "sweep_spec.json").read_text())
     assert f"initial_guess={tmp_path / 'U.csv'}" in spec["set"]
+
+
+def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monkeypatch):
+    """Older sweep_spec.json files kept a relative path in --set as given; this version records
+    it absolute, and still recognises the older sweep as the same one."""
+    from hydroilqr import sweep as sweep_mod
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "pm").mkdir()
+    out = tmp_path / "sw"
+    sets = [*SMALL, "package_map.foo=pm"]
+    res = sweep_mod.run_sweep(
+        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, workers=1
+    )
+    assert res["computed"] == 1
+    spec = json.loads((out / "sweep_spec.json").read_text())
+    spec["set"] = sorted(
+        v if not v.startswith("package_map") else "package_map.foo=pm" for v in spec["set"]
+    )
+    (out / "sweep_spec.json").write_text(json.dumps(spec))  # as an older version wrote it
+    res = sweep_mod.run_sweep(
+        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, workers=1
+    )
+    assert res["computed"] == 0

@@ -8,6 +8,7 @@ continues where it stopped and ends with the same trajectory as an uninterrupted
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -197,7 +198,8 @@ def _empty_state(x0, guess, nx, nu):
 def fingerprint(cfg) -> str:
     """What makes two runs the same computation: the resolved task minus the settings that
     only change speed (threads, worker processes) or other commands (mpc)."""
-    d = cfg.to_dict()
+    d = dataclasses.asdict(cfg)  # (not to_dict: checkpoints keep their fingerprints)
+    d.pop("base_dir", None)
     for key in ("threads", "autodiff_workers", "line_search_workers"):
         d.get("solver", {}).pop(key, None)
     d.pop("mpc", None)

@@ -100,7 +100,11 @@ class deferred_interrupt:
         self.got = False
         self.old = None
         if threading.current_thread() is threading.main_thread():
-            self.old = signal.signal(signal.SIGINT, self._hold)
+            current = signal.getsignal(signal.SIGINT)
+            # an ignored SIGINT (nohup, a background job) or a handler from outside Python
+            # (None) is left as it is
+            if current not in (signal.SIG_IGN, None):
+                self.old = signal.signal(signal.SIGINT, self._hold)
         return self
 
     def _hold(self, signum, frame) -> None:
@@ -249,10 +253,13 @@ def _lock(out: Path) -> None:
     if key in _LOCKS:
         return
     path = Path(out) / ".hydroilqr.lock"
-    try:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as e:
-        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
+    if key in _READ_LOCKS:  # this process reads it too (playback --out RUN): upgrade
+        fd = _READ_LOCKS.pop(key)
+    else:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
@@ -261,7 +268,11 @@ def _lock(out: Path) -> None:
             other = path.read_text().strip()
         except OSError:
             other = ""
-        who = f" (process {other}, or a playback reading its plan)" if other else ""
+        who = (
+            f" (process {other}, or a playback reading its plan)"
+            if other
+            else " (a playback reading its plan)"
+        )
         raise ConfigError(
             f"{out} is in use by another hydroilqr run{who}: wait for it or choose another --out"
         ) from None
@@ -280,7 +291,7 @@ def read_lock(run_dir: Path) -> None:
     from .config import ConfigError
 
     key = str(Path(run_dir).resolve())
-    if key in _LOCKS:
+    if key in _LOCKS or key in _READ_LOCKS:
         return
     try:
         fd = os.open(Path(run_dir) / ".hydroilqr.lock", os.O_RDWR | os.O_CREAT, 0o644)
@@ -293,7 +304,10 @@ def read_lock(run_dir: Path) -> None:
         raise ConfigError(
             f"{run_dir} is being written by another hydroilqr run: wait for it"
         ) from None
-    _LOCKS[key] = fd
+    _READ_LOCKS[key] = fd
+
+
+_READ_LOCKS: dict[str, int] = {}  # directories this process reads (shared locks)
 
 
 def solve_outputs(out: Path) -> list[Path]:

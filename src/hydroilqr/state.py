@@ -209,16 +209,10 @@ class StateLayout:
     def coordinate_vector(self, spec: dict, key: str, base: np.ndarray) -> np.ndarray:
         """Values by block name written into a copy of ``base`` (shape [nx])."""
         x = np.array(base, dtype=float)
-        owner: dict[int, str] = {}  # coordinate -> the name that set it
+        # In order: a later name overrides the coordinates an earlier one set (e.g. --set
+        # initial_state.joint_2=... over a task's group arm_q).
         for name, value in spec.items():
             b = self.block(name, f"{key}.{name}")
-            twice = sorted({owner[c] for c in b.coords if c in owner})
-            if twice:
-                raise ConfigError(
-                    f"{key}: {name} and {twice[0]} set the same coordinates (a group and its "
-                    "member, or a name given twice): give each coordinate one value"
-                )
-            owner.update(dict.fromkeys(b.coords, name))
             try:
                 vals = np.asarray(value, dtype=float).reshape(-1)
             except (TypeError, ValueError):

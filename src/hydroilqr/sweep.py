@@ -640,6 +640,17 @@ def _describe(row: dict, param_keys: list[str]) -> str:
     )
 
 
+def _absolute_set(entry: str) -> str:
+    """A recorded ``KEY=VALUE`` with a relative file path made absolute (against the working
+    directory), as this version records it."""
+    try:
+        k, v = parse_override(entry)
+    except ConfigError:
+        return entry
+    absolute = _cwd_path(k, v)
+    return entry if absolute == v else f"{k}={absolute}"
+
+
 def _open_client(scheduler: str | None, workers: int | None):
     import logging
 
@@ -760,6 +771,8 @@ def run_sweep(
         if isinstance(old, dict):
             if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in user_set:
                 old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
+            if isinstance(old.get("set"), list):  # older files kept relative paths as given
+                old["set"] = sorted(_absolute_set(v) for v in old["set"])
             same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
             new = {k: spec.get(k) for k in same}
             old_keys = [p["key"] for p in old.get("params", [])]
