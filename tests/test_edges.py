@@ -1130,3 +1130,18 @@ def test_an_ignored_sigint_stays_ignored_and_a_read_lock_upgrades(tmp_path):
     key = str(tmp_path.resolve())
     assert key in report._LOCKS and key not in report._READ_LOCKS
     os.close(report._LOCKS.pop(key))
+
+
+def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length_wins(tmp_path):
+    from hydroilqr import Task
+    from hydroilqr.config import TASKS_DIR, ConfigError
+
+    (tmp_path / "orphan.yaml").write_text("extends: nope.yaml\n")
+    with pytest.raises(ConfigError, match="orphan.yaml: extends: no such file"):
+        Task.load(str(tmp_path / "orphan.yaml"))
+    (tmp_path / "parent.yaml").write_text(
+        f"extends: {TASKS_DIR / 'cartpole-wall.yaml'}\nsmoke: {{num_steps: 25}}\n"
+    )
+    (tmp_path / "child.yaml").write_text("extends: parent.yaml\nname: c\nsmoke: {horizon: 0.3}\n")
+    task = Task.load(str(tmp_path / "child.yaml"), smoke=True)
+    assert task.steps == round(0.3 / task.config.plant.time_step)

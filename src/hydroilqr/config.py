@@ -634,9 +634,14 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
         if not isinstance(base, str):
             raise ConfigError(f"{what} {path}: extends: expected one file name, got {base!r}")
         base_path = (path.parent / base).resolve()
+        if not base_path.exists():
+            raise ConfigError(f"{what} {path}: extends: no such file {base_path}")
         parent = load_raw(base_path, _chain=(*_chain, path.resolve()))
         if base_path.parent != path.parent.resolve():
             _anchor_paths(parent, base_path.parent)
+        if isinstance(parent.get("smoke"), dict) and isinstance(data.get("smoke"), dict):
+            # the child's smoke length wins over the parent's, as at the top level
+            parent["smoke"] = _without_other_length(parent["smoke"], data["smoke"])
         data = _merge(_without_other_length(parent, data), data)
     return data
 
