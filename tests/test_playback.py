@@ -218,3 +218,29 @@ def test_reference_lists_the_torques_that_acted_in_the_plan():
     r = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002))
     assert np.all(np.abs(r.reference.u) <= lim + 1e-12)
     assert np.allclose(r.reference.u[:, 5], lim[5])
+
+
+def test_the_object_is_the_unactuated_joint_the_plan_moves_most():
+    from pathlib import Path
+
+    from pydrake.multibody.tree import JointIndex
+
+    from hydroilqr.playback import choose_object
+
+    example = Path(__file__).parent.parent / "examples" / "gripper-brick.yaml"
+    task = Task.from_yaml(example, smoke=True)
+    dyn, plant = task.dynamics, task.dynamics.plant
+    actuated = {
+        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
+    }
+    passive = [
+        plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())
+        if plant.get_joint(JointIndex(i)).num_positions() == 1 and JointIndex(i) not in actuated
+    ]  # fmt: skip
+    assert len(passive) >= 2
+    last = passive[-1]
+    X = np.tile(task.x0, (2, 1))
+    X[-1, last.position_start()] += 0.5  # the plan turns/slides the brick about its last joint
+    obj = choose_object(dyn, None, X)
+    assert obj.coords[0] == last.position_start()
+    assert choose_object(dyn).coords[0] == passive[0].position_start()  # no plan: the first

@@ -251,9 +251,11 @@ def actuated_joints(plant):
     return names, joints, units, np.array(qi, int), np.array(vi, int), np.array(lim)
 
 
-def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
-    """The floating body if any (ball, quadruped body), else the first unactuated joint, else
-    the first joint."""
+def choose_object(
+    dyn: Dynamics, requested: str | None = None, X_plan: np.ndarray | None = None
+) -> ObjectSpec:
+    """The floating body if any (ball, quadruped body), else the unactuated joint that moves
+    most in the plan X_plan: [T, nx] (the first one without a plan), else the first joint."""
     layout, plant = dyn.layout, dyn.plant
     if requested:
         b = layout.block(requested, "playback object")
@@ -275,14 +277,21 @@ def choose_object(dyn: Dynamics, requested: str | None = None) -> ObjectSpec:
     from pydrake.multibody.tree import JointIndex
 
     first = None
+    passive = []
     for i in range(plant.num_joints()):
         j = plant.get_joint(JointIndex(i))
         if j.num_positions() == 0:
             continue
         first = first or j
-        if j.index() not in actuated:
-            first = j
-            break
+        if j.index() not in actuated and j.num_positions() == 1:
+            passive.append(j)
+    if passive:
+        first = passive[0]
+        if X_plan is not None and len(X_plan) > 1:  # the one the plan moves (e.g. a turned brick)
+            moved = [
+                abs(X_plan[-1, j.position_start()] - X_plan[0, j.position_start()]) for j in passive
+            ]
+            first = passive[int(np.argmax(moved))]
     if first is None:
         raise ConfigError("playback: the model has no moving joint")
     for b in layout.primitives.values():
@@ -356,7 +365,7 @@ def playback(
         )
     plant = truth.plant
     act_names, joint_names, units, qi, vi, limits = actuated_joints(plant)
-    obj = choose_object(truth, settings.object)
+    obj = choose_object(truth, settings.object, sol.X)
     plan = PlanSampler(sol, truth.layout.quaternions)
 
     s = float(settings.speed)
@@ -869,7 +878,7 @@ def setup(p) -> None:
     p.add_argument(
         "--object",
         help="state block compared planned vs actual (default: the "
-        "floating body, else the first unactuated joint, else the first joint)",
+        "floating body, else the unactuated joint the plan moves most, else the first joint)",
     )
     p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
     p.add_argument(
