@@ -1145,3 +1145,12 @@ def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length
     (tmp_path / "child.yaml").write_text("extends: parent.yaml\nname: c\nsmoke: {horizon: 0.3}\n")
     task = Task.load(str(tmp_path / "child.yaml"), smoke=True)
     assert task.steps == round(0.3 / task.config.plant.time_step)
+
+
+def test_set_with_both_horizon_and_num_steps_is_refused_like_a_task_file():
+    from hydroilqr import Task
+    from hydroilqr.config import ConfigError
+
+    with pytest.raises(ConfigError, match="horizon or num_steps, not both"):
+        Task.load("cartpole-wall", ["horizon=0.3", "num_steps=7"])
+    assert Task.load("cartpole-wall", ["horizon=0.3"]).steps == 30

@@ -535,7 +535,9 @@ def with_overrides(
 def _horizon_wins(data: dict, items: list[tuple[str, Any]]) -> None:
     """A horizon given as an override wins over the task's num_steps."""
     keys = {k for k, _ in items}
-    if "horizon" in keys and "num_steps" not in keys:
+    if "horizon" in keys and "num_steps" in keys:
+        raise ConfigError("--set: give horizon or num_steps, not both")
+    if "horizon" in keys:
         data["num_steps"] = 0
 
 
