@@ -1154,3 +1154,13 @@ def test_set_with_both_horizon_and_num_steps_is_refused_like_a_task_file():
     with pytest.raises(ConfigError, match="horizon or num_steps, not both"):
         Task.load("cartpole-wall", ["horizon=0.3", "num_steps=7"])
     assert Task.load("cartpole-wall", ["horizon=0.3"]).steps == 30
+
+
+def test_set_smoke_keys_change_what_smoke_applies():
+    from hydroilqr import Task
+
+    t = Task.load(
+        "cartpole-wall", ["smoke.num_steps=5", "smoke.solver.max_iterations=2"], smoke=True
+    )
+    assert t.steps == 5 and t.config.solver.max_iterations == 2
+    assert t.config.solver.derivatives == Task.load("cartpole-wall").config.solver.derivatives

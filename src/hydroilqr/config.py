@@ -776,6 +776,10 @@ def build_task(
     if not smoke:
         return finish(data)
     shrink = data.get("smoke") or _generic_smoke(data)
+    for key, value in items:  # --set smoke.KEY=... changes what --smoke applies
+        head, _, rest = key.partition(".")
+        if head == "smoke" and rest and isinstance(shrink, dict):
+            shrink = {**shrink, rest: value}  # smoke keys are dotted strings themselves
     if not isinstance(shrink, dict):
         raise ConfigError("smoke: expected a mapping of dotted keys to values")
     shrunk = _without_other_length(copy.deepcopy(data), shrink)
