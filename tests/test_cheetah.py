@@ -291,12 +291,14 @@ def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
     from hydroilqr import receding
 
     _interrupt_after(1, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
-    assert receding.environment_change(tmp_path) == ""  # same environment: nothing to say
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    st = receding.load_checkpoint(task, tmp_path)
+    assert receding.environment_change(st) == ""  # same environment: nothing to say
     here = receding.numeric_environment()
     monkeypatch.setattr(
         receding, "numeric_environment", lambda: {**here, "blas_core": "Haswell-elsewhere"}
     )
-    assert "blas_core" in receding.environment_change(tmp_path)
+    assert "blas_core" in receding.environment_change(st)
     sol = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
     envs = sol.extra["environments"]
     assert [e["from_resolve"] for e in envs] == [0, 1]

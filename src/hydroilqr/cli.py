@@ -120,7 +120,7 @@ def cmd_solve(args) -> int:
         # refuses a foreign or missing checkpoint
         ck_state = receding.load_checkpoint(task, resume_dir)
         unfinished = ck_state["done"] < task.config.receding_horizon.resolves
-        changed = receding.environment_change(resume_dir) if unfinished else ""
+        changed = receding.environment_change(ck_state) if unfinished else ""
         if changed:
             console.print(
                 f"[yellow]warning:[/yellow] resuming in another environment ({changed}): the "

@@ -528,7 +528,7 @@ def with_overrides(
     items = _override_items(overrides)
     _horizon_wins(d, items)
     for key, value in items:
-        _set_dotted(d, key, _cwd_path(key, value, paths_from))
+        _set_dotted(d, key, cwd_path(key, value, paths_from))
     return task_from_dict(d, cfg.base_dir)
 
 
@@ -688,15 +688,15 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
         mpc["warm_start_plan"] = anchor(mpc["warm_start_plan"])
     # dotted overrides (smoke:, continuation stages) name paths too
     if isinstance(data.get("smoke"), dict):
-        data["smoke"] = {k: _cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
+        data["smoke"] = {k: cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
     if isinstance(data.get("continuation"), list):
         data["continuation"] = [
-            {k: _cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
+            {k: cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
             for st in data["continuation"]
         ]
 
 
-def _cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
+def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
     """A relative file path given on the command line is relative to the working directory
     (``base``: to that directory instead, e.g. a task file's for its continuation stages)."""
     parts = key.split(".")
@@ -765,7 +765,7 @@ def build_task(
         d = copy.deepcopy(d)
         _horizon_wins(d, items)
         for key, value in items:
-            _set_dotted(d, key, _cwd_path(key, value))
+            _set_dotted(d, key, cwd_path(key, value))
         if path is not None:
             d.setdefault("name", path.stem)
         cfg = _build_dataclass(TaskConfig, d, "")

@@ -438,7 +438,7 @@ def playback(
             xr = plan.state(s * tr)
             ref_q.append(xr[qi])
             ref_v.append(vscale * xr[vi])
-            ref_u.append(plan.input(s * tr))
+            ref_u.append(task.dynamics.clip_to_limits(plan.input(s * tr)))  # as acted
 
     t = np.arange(n + 1) * dt
     X_plan = np.array([plan.state(s * tk) for tk in t])
@@ -447,9 +447,7 @@ def playback(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
         np.array(ref_v).reshape(len(ref_t), -1),
-        # the torques that acted in the plan: a plan's commands beyond an effort limit were
-        # applied at the limit by the planner's plant (metrics.beyond_limits)
-        task.dynamics.clip_to_limits(np.array(ref_u).reshape(len(ref_t), -1)),
+        np.array(ref_u).reshape(len(ref_t), -1),  # clipped where sampled
     )
     result = PlaybackResult(
         settings=settings,

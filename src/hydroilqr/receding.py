@@ -217,13 +217,11 @@ def numeric_environment() -> dict:
     return {k: env.get(k) for k in keys}
 
 
-def environment_change(directory: str | Path) -> str:
-    """ "" if the checkpoint in ``directory`` was computed in this environment, else what
-    differs (a resumed run mixes both: bitwise reproducible in neither)."""
-    try:
-        envs = _load(Path(directory) / CHECKPOINT).get("environments") or []
-    except Exception:  # noqa: BLE001 - load_checkpoint reports unreadable checkpoints
-        return ""
+def environment_change(st: dict) -> str:
+    """ "" if a checkpoint's state ``st`` (``load_checkpoint``) was computed in this
+    environment, else what differs (a resumed run mixes both: bitwise reproducible in
+    neither)."""
+    envs = st.get("environments") or []
     if not envs:
         return ""
     old, new = envs[-1]["environment"], numeric_environment()

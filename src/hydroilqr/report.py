@@ -11,6 +11,7 @@ plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -225,9 +226,9 @@ def discard_empty_outputs() -> None:
         dirs = _CREATED.pop()
         out = dirs[0]
         try:
-            if {p.name for p in out.iterdir()} <= {".hydroilqr.lock"}:
+            if {p.name for p in out.iterdir()} <= {LOCK_NAME}:
                 fd = _LOCKS.pop(str(out.resolve()), None)
-                (out / ".hydroilqr.lock").unlink(missing_ok=True)
+                _lock_file(out).unlink(missing_ok=True)
                 if fd is not None:
                     os.close(fd)
                 for d in dirs:  # the output directory, then the parents made for it
@@ -237,6 +238,11 @@ def discard_empty_outputs() -> None:
 
 
 _LOCKS: dict[str, int] = {}  # directory -> open lock file, held until this process ends
+LOCK_NAME = ".hydroilqr.lock"
+
+
+def _lock_file(directory: str | Path) -> Path:
+    return Path(directory) / LOCK_NAME
 
 
 def _lock(out: Path) -> None:
@@ -252,7 +258,7 @@ def _lock(out: Path) -> None:
     key = str(Path(out).resolve())
     if key in _LOCKS:
         return
-    path = Path(out) / ".hydroilqr.lock"
+    path = _lock_file(out)
     if key in _READ_LOCKS:  # this process reads it too (playback --out RUN): upgrade
         fd = _READ_LOCKS.pop(key)
     else:
@@ -294,7 +300,7 @@ def read_lock(run_dir: Path) -> None:
     if key in _LOCKS or key in _READ_LOCKS:
         return
     try:
-        fd = os.open(Path(run_dir) / ".hydroilqr.lock", os.O_RDWR | os.O_CREAT, 0o644)
+        fd = os.open(_lock_file(run_dir), os.O_RDWR | os.O_CREAT, 0o644)
     except OSError:
         return
     try:
@@ -322,12 +328,7 @@ def solve_outputs(out: Path) -> list[Path]:
     return found
 
 
-def _cores() -> int:
-    from .workers import cores
-
-    return cores()
-
-
+@functools.cache
 def code_version() -> str:
     """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
     a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
@@ -361,6 +362,8 @@ def environment() -> dict:
     import importlib.metadata as md
     import platform
 
+    from .workers import cores
+
     def version(pkg: str) -> str | None:
         try:
             return md.version(pkg)
@@ -390,7 +393,7 @@ def environment() -> dict:
         "cpu": cpu,
         "cpu_features": simd,
         "blas_core": blas_core(),
-        "cores": _cores(),
+        "cores": cores(),
         # the command line that produced the result (None from Python)
         "command": COMMAND,
     }

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from .cli import add_task_args, console, register, task_name_from_args
-from .config import ConfigError, _cwd_path, parse_override, task_file
+from .config import ConfigError, cwd_path, parse_override, task_file
 
 POINT_COLUMNS = (
     "final_cost",
@@ -647,7 +647,7 @@ def _absolute_set(entry: str) -> str:
         k, v = parse_override(entry)
     except ConfigError:
         return entry
-    absolute = _cwd_path(k, v)
+    absolute = cwd_path(k, v)
     return entry if absolute == v else f"{k}={absolute}"
 
 
@@ -730,7 +730,7 @@ def run_sweep(
     for s in sets or []:
         k, v = parse_override(s)
         # a relative file path is the user's working directory's, here and on remote workers
-        overrides[k] = _cwd_path(k, v)
+        overrides[k] = cwd_path(k, v)
     user_set = sorted(f"{k}={v}" for k, v in overrides.items())
     # One thread per solve: the cluster already runs one worker process per core.
     if not any(k == "solver.threads" for k in overrides):
