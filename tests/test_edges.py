@@ -1164,3 +1164,11 @@ def test_set_smoke_keys_change_what_smoke_applies():
     )
     assert t.steps == 5 and t.config.solver.max_iterations == 2
     assert t.config.solver.derivatives == Task.load("cartpole-wall").config.solver.derivatives
+
+
+def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkeypatch):
+    from hydroilqr.config import load_task
+
+    monkeypatch.chdir(tmp_path)  # it became str(cwd): "cannot read <cwd>/solution.npz"
+    cfg = load_task("cartpole-wall", ['cost.reference=""', 'mpc.warm_start_plan=""'])
+    assert cfg.cost.reference == "" and cfg.mpc.warm_start_plan == ""

@@ -698,7 +698,8 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
 
 def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
     """A relative file path given on the command line is relative to the working directory
-    (``base``: to that directory instead, e.g. a task file's for its continuation stages)."""
+    (``base``: to that directory instead, e.g. a task file's for its continuation stages).
+    An empty path stays empty (``cost.reference`` / ``mpc.warm_start_plan``: none)."""
     parts = key.split(".")
     is_path = (
         key in ("initial_guess", "cost.reference", "mpc.warm_start_plan")
@@ -708,6 +709,7 @@ def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
     if (
         not is_path
         or not isinstance(value, str)
+        or not value
         or value in GUESS_KEYWORDS
         or value.startswith("package://")
         or Path(value).expanduser().is_absolute()
