@@ -1172,3 +1172,14 @@ def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkey
     monkeypatch.chdir(tmp_path)  # it became str(cwd): "cannot read <cwd>/solution.npz"
     cfg = load_task("cartpole-wall", ['cost.reference=""', 'mpc.warm_start_plan=""'])
     assert cfg.cost.reference == "" and cfg.mpc.warm_start_plan == ""
+
+
+def test_set_smoke_length_or_whole_section_changes_what_smoke_applies():
+    from hydroilqr.config import ConfigError, load_task
+
+    # kinova's smoke section gives num_steps: 10; a --set smoke.horizon was silently ignored
+    cfg = load_task("kinova-forward", ["smoke.horizon=0.05"], smoke=True)
+    assert cfg.steps == round(0.05 / cfg.plant.time_step)
+    assert load_task("cartpole-wall", ["smoke={num_steps: 3}"], smoke=True).steps == 3  # was 200
+    with pytest.raises(ConfigError, match="smoke.horizon or smoke.num_steps, not both"):
+        load_task("cartpole-wall", ["smoke.horizon=0.05", "smoke.num_steps=3"], smoke=True)

@@ -778,10 +778,19 @@ def build_task(
     if not smoke:
         return finish(data)
     shrink = data.get("smoke") or _generic_smoke(data)
-    for key, value in items:  # --set smoke.KEY=... changes what --smoke applies
+    keys = {k for k, _ in items}
+    if {"smoke.horizon", "smoke.num_steps"} <= keys:
+        raise ConfigError("--set: give smoke.horizon or smoke.num_steps, not both")
+    for key, value in items:  # --set smoke[.KEY]=... changes what --smoke applies
         head, _, rest = key.partition(".")
-        if head == "smoke" and rest and isinstance(shrink, dict):
-            shrink = {**shrink, rest: value}  # smoke keys are dotted strings themselves
+        if head != "smoke":
+            continue
+        if not rest:
+            shrink = value  # the whole section
+        elif isinstance(shrink, dict):
+            # smoke keys are dotted strings themselves; a length given here wins over the
+            # section's other one (as every upper layer's does)
+            shrink = {**_without_other_length(shrink, {rest: value}), rest: value}
     if not isinstance(shrink, dict):
         raise ConfigError("smoke: expected a mapping of dotted keys to values")
     shrunk = _without_other_length(copy.deepcopy(data), shrink)
