@@ -244,3 +244,10 @@ def test_the_object_is_the_unactuated_joint_the_plan_moves_most():
     obj = choose_object(dyn, None, X)
     assert obj.coords[0] == last.position_start()
     assert choose_object(dyn).coords[0] == passive[0].position_start()  # no plan: the first
+
+
+def test_ilqr_policy_refuses_a_plan_saved_without_gains(run_dir):
+    task, sol, _ = load_run(run_dir)
+    sol.K = np.zeros(0)  # Solution.load accepts such a file (IndexError in the loop before)
+    with pytest.raises(ConfigError, match="no feedback gains"):
+        playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0))

@@ -363,6 +363,11 @@ def playback(
             f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
             f"but the task has nx={truth.nx}, nu={truth.nu}"
         )
+    if settings.policy == "ilqr" and np.shape(sol.K) != (sol.U.shape[0], truth.nu, truth.nx):
+        raise ConfigError(
+            "playback --policy ilqr: the plan has no feedback gains K (saved without them); "
+            "use --policy pd"
+        )
     plant = truth.plant
     act_names, joint_names, units, qi, vi, limits = actuated_joints(plant)
     obj = choose_object(truth, settings.object, sol.X)
