@@ -215,6 +215,12 @@ def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+def _error_text(e: BaseException) -> str:
+    """A failed point's error column: the exception's type and first line."""
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    return f"{type(e).__name__}: {msg}"[:500]
+
+
 def solve_point(
     task_name: str,
     config_file: str | None,
@@ -285,8 +291,7 @@ def solve_point(
     except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
             raise
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        row.update(status="failed", error=f"{type(e).__name__}: {msg}"[:500])
+        row.update(status="failed", error=_error_text(e))
     row["wall_seconds"] = time.perf_counter() - t0
     from .report import json_safe
 
@@ -868,13 +873,12 @@ def run_sweep(
                         lost += 1
                         continue
                     except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
-                        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
                         result = {
                             "row": {
                                 "id": ids[i],
                                 **{f"param:{k}": v for k, v in points[i].items()},
                                 "status": "failed",
-                                "error": f"{type(e).__name__}: {msg}"[:500],
+                                "error": _error_text(e),
                             },
                             "arrays": {},
                         }
