@@ -181,12 +181,13 @@ def _scalar(v) -> bool:
 
 
 def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-step world positions of the tip, its pin and the cart, and the tip radius."""
-    from .metrics import geometry_ids
+    """Per-step world positions of the tip, its pin and the cart, the tip radius, and the
+    per-step signed distance of the contact pair (what plot_snapshots draws)."""
+    from .metrics import geometry_ids, signed_distance
 
     dyn = task.dynamics
     plant = dyn.plant
-    a_name = task.config.metric_params.get("contact_pair", ["tip", "wall"])[0]
+    a_name, b_name = task.config.metric_params.get("contact_pair", ["tip", "wall"])
     gid = geometry_ids(dyn, a_name)[0]
     body = plant.GetBodyByName(dyn.geometry_names()[gid][1])
     joint = next(
@@ -212,6 +213,8 @@ def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     if return_pin:
         out["pin_xyz"] = np.array(pin)
         out["cart_xyz"] = np.array(cart)
+    ia, ib = geometry_ids(dyn, a_name), geometry_ids(dyn, b_name)
+    out["signed_distance"] = np.array([signed_distance(dyn, x, ia, ib) for x in X])
     return out
 
 
@@ -280,14 +283,6 @@ def solve_point(
                 row.update({f"{k}.{kk}": vv for kk, vv in v.items() if _scalar(vv)})
         if "cartpole_wall" in task.config.metrics:
             arrays.update(_cartpole_geometry(task, sol.X))
-            from .metrics import geometry_ids, signed_distance
-
-            p = task.config.metric_params
-            a_name, b_name = p.get("contact_pair", ["tip", "wall"])
-            ia, ib = geometry_ids(task.dynamics, a_name), geometry_ids(task.dynamics, b_name)
-            arrays["signed_distance"] = np.array(
-                [signed_distance(task.dynamics, x, ia, ib) for x in sol.X]
-            )
     except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
             raise
