@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from .cli import add_task_args, console, register, task_name_from_args
-from .config import ConfigError, cwd_path, parse_override, task_file
+from .config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
 
 POINT_COLUMNS = (
     "final_cost",
@@ -720,11 +720,7 @@ def run_sweep(
     if len(params) > 2:
         raise ConfigError("--param: at most two parameters (a grid)")
     path = task_file(task)
-    task_arg = (
-        task
-        if path.parent.resolve() == (Path(__file__).parent / "tasks").resolve()
-        else str(path.resolve())
-    )
+    task_arg = task if path.parent.resolve() == TASKS_DIR.resolve() else str(path.resolve())
     cfg_arg = str(Path(config_file).resolve()) if config_file else None
     overrides: dict[str, Any] = {}
     for s in sets or []:
