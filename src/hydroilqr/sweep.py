@@ -651,6 +651,41 @@ def _absolute_set(entry: str) -> str:
     return entry if absolute == v else f"{k}={absolute}"
 
 
+def _check_same_sweep(out: Path, spec: dict) -> None:
+    """ConfigError if ``out`` holds the points of another sweep (its sweep_spec.json differs
+    in task, --config, --smoke, --set or the swept keys), or a spec too torn to tell."""
+    spec_file, points_dir = out / "sweep_spec.json", out / "points"
+    keys = [p["key"] for p in spec["params"]]
+    if not spec_file.exists():
+        return
+    try:
+        old = json.loads(spec_file.read_text())
+    except (ValueError, OSError):
+        old = None
+    if not isinstance(old, dict) and any(points_dir.iterdir()):
+        raise ConfigError(
+            f"{spec_file}: unreadable, so the points in {points_dir} cannot be matched to "
+            "this sweep; remove the directory or choose another --out"
+        )
+    if isinstance(old, dict):
+        if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in spec["set"]:
+            old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
+        if isinstance(old.get("set"), list):  # older files kept relative paths as given
+            old["set"] = sorted(_absolute_set(v) for v in old["set"])
+        same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
+        new = {k: spec.get(k) for k in same}
+        old_keys = [p["key"] for p in old.get("params", [])]
+        if same != new or old_keys != keys:
+            names = {"config_file": "--config", "smoke": "--smoke", "set": "--set"}
+            differ = [names.get(k, k) for k in same if same[k] != new[k]]
+            differ += ["--param"] if old_keys != keys else []
+            raise ConfigError(
+                f"{out} holds a different sweep ({', '.join(differ)} differ; it has task "
+                f"{old.get('task')}, --param {', '.join(old_keys)}, --set "
+                f"{old.get('set') or 'none'}, smoke {old.get('smoke')}): choose another --out"
+            )
+
+
 def _open_client(scheduler: str | None, workers: int | None):
     import logging
 
@@ -753,35 +788,8 @@ def run_sweep(
         "params": [{"key": k, "values": v} for k, v in params],
         "environment": environment(),  # of this process (points: see their code column)
     }
-    spec_file = out / "sweep_spec.json"
-    if spec_file.exists():
-        try:
-            old = json.loads(spec_file.read_text())
-        except (ValueError, OSError):
-            old = None
-        if not isinstance(old, dict) and any(points_dir.iterdir()):
-            raise ConfigError(
-                f"{spec_file}: unreadable, so the points in {points_dir} cannot be matched to "
-                "this sweep; remove the directory or choose another --out"
-            )
-        if isinstance(old, dict):
-            if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in user_set:
-                old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
-            if isinstance(old.get("set"), list):  # older files kept relative paths as given
-                old["set"] = sorted(_absolute_set(v) for v in old["set"])
-            same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
-            new = {k: spec.get(k) for k in same}
-            old_keys = [p["key"] for p in old.get("params", [])]
-            if same != new or old_keys != keys:
-                names = {"config_file": "--config", "smoke": "--smoke", "set": "--set"}
-                differ = [names.get(k, k) for k in same if same[k] != new[k]]
-                differ += ["--param"] if old_keys != keys else []
-                raise ConfigError(
-                    f"{out} holds a different sweep ({', '.join(differ)} differ; it has task "
-                    f"{old.get('task')}, --param {', '.join(old_keys)}, --set "
-                    f"{old.get('set') or 'none'}, smoke {old.get('smoke')}): choose another --out"
-                )
-    _atomic_text(spec_file, json.dumps(spec, indent=1))
+    _check_same_sweep(out, spec)
+    _atomic_text(out / "sweep_spec.json", json.dumps(spec, indent=1))
 
     ids = [point_id(p) for p in points]
     rows: dict[str, dict] = {}
