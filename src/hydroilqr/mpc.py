@@ -185,27 +185,11 @@ class MPCSettings:
     def from_task(task, **overrides) -> MPCSettings:
         """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
         m = task.config.mpc
-        s = MPCSettings(
-            duration=m.duration,
-            rate=m.rate,
-            horizon=m.horizon,
-            iterations_per_update=m.iterations_per_update,
-            threads=m.threads,
-            derivatives=m.derivatives,
-            derivative_interval=m.derivative_interval,
-            shrinking_horizon=m.shrinking_horizon,
-            warm_start_tail=m.warm_start_tail,
-            warm_start_feedback=m.warm_start_feedback,
+        # every key of the mpc: section is a setting of the same name
+        s = MPCSettings(**{f.name: getattr(m, f.name) for f in dataclasses.fields(m)})
+        if m.warm_start_plan:
             # a task file's path is relative to that file (a --warm-start-plan: to the cwd)
-            warm_start_plan=(
-                str(task.config.resolve_path(m.warm_start_plan)) if m.warm_start_plan else ""
-            ),
-            derivative_reuse_tolerance=m.derivative_reuse_tolerance,
-            derivative_steps_per_update=m.derivative_steps_per_update,
-            line_search_steps=m.line_search_steps,
-            line_search_retries=m.line_search_retries,
-            deadline=m.deadline,
-        )
+            s.warm_start_plan = str(task.config.resolve_path(m.warm_start_plan))
         if s.shrinking_horizon:
             # The task's default duration cannot outlast the task itself (e.g. under --smoke,
             # which shortens the task); an explicit duration that does is refused in check().
