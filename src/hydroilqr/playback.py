@@ -477,7 +477,7 @@ def playback(
     result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
     result.metrics["warnings"] = advisories(truth.plant, settings)
     if settings.policy == "pd":
-        pd = _pd_check(truth, plan.X[0], joint_names, settings)
+        pd = _pd_check(truth, plan.X[0], joint_names, vi, settings)
         result.metrics.update({**pd, "warnings": result.metrics["warnings"] + pd["warnings"]})
     sat = result.metrics["saturated_fraction"]
     if sat > SATURATION_WARNING:
@@ -490,11 +490,12 @@ def playback(
     return result
 
 
-def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
+def _pd_check(truth: Dynamics, x0, joints, v_indices, st: PlaybackSettings) -> dict:
     """Discrete-time stability of the explicit damping term: with control period h and a
     joint's own inertia M_ii (others held), Kd·h/M_ii ≥ 2 makes the velocity error grow
     each control step (chatter, torques pinned at the limits); stiffness adds to it
-    (the criterion (Kd·h + Kp·h²)/M_ii < 2 used here is approximate)."""
+    (the criterion (Kd·h + Kp·h²)/M_ii < 2 used here is approximate). ``joints``,
+    ``v_indices``: the actuated joints and their velocities' indices into x (actuated_joints)."""
     plant = truth.plant
     ctx = plant.CreateDefaultContext()
     plant.SetPositionsAndVelocities(ctx, x0)
@@ -502,7 +503,7 @@ def _pd_check(truth: Dynamics, x0, joints, st: PlaybackSettings) -> dict:
     h = pd_period(st)
     per = {}
     warnings = []
-    for name, j in _joint_velocity_indices(plant, joints).items():
+    for name, j in zip(joints, np.asarray(v_indices) - plant.num_positions()):
         m = float(M[j, j])
         ratio = (st.kd * h + st.kp * h * h) / m if m > 0 else math.inf
         per[name] = {"inertia": m, "damping_per_step": ratio}
@@ -557,14 +558,6 @@ def _passive_joints(plant, actuated: list[str]) -> list[str]:
         j = plant.get_joint(JointIndex(i))
         if j.num_velocities() == 1 and j.name() not in actuated:
             out.append(j.name())
-    return out
-
-
-def _joint_velocity_indices(plant, joints) -> dict:
-    out = {}
-    for a in (plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()):
-        if a.joint().name() in joints:
-            out[a.joint().name()] = a.joint().velocity_start()
     return out
 
 
