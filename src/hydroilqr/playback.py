@@ -271,20 +271,9 @@ def choose_object(
         base = b.name[: -len(".orientation")]
         pos = layout.primitives[f"{base}.position"]
         return ObjectSpec(pos.name, "floating", pos.coords, b.coords, "m")
-    actuated = {
-        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
-    }
-    from pydrake.multibody.tree import JointIndex
-
-    first = None
-    passive = []
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        if j.num_positions() == 0:
-            continue
-        first = first or j
-        if j.index() not in actuated and j.num_positions() == 1:
-            passive.append(j)
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+    first = next((j for j in joints if j.num_positions() > 0), None)
+    passive = _passive_joints(plant)
     if passive:
         first = passive[0]
         if X_plan is not None and len(X_plan) > 1:  # the one the plan moves (e.g. a turned brick)
@@ -530,7 +519,7 @@ def advisories(plant, settings: PlaybackSettings) -> list[str]:
     """Warnings about a policy that cannot do what the plan needs (known before running)."""
     out = []
     if settings.policy == "pd":
-        passive = _passive_joints(plant, actuated_joints(plant)[1])
+        passive = [j.name() for j in _passive_joints(plant)]
         if passive:
             out.append(
                 f"unactuated joints ({', '.join(passive)}): PD+ tracks only the actuated ones "
@@ -551,14 +540,13 @@ def advisories(plant, settings: PlaybackSettings) -> list[str]:
     return out
 
 
-def _passive_joints(plant, actuated: list[str]) -> list[str]:
-    """Names of the 1-DoF joints without an actuator (e.g. the cart-pole's pole pin)."""
-    out = []
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        if j.num_velocities() == 1 and j.name() not in actuated:
-            out.append(j.name())
-    return out
+def _passive_joints(plant) -> list:
+    """The 1-DoF joints without an actuator (e.g. the cart-pole's pole pin), in index order."""
+    actuated = {
+        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
+    }
+    joints = (plant.get_joint(JointIndex(i)) for i in range(plant.num_joints()))
+    return [j for j in joints if j.num_positions() == 1 and j.index() not in actuated]
 
 
 def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
