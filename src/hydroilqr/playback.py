@@ -100,6 +100,11 @@ class PlaybackSettings:
                 f"time step ({dt:g} s); the 'real' system must be simulated at least as finely"
             )
 
+    def truth_contact_for(self, task) -> str:
+        """The "real" system's contact approximation: ``truth_contact``, else the default
+        other than the planner's (TRUTH_CONTACT)."""
+        return self.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
+
     def __post_init__(self) -> None:
         if self.speed is None:
             self.speed = 0.5 if self.policy == "pd" else 1.0
@@ -217,9 +222,7 @@ def truth_config(task, settings: PlaybackSettings):
     cfg = task.config
     d = cfg.to_dict()
     d["plant"]["time_step"] = float(settings.truth_time_step)
-    d["plant"]["contact_approximation"] = (
-        settings.truth_contact or TRUTH_CONTACT[cfg.plant.contact_approximation]
-    )
+    d["plant"]["contact_approximation"] = settings.truth_contact_for(task)
     return with_overrides(task_from_dict(d, cfg.base_dir), settings.truth_overrides)
 
 
@@ -770,7 +773,7 @@ def cmd_playback(args) -> int:
         args.out or Path(args.dir) / f"playback-{args.policy}", task.name, playback=True
     )
     con = cli.console
-    truth_contact = settings.truth_contact or TRUTH_CONTACT[task.config.plant.contact_approximation]
+    truth_contact = settings.truth_contact_for(task)
     con.print(
         f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}, "
         f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
