@@ -258,7 +258,7 @@ def choose_object(
     dyn: Dynamics, requested: str | None = None, X_plan: np.ndarray | None = None
 ) -> ObjectSpec:
     """The floating body if any (ball, quadruped body), else the unactuated joint that moves
-    most in the plan X_plan: [T, nx] (the first one without a plan), else the first joint."""
+    most in the plan X_plan: [N+1, nx] (the first one without a plan), else the first joint."""
     layout, plant = dyn.layout, dyn.plant
     if requested:
         b = layout.block(requested, "playback object")

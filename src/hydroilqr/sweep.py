@@ -10,7 +10,8 @@ only strings and numbers (task name/file, overrides) and build their own Drake o
 Output directory:
 
     points/<id>.json   one finished point (written atomically; its presence = done)
-    points/<id>.npz    the point's trajectory X, U, t (+ tip/pin/cart positions for cart-poles)
+    points/<id>.npz    the point's trajectory X, U, t and its costs (+ tip/pin/cart positions
+                       and the contact pair's signed distance, with the cartpole_wall metric)
     sweep.csv/json     the table, rebuilt from points/ after every finished point
     sweep.png          metric(s) against the parameter (paper Fig. 7 for cartpole-wall)
     snapshots.png      configurations of maximum overlap (tasks with the cartpole_wall metric)
