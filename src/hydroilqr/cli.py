@@ -15,7 +15,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from .config import ConfigError
+from .config import DERIVATIVES, ConfigError
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
@@ -329,7 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", help="solve a task and write its results")
     add_task_args(p)
-    p.add_argument("--derivatives", choices=["autodiff", "forward", "central"])
+    p.add_argument("--derivatives", choices=DERIVATIVES)
     p.add_argument("--max-iterations", type=int)
     p.add_argument("--threads", type=int, help="threads for batched derivatives (0 = all)")
     p.add_argument("--out", help="output directory (default runs/TASK, runs/TASK-smoke)")

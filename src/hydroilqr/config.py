@@ -818,6 +818,7 @@ def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
 APPROXIMATIONS = ("sap", "similar", "lagged", "tamsi")
 CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
 DERIVATIVES = ("autodiff", "forward", "central")
+WARM_START_TAILS = ("last", "guess")  # mpc.warm_start_tail
 
 
 def _check_contact(p: ContactProperties, key: str) -> None:
@@ -935,7 +936,7 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {cfg.mpc.deadline}"
         )
-    if cfg.mpc.warm_start_tail not in ("last", "guess"):
+    if cfg.mpc.warm_start_tail not in WARM_START_TAILS:
         raise ConfigError("mpc.warm_start_tail: expected last or guess")
     if cfg.mpc.derivatives and cfg.mpc.derivatives not in DERIVATIVES:
         raise ConfigError(

@@ -34,7 +34,13 @@ from pathlib import Path
 import numpy as np
 from pydrake.multibody.tree import BodyIndex
 
-from .config import ConfigError, check_truth_overrides, with_overrides
+from .config import (
+    DERIVATIVES,
+    WARM_START_TAILS,
+    ConfigError,
+    check_truth_overrides,
+    with_overrides,
+)
 from .derivatives import Linearizer
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
@@ -120,7 +126,7 @@ class MPCSettings:
             raise ConfigError("--feedback-scale: must be >= 0")
         if self.line_search_steps < 1 or self.line_search_retries < 0:
             raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
-        if self.warm_start_tail not in ("last", "guess"):
+        if self.warm_start_tail not in WARM_START_TAILS:
             raise ConfigError("mpc: warm_start_tail must be last or guess")
         if self.warm_start_plan:
             self.plan_controls(task)
@@ -731,7 +737,7 @@ def _setup(p):
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument(
         "--derivatives",
-        choices=["autodiff", "forward", "central"],
+        choices=DERIVATIVES,
         help="derivative method of the controller (default: mpc.derivatives, else the task's)",
     )
     p.add_argument(
