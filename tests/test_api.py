@@ -96,6 +96,9 @@ def test_save_and_load_agree_on_paths(task, tmp_path):
     assert sol.save(run) == run / "solution.npz"
     np.testing.assert_array_equal(Solution.load(run).U, sol.U)
     assert sol.total_seconds >= sum(sum(v) for v in sol.phase_seconds.values()) - 1e-9
+    # the fields of summary.json are attributes too
+    assert sol.initial_cost == sol.costs[0] == sol.stats()["initial_cost"]
+    assert Solution.load(run).initial_cost == sol.initial_cost
 
 
 def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):
@@ -254,4 +257,5 @@ def test_a_continuation_reports_the_initial_cost_on_the_task_model():
     staged = task.with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
     U0 = staged.initial_guess(staged.steps)
     own = staged.cost.total(staged.dynamics.rollout(staged.x0, U0), U0)
-    assert solve(staged).stats()["initial_cost"] == pytest.approx(own, rel=1e-12)
+    sol = solve(staged)
+    assert sol.stats()["initial_cost"] == sol.initial_cost == pytest.approx(own, rel=1e-12)

@@ -70,6 +70,12 @@ class Solution:
         return len(self.iteration_seconds)
 
     @property
+    def initial_cost(self) -> float:
+        """The cost of the initial guess on the task's model (a continuation's first cost is
+        its first stage model's; the task's own is kept in ``extra``), as in summary.json."""
+        return float(self.extra.get("task_initial_cost", self.costs[0]))
+
+    @property
     def final_cost(self) -> float:
         return float(self.costs[-1])
 
@@ -83,8 +89,7 @@ class Solution:
             "reason": self.reason,
             "iterations": self.iterations,
             "final_cost": self.final_cost,
-            # a continuation's first cost is its first stage model's: the task's own is kept
-            "initial_cost": float(self.extra.get("task_initial_cost", self.costs[0])),
+            "initial_cost": self.initial_cost,
             "costs": [float(c) for c in self.costs],
             "iteration_seconds": [float(s) for s in self.iteration_seconds],
             "phase_seconds": {k: [float(x) for x in v] for k, v in self.phase_seconds.items()},
