@@ -99,6 +99,10 @@ def test_save_and_load_agree_on_paths(task, tmp_path):
     # the fields of summary.json are attributes too
     assert sol.initial_cost == sol.costs[0] == sol.stats()["initial_cost"]
     assert Solution.load(run).initial_cost == sol.initial_cost
+    # short reprs for a notebook: shapes and the outcome, not every array element
+    assert repr(task) == "Task('cartpole-wall', 200 steps of 0.01 s)"
+    assert repr(sol).startswith("Solution(X [201, 4], U [200, 1], K [200, 1, 4]")
+    assert f"reason={sol.reason!r}" in repr(sol) and len(repr(sol)) < 300
 
 
 def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):

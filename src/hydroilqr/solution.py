@@ -65,6 +65,16 @@ class Solution:
     mu: list[float] = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # e.g. receding-horizon per-resolve stats
 
+    def __repr__(self) -> str:  # the arrays' shapes, not their thousands of numbers
+        shapes = ", ".join(
+            f"{k} {list(np.shape(getattr(self, k)))}" for k in ("X", "U", "K", "kappa", "t")
+        )
+        return (
+            f"Solution({shapes}; reason={self.reason!r}, converged={self.converged}, "
+            f"iterations={self.iterations}, initial_cost={self.initial_cost:.6g}, "
+            f"final_cost={self.final_cost:.6g}, total_seconds={self.total_seconds:.3g})"
+        )
+
     @property
     def iterations(self) -> int:
         return len(self.iteration_seconds)

@@ -26,6 +26,15 @@ class Task:
     def __init__(self, config: TaskConfig):
         self.config = config
 
+    def __repr__(self) -> str:  # no plant is built for it
+        rh = self.config.receding_horizon
+        what = (
+            f"receding horizon: {rh.resolves} windows of {rh.window_steps} steps"
+            if rh is not None
+            else f"{self.config.steps} steps"
+        )
+        return f"Task({self.name!r}, {what} of {self.config.plant.time_step:g} s)"
+
     # ------------------------------------------------------------------ constructors
     @classmethod
     def load(
