@@ -263,3 +263,20 @@ def test_a_continuation_reports_the_initial_cost_on_the_task_model():
     own = staged.cost.total(staged.dynamics.rollout(staged.x0, U0), U0)
     sol = solve(staged)
     assert sol.stats()["initial_cost"] == sol.initial_cost == pytest.approx(own, rel=1e-12)
+
+
+def test_a_dict_task_extends_a_file_relative_to_its_base_dir(tmp_path):
+    from hydroilqr.config import TASKS_DIR
+
+    data = {"extends": "cartpole-wall.yaml", "name": "soft"}
+    data["geometry"] = {"tip": {"hydroelastic_modulus": 1e5}}
+    soft = Task.from_dict(data, base_dir=TASKS_DIR)
+    assert soft.name == "soft" and soft.steps == Task.load("cartpole-wall").steps
+    assert soft.config.geometry["tip"].hydroelastic_modulus == 1e5
+    assert soft.config.geometry["tip"].dissipation == 0.0  # the rest of the parent's entry
+    soft.validate()  # the parent's model path resolves
+    # from another directory the parent's relative paths still resolve (to its own directory)
+    elsewhere = Task.from_dict({**data, "extends": str(TASKS_DIR / "cartpole-wall.yaml")}, tmp_path)
+    assert elsewhere.dynamics.nx == 4
+    with pytest.raises(ConfigError, match="task: extends: no such file"):
+        Task.from_dict({"extends": "nope.yaml"}, base_dir=tmp_path)

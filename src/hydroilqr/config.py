@@ -630,22 +630,27 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{what} {path}: expected a mapping at the top level")
-    # `extends: other.yaml` shares a base file between related tasks.
+    return _extend(data, path.parent, f"{what} {path}", (*_chain, path.resolve()))
+
+
+def _extend(data: dict[str, Any], directory: Path, where: str, chain=()) -> dict[str, Any]:
+    """``data`` merged over the file its ``extends:`` names (relative to ``directory``), if
+    any: `extends: other.yaml` shares a base file between related tasks."""
     base = data.pop("extends", None)
-    if base is not None:
-        if not isinstance(base, str):
-            raise ConfigError(f"{what} {path}: extends: expected one file name, got {base!r}")
-        base_path = (path.parent / base).resolve()
-        if not base_path.exists():
-            raise ConfigError(f"{what} {path}: extends: no such file {base_path}")
-        parent = load_raw(base_path, _chain=(*_chain, path.resolve()))
-        if base_path.parent != path.parent.resolve():
-            _anchor_paths(parent, base_path.parent)
-        if isinstance(parent.get("smoke"), dict) and isinstance(data.get("smoke"), dict):
-            # the child's smoke length wins over the parent's, as at the top level
-            parent["smoke"] = _without_other_length(parent["smoke"], data["smoke"])
-        data = _merge(_without_other_length(parent, data), data)
-    return data
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise ConfigError(f"{where}: extends: expected one file name, got {base!r}")
+    base_path = (directory / base).resolve()
+    if not base_path.exists():
+        raise ConfigError(f"{where}: extends: no such file {base_path}")
+    parent = load_raw(base_path, _chain=chain)
+    if base_path.parent != directory.resolve():
+        _anchor_paths(parent, base_path.parent)
+    if isinstance(parent.get("smoke"), dict) and isinstance(data.get("smoke"), dict):
+        # the child's smoke length wins over the parent's, as at the top level
+        parent["smoke"] = _without_other_length(parent["smoke"], data["smoke"])
+    return _merge(_without_other_length(parent, data), data)
 
 
 def _without_other_length(below: dict[str, Any], above: dict[str, Any]) -> dict[str, Any]:
@@ -755,6 +760,8 @@ def build_task(
     data = copy.deepcopy(data)
     base_dir = Path(base_dir).resolve()
     label = path.name if path is not None else "task"
+    if path is None and isinstance(data, dict):  # a dict's extends: relative to base_dir
+        data = _extend(data, base_dir, label)
     if path is not None and data.get("horizon") is not None and data.get("num_steps"):
         raise ConfigError(f"{label}: give horizon or num_steps, not both")
     if config_file:
