@@ -278,5 +278,9 @@ def test_a_dict_task_extends_a_file_relative_to_its_base_dir(tmp_path):
     # from another directory the parent's relative paths still resolve (to its own directory)
     elsewhere = Task.from_dict({**data, "extends": str(TASKS_DIR / "cartpole-wall.yaml")}, tmp_path)
     assert elsewhere.dynamics.nx == 4
+    by_name = Task.from_dict({**data, "extends": "cartpole-wall"}, tmp_path)  # a built-in
+    assert by_name.config.geometry["tip"].hydroelastic_modulus == 1e5 and by_name.steps == 200
+    (tmp_path / "mine.yaml").write_text("extends: cartpole-wall\nname: mine\nhorizon: 0.5\n")
+    assert Task.load(str(tmp_path / "mine.yaml")).steps == 50
     with pytest.raises(ConfigError, match="task: extends: no such file"):
         Task.from_dict({"extends": "nope.yaml"}, base_dir=tmp_path)

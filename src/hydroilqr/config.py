@@ -634,14 +634,18 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
 
 
 def _extend(data: dict[str, Any], directory: Path, where: str, chain=()) -> dict[str, Any]:
-    """``data`` merged over the file its ``extends:`` names (relative to ``directory``), if
-    any: `extends: other.yaml` shares a base file between related tasks."""
+    """``data`` merged over the file its ``extends:`` names (relative to ``directory``, or a
+    built-in task's name), if any: `extends: other.yaml` shares a base file between related
+    tasks."""
     base = data.pop("extends", None)
     if base is None:
         return data
     if not isinstance(base, str):
         raise ConfigError(f"{where}: extends: expected one file name, got {base!r}")
     base_path = (directory / base).resolve()
+    builtin = TASKS_DIR / f"{base}.yaml"
+    if not base_path.exists() and "/" not in base and builtin.exists():
+        base_path = builtin  # a built-in task by name: extends: cartpole-wall
     if not base_path.exists():
         raise ConfigError(f"{where}: extends: no such file {base_path}")
     parent = load_raw(base_path, _chain=chain)
