@@ -72,6 +72,10 @@ def test_callback_sees_iterates_and_can_stop(task):
 
     sol = solve(task.with_overrides({"solver.max_iterations": 10}), callbacks=[cb])
     assert sol.iterations == 2 and sol.reason == "callback" and not sol.converged
+    one = solve(task.with_overrides({"solver.max_iterations": 10}), callbacks=cb)  # not a list
+    assert one.iterations == 2 and one.reason == "callback"
+    with pytest.raises(TypeError, match="callbacks: expected a function .* got list of str"):
+        solve(task, callbacks=["print"])
     assert seen[0] == (1, (task.steps + 1, 4), (task.steps, 1))
 
 

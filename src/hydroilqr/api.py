@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import SolverConfig, validate_solver
-from .ilqr import IterationInfo
+from .ilqr import IterationInfo, callback_list
 from .ilqr import solve as ilqr_solve
 from .plant import SimulationError
 from .receding import solve_receding
@@ -42,9 +42,9 @@ def solve(
     in a task file). Single solves only: a receding-horizon task takes both from
     its task file. ``settings``: solver settings for this solve, a SolverConfig or a dict of
     changes to the task's ``solver`` section (default: that section; the task itself is not
-    changed). ``callbacks``: see
-    ``ilqr.IterationInfo``; one returning True stops the solve (single solves) or the current
-    window (receding horizon).
+    changed). ``callbacks``: a function
+    f(info) or a list of them, info an ``ilqr.IterationInfo``; one returning True stops the
+    solve (single solves) or the current window (receding horizon).
 
     ``stop_on_interrupt``: Ctrl+C ends a single solve with the best trajectory so far
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
@@ -53,6 +53,7 @@ def solve(
         task = Task.load(str(task))
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
+    callbacks = callback_list(callbacks)
     saved = task.config.solver
     if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(

@@ -145,6 +145,26 @@ class Problem:
     t0: float = 0.0
 
 
+def callback_list(callbacks) -> list:
+    """``callbacks`` as a list: None, one callable, or a list/tuple of callables. TypeError
+    naming what was given otherwise."""
+    if callbacks is None:
+        return []
+    if callable(callbacks):
+        return [callbacks]
+    if not isinstance(callbacks, (list, tuple)) or not all(callable(c) for c in callbacks):
+        raise TypeError(
+            "callbacks: expected a function f(info) -> bool or a list of them, got "
+            f"{type(callbacks).__name__}"
+            + (
+                f" of {', '.join(sorted({type(c).__name__ for c in callbacks}))}"
+                if isinstance(callbacks, (list, tuple))
+                else ""
+            )
+        )
+    return list(callbacks)
+
+
 def solve(
     problem: Problem,
     U0: np.ndarray,
@@ -161,8 +181,8 @@ def solve(
 
     ``settings``: the solver settings (default ``SolverConfig()``, *not* a task's: to solve a
     task with its own settings use ``hydroilqr.solve(task, U0=..., x0=...)``).
-    ``callbacks``: called with an ``IterationInfo`` after every iteration; one returning True
-    stops the solve (``reason == "callback"``).
+    ``callbacks``: a function or a list of them, called with an ``IterationInfo`` after every
+    iteration; one returning True stops the solve (``reason == "callback"``).
     Worker processes (``autodiff_workers``, ``line_search_workers``) follow the settings of
     the dynamics' task (``problem.dynamics.task.solver``), not ``settings``.
 
@@ -189,7 +209,7 @@ def solve(
         raise ValueError("x0 and U0 must be finite (no NaN or infinite entries)")
     method = DerivativeMethod(s.derivatives)
     max_it = s.max_iterations if max_iterations is None else max_iterations
-    callbacks = callbacks or []
+    callbacks = callback_list(callbacks)
     N = U0.shape[0]
 
     phases = {p: [] for p in PHASES}
