@@ -333,6 +333,20 @@ def test_quaternion_difference_is_relative_and_ignores_the_sign_of_the_quaternio
     np.testing.assert_allclose(J, Jn, atol=1e-6)
 
 
+def test_state_difference_names_wrong_shapes():
+    layout = _quat_layout()
+    x = np.r_[_rz(0.3), np.zeros(9)]
+    assert layout.diff(np.stack([x, x]), x).shape == (2, 12)  # one reference for all rows
+    with pytest.raises(ValueError, match=r"X must have shape \[\.\.\., 13\] \(nx\), got \(5,\)"):
+        layout.diff(x[:5], x)
+    with pytest.raises(ValueError, match=r"Xref must have shape \[\.\.\., 13\]"):
+        layout.diff(x, x[:-1])
+    with pytest.raises(ValueError, match=r"Xref \(3, 13\) does not broadcast"):
+        layout.diff(np.stack([x, x]), np.stack([x, x, x]))
+    with pytest.raises(ValueError, match=r"X must have shape \[T, 13\]"):
+        layout.diff_jacobian(x, x)
+
+
 def test_layout_quaternion_values_are_unit_and_checked():
     from hydroilqr.config import ConfigError
 

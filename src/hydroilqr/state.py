@@ -245,9 +245,10 @@ class StateLayout:
 
     # ---------------------------------------------------------------------------- difference
     def diff(self, X: np.ndarray, Xref: np.ndarray) -> np.ndarray:
-        """Tangent-space difference X ⊖ Xref. X, Xref: [..., nx] -> [..., 2 nv]."""
-        X = np.asarray(X)
-        Xref = np.broadcast_to(Xref, X.shape)
+        """Tangent-space difference X ⊖ Xref. X, Xref: [..., nx] -> [..., 2 nv] (Xref
+        broadcasts against X, e.g. one reference state for a whole trajectory). ValueError for
+        other shapes."""
+        X, Xref = self._states(X, Xref)
         out = np.zeros(X.shape[:-1] + (2 * self.nv,))
         idx_c, idx_t = self._euclid_index()
         out[..., idx_t] = X[..., idx_c] - Xref[..., idx_c]
@@ -259,8 +260,10 @@ class StateLayout:
 
     def diff_jacobian(self, X: np.ndarray, Xref: np.ndarray) -> np.ndarray:
         """∂(X ⊖ Xref)/∂X. X, Xref: [T, nx] -> [T, 2 nv, nx] (identity outside quaternions)."""
+        X, Xref = self._states(X, Xref)
+        if X.ndim != 2:
+            raise ValueError(f"X must have shape [T, {self.nx}], got {X.shape}")
         T = X.shape[0]
-        Xref = np.broadcast_to(Xref, X.shape)
         J = np.zeros((T, 2 * self.nv, self.nx))
         idx_c, idx_t = self._euclid_index()
         J[:, idx_t, idx_c] = 1.0
@@ -273,6 +276,20 @@ class StateLayout:
                 2.0 * s[:, None, None] * L[:, 1:, :]
             )
         return J
+
+    def _states(self, X, Xref) -> tuple[np.ndarray, np.ndarray]:
+        """X: [..., nx] and Xref broadcast to its shape, as float arrays; ValueError naming
+        the shapes otherwise."""
+        X, Xref = np.asarray(X, dtype=float), np.asarray(Xref, dtype=float)
+        for name, a in (("X", X), ("Xref", Xref)):
+            if a.ndim == 0 or a.shape[-1] != self.nx:
+                raise ValueError(f"{name} must have shape [..., {self.nx}] (nx), got {a.shape}")
+        try:
+            return X, np.broadcast_to(Xref, X.shape)
+        except ValueError:
+            raise ValueError(
+                f"Xref {Xref.shape} does not broadcast to the shape of X {X.shape}"
+            ) from None
 
     def _euclid_index(self):
         if not hasattr(self, "_euclid"):
