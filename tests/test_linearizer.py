@@ -139,3 +139,19 @@ def test_interval_interpolates_linearly_between_keypoints():
     for k in range(k0 + 1, k1):
         s = (k - k0) / (k1 - k0)
         np.testing.assert_allclose(Ai[k], (1 - s) * A1[k0] + s * A1[k1], rtol=1e-12, atol=1e-12)
+
+
+def test_linearize_at_one_point_gives_one_pair(cartpole):
+    task = cartpole[0]
+    dyn = task.dynamics
+    x, u = task.x0, np.array([1.0])
+    A, B = linearize(dyn, x, u, "autodiff")
+    assert A.shape == (4, 4) and B.shape == (4, 1)
+    At, Bt = linearize(dyn, x[None], u[None], "autodiff")
+    np.testing.assert_array_equal(A, At[0])
+    np.testing.assert_array_equal(B, Bt[0])
+    Af, Bf = linearize(dyn, x, 1.0, "central")  # a number for the single actuator
+    np.testing.assert_allclose(Af, A, atol=1e-6)
+    np.testing.assert_allclose(Bf, B, atol=1e-6)
+    with pytest.raises(ValueError, match=r"state x must have shape \[4\]"):
+        linearize(dyn, x[:3], u)

@@ -58,6 +58,8 @@ def linearize(
     adaptive: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Partials along a trajectory. X: [N+1, nx] (only X[:N] used), U: [N, nu].
+    At one point: x: [nx] and u: [nu] (a number for one actuator) give A: [nx, nx] and
+    B: [nx, nu].
 
     ``rollout=True`` promises that X is a rollout of U through ``dyn`` (X[k+1] = f(X[k], U[k])
     exactly, as in the solver): forward differences then reuse X[k+1] instead of evaluating
@@ -66,13 +68,18 @@ def linearize(
     ``adaptive=True`` (with ``interval > 1``) adds keypoints on both sides of every step where
     the set of touching geometry pairs changes, so interpolation never spans a contact event.
 
-    Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails.
+    Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails (or x or u
+    holds NaN), ValueError for wrong shapes.
     """
     try:
         method = DerivativeMethod(method)
     except ValueError:
         valid = ", ".join(m.value for m in DerivativeMethod)
         raise ValueError(f"derivative method {method!r}: expected one of {valid}") from None
+    if np.ndim(X) == 1 and np.ndim(U) <= 1:  # one state and input
+        x, u = dyn.check_arguments(X, np.atleast_1d(U))
+        A, B = _fd_or_ad(dyn, x[None], u[None], method, eps, threads, None)
+        return A[0], B[0]
     X, U = dyn.check_arguments(X, U, x_rows=True, u_rows=True)  # NaN -> SimulationError
     N = U.shape[0]
     if X.shape[0] < N:
