@@ -33,7 +33,8 @@ def test_solve_takes_own_guess_and_state_and_leaves_the_task_alone(task):
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"U0": np.zeros((5, 1))}, "U0 must have shape"),
+        ({"U0": np.zeros((5, 1))}, r"U0 must have shape \[200, 1\] .*got \(5, 1\)"),
+        ({"U0": np.full((200, 1), np.nan)}, r"U0 must be finite .*: U0\[0, 0\] is nan"),
         ({"U0": "zeros"}, "U0 must have shape"),
         ({"x0": np.zeros(3)}, "x0 must have shape"),
         ({"x0": np.array([0.0, np.nan, 0.0, 0.0])}, "finite"),

@@ -83,7 +83,10 @@ def solve(
         if U0 is None:
             U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
         elif np.shape(U0)[:1] != (N,):
-            raise ValueError(f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps)")
+            raise ValueError(
+                f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps, nu), "
+                f"got {np.shape(U0)}"
+            )
         parts = []
         task_initial_cost = None
         if stages:  # the guess's cost on the task's own model (the stages' costs are theirs)

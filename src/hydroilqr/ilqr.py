@@ -205,8 +205,13 @@ def solve(
         raise ValueError(f"x0 must have shape [{dyn.nx}] (nx), got {x0.shape}")
     if U0.ndim != 2 or U0.shape[1] != dyn.nu or U0.shape[0] < 1:
         raise ValueError(f"U0 must have shape [N, {dyn.nu}] (nu = {dyn.nu}), got {U0.shape}")
-    if not (np.isfinite(x0).all() and np.isfinite(U0).all()):
-        raise ValueError("x0 and U0 must be finite (no NaN or infinite entries)")
+    for name, a in (("x0", x0), ("U0", U0)):
+        if not np.isfinite(a).all():
+            where = np.argwhere(~np.isfinite(a))[0].tolist()
+            raise ValueError(
+                f"{name} must be finite (no NaN or infinite entries): "
+                f"{name}{where} is {a[tuple(where)]}"
+            )
     method = DerivativeMethod(s.derivatives)
     max_it = s.max_iterations if max_iterations is None else max_iterations
     callbacks = callback_list(callbacks)
