@@ -337,3 +337,10 @@ def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
     assert len(res.derivative_steps) == len(res.reused_prediction) == len(res.solve_seconds)
     assert np.isnan(res.derivative_steps).sum() == 1
     assert all(np.isfinite(v) for v in res.stats()["phase_seconds_mean"].values())
+
+
+def test_settings_from_the_task_refuse_unknown_names():
+    task = Task.load("cartpole-wall")
+    assert MPCSettings.from_task(task, duration=0.3).rate == 100.0  # the task's mpc section
+    with pytest.raises(TypeError, match="unknown setting 'durration' .did you mean 'duration'"):
+        MPCSettings.from_task(task, durration=0.3)  # was silently ignored

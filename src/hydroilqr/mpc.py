@@ -200,7 +200,17 @@ class MPCSettings:
             # The task's default duration cannot outlast the task itself (e.g. under --smoke,
             # which shortens the task); an explicit duration that does is refused in check().
             s.duration = min(s.duration, task.steps * task.config.plant.time_step)
+        fields = [f.name for f in dataclasses.fields(MPCSettings)]
         for k, v in overrides.items():
+            if k not in fields:  # setattr would add an attribute nothing reads
+                import difflib
+
+                close = difflib.get_close_matches(k, fields, 1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                raise TypeError(
+                    f"MPCSettings.from_task: unknown setting {k!r} ({hint}expected one of: "
+                    f"{', '.join(fields)})"
+                )
             if v is not None:
                 setattr(s, k, v)
         return s
