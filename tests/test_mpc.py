@@ -344,3 +344,6 @@ def test_settings_from_the_task_refuse_unknown_names():
     assert MPCSettings.from_task(task, duration=0.3).rate == 100.0  # the task's mpc section
     with pytest.raises(TypeError, match="unknown setting 'durration' .did you mean 'duration'"):
         MPCSettings.from_task(task, durration=0.3)  # was silently ignored
+    short = task.with_overrides({"mpc.duration": 0.05})
+    res = run_mpc(short)  # no settings: the task's own (100 Hz, 0.3 s horizon)
+    assert res.settings.rate == 100.0 and res.X.shape == (6, 4)

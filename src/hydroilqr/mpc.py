@@ -523,8 +523,14 @@ class Truth:
         return self.dyn.step(x, u), u
 
 
-def run_mpc(task, settings: MPCSettings, on_update=None) -> MPCResult:
-    """Runs the closed loop for ``settings.duration`` seconds of simulated time."""
+def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCResult:
+    """Runs the closed loop for ``settings.duration`` seconds of simulated time.
+
+    ``settings``: default ``MPCSettings.from_task(task)``, the task's ``mpc:`` section (as the
+    ``mpc`` command uses); a bare ``MPCSettings(...)`` starts from generic defaults instead.
+    ``on_update(k, n)``: called with the time steps simulated so far and in all."""
+    if settings is None:
+        settings = MPCSettings.from_task(task)
     dyn = task.dynamics
     dt = dyn.dt
     settings.check(task)
