@@ -101,6 +101,8 @@ def test_save_and_load_agree_on_paths(task, tmp_path):
     assert sol.save(run) == run / "solution.npz"
     np.testing.assert_array_equal(Solution.load(run).U, sol.U)
     assert sol.total_seconds >= sum(sum(v) for v in sol.phase_seconds.values()) - 1e-9
+    with pytest.raises(FileNotFoundError, match=r"plan.npz'\): no directory .*nodir$"):
+        sol.save(tmp_path / "nodir" / "plan")
     # the fields of summary.json are attributes too
     assert sol.initial_cost == sol.costs[0] == sol.stats()["initial_cost"]
     assert Solution.load(run).initial_cost == sol.initial_cost

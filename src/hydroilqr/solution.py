@@ -116,6 +116,8 @@ class Solution:
             path = path / "solution.npz"
         elif path.suffix != ".npz":
             path = path.with_name(path.name + ".npz")
+        if not path.parent.is_dir():  # else numpy names the temporary file below
+            raise FileNotFoundError(f"Solution.save({str(path)!r}): no directory {path.parent}")
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")  # atomic: never torn
         np.savez_compressed(
             tmp,
