@@ -378,6 +378,13 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     raise ConfigError(f"{key}: unsupported type {_type_name(tp)}")
 
 
+def unknown_key(name: Any, valid: list[str], what: str) -> str:
+    """'unknown WHAT (did you mean X? expected one of: ...)' for a name not in ``valid``."""
+    close = difflib.get_close_matches(str(name), valid, n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    return f"unknown {what} ({hint}expected one of: {', '.join(valid)})"
+
+
 def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
@@ -386,9 +393,7 @@ def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
         key = f"{prefix}.{k}" if prefix else str(k)
         if k not in names or k == "base_dir":
             valid = sorted(n for n in names if n != "base_dir")
-            close = difflib.get_close_matches(str(k), valid, n=1)
-            hint = f"did you mean {close[0]!r}? " if close else ""
-            raise ConfigError(f"{key}: unknown key ({hint}expected one of: {', '.join(valid)})")
+            raise ConfigError(f"{key}: {unknown_key(k, valid, 'key')}")
         kwargs[k] = _coerce(v, hints[k], key)
     obj = cls(**kwargs)
     if cls is SceneObject and obj.shape not in SHAPES:

@@ -39,6 +39,7 @@ from .config import (
     WARM_START_TAILS,
     ConfigError,
     check_truth_overrides,
+    unknown_key,
     with_overrides,
 )
 from .derivatives import Linearizer
@@ -203,14 +204,8 @@ class MPCSettings:
         fields = [f.name for f in dataclasses.fields(MPCSettings)]
         for k, v in overrides.items():
             if k not in fields:  # setattr would add an attribute nothing reads
-                import difflib
-
-                close = difflib.get_close_matches(k, fields, 1)
-                hint = f"did you mean {close[0]!r}? " if close else ""
-                raise TypeError(
-                    f"MPCSettings.from_task: unknown setting {k!r} ({hint}expected one of: "
-                    f"{', '.join(fields)})"
-                )
+                msg = unknown_key(k, fields, f"setting {k!r}")
+                raise TypeError(f"MPCSettings.from_task: {msg}")
             if v is not None:
                 setattr(s, k, v)
         return s
