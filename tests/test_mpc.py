@@ -347,3 +347,14 @@ def test_settings_from_the_task_refuse_unknown_names():
     short = task.with_overrides({"mpc.duration": 0.05})
     res = run_mpc(short)  # no settings: the task's own (100 Hz, 0.3 s horizon)
     assert res.settings.rate == 100.0 and res.X.shape == (6, 4)
+
+
+def test_settings_built_in_python_get_the_task_file_checks_and_are_not_changed():
+    task = Task.load("cartpole-wall", smoke=True)
+    for bad in (MPCSettings(deadline=2.0), MPCSettings(derivatives="bogus")):
+        with pytest.raises(ConfigError, match="mpc.dead|mpc.deriv"):
+            bad.check(task)  # only a task file's mpc: section was checked for these
+    s = MPCSettings(duration=0.03, rate=100.0, horizon=0.3, shrinking_horizon=True)
+    res = run_mpc(task, s)
+    assert s.horizon == 0.3  # the caller's settings stay as given
+    assert res.settings.horizon == pytest.approx(task.steps * task.config.plant.time_step)

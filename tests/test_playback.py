@@ -27,7 +27,9 @@ def run_dir(tmp_path_factory):
 
 
 def test_pd_playback_tracks_the_joints(run_dir):
-    task, sol, _ = load_run(run_dir)
+    run = load_run(run_dir)
+    task, sol, _ = run
+    assert run.solution is sol and run.task is task and run.summary["task"] == task.name
     r = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002))
     assert r.truth_contact == "similar" and r.planner_contact == "sap"
     assert r.X.shape == (round(0.5 / 0.002) + 1, 4) and np.all(np.isfinite(r.X))

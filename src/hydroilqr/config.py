@@ -855,6 +855,31 @@ def _check_length(values: list[float], n: int, key: str) -> None:
         raise ConfigError(f"{key}: expected {n} numbers, got {len(values)}")
 
 
+def validate_mpc(m: Any) -> None:
+    """Checks the ``mpc:`` settings that need no plant (an MPCConfig, or hydroilqr.mpc's
+    MPCSettings, which has the same fields); ConfigError naming the key."""
+    if not 0 <= m.deadline <= 1:
+        raise ConfigError(
+            f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
+        )
+    if m.warm_start_tail not in WARM_START_TAILS:
+        raise ConfigError("mpc.warm_start_tail: expected last or guess")
+    if m.derivatives and m.derivatives not in DERIVATIVES:
+        raise ConfigError(
+            f"mpc.derivatives: expected one of {', '.join(DERIVATIVES)} (or empty: the "
+            f"task's solver.derivatives), got {m.derivatives!r}"
+        )
+    if m.derivative_interval < 0:
+        raise ConfigError(
+            "mpc.derivative_interval: must be >= 1 (or 0: the task's solver.derivative_interval)"
+            f", got {m.derivative_interval}"
+        )
+    if not m.derivative_reuse_tolerance >= 0 or m.derivative_steps_per_update < 0:
+        raise ConfigError(
+            "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
+        )
+
+
 def validate_solver(sv: SolverConfig) -> None:
     """ConfigError naming the first invalid solver setting (also for settings built in Python)."""
     if sv.derivatives not in DERIVATIVES:
@@ -948,26 +973,7 @@ def validate(cfg: TaskConfig) -> None:
     if cfg.horizon <= 0 and cfg.num_steps <= 0:
         raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
     validate_solver(cfg.solver)
-    if not 0 <= cfg.mpc.deadline <= 1:
-        raise ConfigError(
-            f"mpc.deadline: a fraction of the control period in [0, 1], got {cfg.mpc.deadline}"
-        )
-    if cfg.mpc.warm_start_tail not in WARM_START_TAILS:
-        raise ConfigError("mpc.warm_start_tail: expected last or guess")
-    if cfg.mpc.derivatives and cfg.mpc.derivatives not in DERIVATIVES:
-        raise ConfigError(
-            f"mpc.derivatives: expected one of {', '.join(DERIVATIVES)} (or empty: the "
-            f"task's solver.derivatives), got {cfg.mpc.derivatives!r}"
-        )
-    if cfg.mpc.derivative_interval < 0:
-        raise ConfigError(
-            "mpc.derivative_interval: must be >= 1 (or 0: the task's solver.derivative_interval)"
-            f", got {cfg.mpc.derivative_interval}"
-        )
-    if not cfg.mpc.derivative_reuse_tolerance >= 0 or cfg.mpc.derivative_steps_per_update < 0:
-        raise ConfigError(
-            "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
-        )
+    validate_mpc(cfg.mpc)
     if cfg.num_steps < 0:
         raise ConfigError(f"num_steps: must be positive (or 0: use horizon), got {cfg.num_steps}")
     steps = cfg.horizon / cfg.plant.time_step

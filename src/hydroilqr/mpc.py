@@ -36,10 +36,10 @@ from pydrake.multibody.tree import BodyIndex
 
 from .config import (
     DERIVATIVES,
-    WARM_START_TAILS,
     ConfigError,
     check_truth_overrides,
     unknown_key,
+    validate_mpc,
     with_overrides,
 )
 from .derivatives import Linearizer
@@ -127,8 +127,7 @@ class MPCSettings:
             raise ConfigError("--feedback-scale: must be >= 0")
         if self.line_search_steps < 1 or self.line_search_retries < 0:
             raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
-        if self.warm_start_tail not in WARM_START_TAILS:
-            raise ConfigError("mpc: warm_start_tail must be last or guess")
+        validate_mpc(self)  # the checks shared with a task file's mpc: section
         if self.warm_start_plan:
             self.plan_controls(task)
         plant = task.dynamics.plant
@@ -534,7 +533,7 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
     total = int(round(settings.duration / dt))
     if settings.shrinking_horizon:
         N = task.steps
-        settings.horizon = N * dt
+        settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
     # The controller's solver settings, on a copy of the task (the caller's is not changed).
     solver = dataclasses.replace(
         task.config.solver,

@@ -35,6 +35,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydrake.multibody.tree import JointIndex
@@ -180,8 +181,16 @@ class PlaybackResult:
 # ------------------------------------------------------------------------------------------
 
 
-def load_run(run_dir: str | Path):
-    """(Task, Solution, summary dict) from a ``hydroilqr solve`` output directory."""
+class SolvedRun(NamedTuple):
+    """A ``hydroilqr solve`` output directory, loaded: unpacks as ``task, sol, summary``."""
+
+    task: Any  # hydroilqr.Task (rebuilt from summary.json's config)
+    solution: Solution
+    summary: dict  # summary.json
+
+
+def load_run(run_dir: str | Path) -> SolvedRun:
+    """The task, Solution and summary.json of a ``hydroilqr solve`` output directory."""
     from .task import Task
 
     run_dir = Path(run_dir)
@@ -214,7 +223,7 @@ def load_run(run_dir: str | Path):
     if task is None:
         raise ConfigError(f"{summary_path}: cannot rebuild the task: {err}")
     sol, _ = load_run_solution(sol_path, str(run_dir))
-    return task, sol, summary
+    return SolvedRun(task, sol, summary)
 
 
 def truth_config(task, settings: PlaybackSettings):
