@@ -253,3 +253,11 @@ def test_ilqr_policy_refuses_a_plan_saved_without_gains(run_dir):
     sol.K = np.zeros(0)  # Solution.load accepts such a file (IndexError in the loop before)
     with pytest.raises(ConfigError, match="no feedback gains"):
         playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0))
+
+
+def test_naming_the_floating_body_position_is_the_default_choice():
+    from hydroilqr.playback import choose_object
+
+    dyn = Task.load("kinova-forward", smoke=True).dynamics
+    named, default = choose_object(dyn, "ball.position"), choose_object(dyn)
+    assert named == default and named.kind == "floating"  # was "joint", without orientation

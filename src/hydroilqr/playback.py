@@ -275,6 +275,9 @@ def choose_object(
             raise ConfigError(
                 f"playback object: {requested} is an orientation; give a position block"
             )
+        for q in layout.quaternions:  # a floating body's position: the same as chosen by default
+            if requested == q.name[: -len(".orientation")] + ".position":
+                return ObjectSpec(b.name, "floating", b.coords, q.coords, "m")
         unit = "m" if requested.endswith("position") else ""
         if plant.HasJointNamed(requested) and plant.GetJointByName(requested).num_positions() == 1:
             unit = "m" if plant.GetJointByName(requested).type_name() == "prismatic" else "rad"
