@@ -58,6 +58,10 @@ def test_ilqr_policy_on_the_planner_model_reproduces_the_plan(run_dir):
     r = playback(task, sol, st)
     np.testing.assert_allclose(r.X, sol.X, atol=1e-9)
     assert r.metrics["object"]["final_gap"] < 1e-9
+    # the exported reference is the one the pd policy sends (it had one more row at the end)
+    pd = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=st.truth_time_step))
+    np.testing.assert_allclose(r.reference.t, pd.reference.t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(r.reference.u, pd.reference.u, rtol=0, atol=1e-12)
 
 
 def test_cli_playback_writes_outputs(run_dir, tmp_path):

@@ -442,7 +442,8 @@ def playback(
             progress(k, n)
     if settings.policy == "ilqr" or not ref_t:
         # The exported reference is the PD+ one in any case (what a robot would be sent).
-        ref_t = list(np.arange(0.0, T_play + tol, settings.update_period))
+        # the updates the pd policy makes: every period while a step is left (tau < T_play)
+        ref_t = list(np.arange(0.0, (n - 1) * dt + tol, settings.update_period))
         for tr in ref_t:
             xr = plan.state(s * tr)
             ref_q.append(xr[qi])
