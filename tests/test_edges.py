@@ -1197,3 +1197,25 @@ def test_set_smoke_length_or_whole_section_changes_what_smoke_applies():
     assert load_task("cartpole-wall", ["smoke={num_steps: 3}"], smoke=True).steps == 3  # was 200
     with pytest.raises(ConfigError, match="smoke.horizon or smoke.num_steps, not both"):
         load_task("cartpole-wall", ["smoke.horizon=0.05", "smoke.num_steps=3"], smoke=True)
+
+
+def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypatch):
+    import os
+
+    import numpy as np
+
+    from hydroilqr import files
+
+    p = files.atomic_write(tmp_path / "a.json", '{"old": 1}')
+    files.atomic_savez(tmp_path / "a.npz", X=np.arange(3.0))
+    with np.load(tmp_path / "a.npz") as d:
+        assert d["X"].tolist() == [0.0, 1.0, 2.0]
+
+    def full_disk(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full_disk)
+    with pytest.raises(OSError):
+        files.atomic_write(p, '{"new": 2}')
+    assert p.read_text() == '{"old": 1}'  # untouched, and no temporary file left behind
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "a.npz"]

@@ -30,6 +30,7 @@ import numpy as np
 from . import workers
 from .cli import console, register
 from .config import ConfigError
+from .files import atomic_write
 from .plant import hydroelastic_kind
 from .solution import PHASES
 
@@ -622,7 +623,7 @@ def _write(out: Path, rows, iterations, threads) -> dict:
         "tasks": {r["task"]: r for r in rows},
         "environment": environment(),
     }
-    (out / "bench.json").write_text(json.dumps(doc, indent=1))
+    atomic_write(out / "bench.json", json.dumps(doc, indent=1))
     plot(rows, out / "iterations.png")
     return doc
 

@@ -43,6 +43,7 @@ from .config import (
     with_overrides,
 )
 from .derivatives import Linearizer
+from .files import atomic_savez
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
 from .plant import Dynamics, SimulationError
@@ -828,7 +829,7 @@ def cmd_mpc(args) -> int:
     with report.deferred_interrupt():  # Ctrl+C here: after the set is complete
         for name in ("mpc.json", "mpc.npz", "mpc.png", "mpc.html"):
             (out / name).unlink(missing_ok=True)
-        np.savez_compressed(
+        atomic_savez(
             out / "mpc.npz",
             X=res.X,
             U=res.U,

@@ -50,6 +50,7 @@ from .config import (
     task_from_dict,
     with_overrides,
 )
+from .files import atomic_savez
 from .plant import Dynamics, SimulationError
 from .solution import Solution, load_run_solution
 from .state import quat_conj, quat_mul
@@ -737,7 +738,7 @@ def write_outputs(
     data["environment"] = environment()
     write_json(out / "playback.json", data)
     write_reference_csv(r, out / "reference.csv")
-    np.savez_compressed(
+    atomic_savez(
         out / "playback.npz",
         t=r.t,
         X=r.X,

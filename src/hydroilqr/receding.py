@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import GUESS_KEYWORDS, ConfigError
+from .files import atomic_savez
 from .ilqr import IterationInfo, Problem, solve
 from .plant import SimulationError
 from .solution import PHASES, Solution
@@ -259,9 +259,9 @@ def _save(path: Path, st: dict) -> None:
         "environments",
     )
     meta = {k: st[k] for k in keys if k in st}
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp.npz")
-    np.savez(
-        tmp,
+    atomic_savez(
+        path,
+        compressed=False,
         X=st["X"],
         U=st["U"],
         K=st["K"],
@@ -269,7 +269,6 @@ def _save(path: Path, st: dict) -> None:
         guess=st["guess"],
         meta=np.array(json.dumps(meta)),
     )
-    os.replace(tmp, path)
 
 
 def _load(path: Path) -> dict:

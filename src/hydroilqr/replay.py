@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import atomic_write
 from .plant import build_diagram
 
 _MESHCAT = None
@@ -81,7 +82,4 @@ def write_replay(
     vis.PublishRecording()
     html = meshcat.StaticHtml()
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")  # atomic: a full disk leaves no torn replay
-    tmp.write_text(html)
-    tmp.replace(path)
-    return path
+    return atomic_write(path, html)  # a full disk leaves no torn replay

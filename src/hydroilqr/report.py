@@ -23,6 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from . import metrics as metrics_mod  # noqa: E402
+from .files import atomic_write
 
 PLOTS: dict[str, Callable] = {}
 PLOT_FILES: set[str] = set()  # every file name a registered plot writes
@@ -57,9 +58,7 @@ def json_safe(obj):
 
 
 def write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(json_safe(data), indent=2))
-    tmp.replace(path)
+    atomic_write(path, json.dumps(json_safe(data), indent=2))
 
 
 def plot_convergence(sol, path: Path, title: str) -> None:

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from .files import atomic_savez
 
 PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
 
@@ -118,9 +119,8 @@ class Solution:
             path = path.with_name(path.name + ".npz")
         if not path.parent.is_dir():  # else numpy names the temporary file below
             raise FileNotFoundError(f"Solution.save({str(path)!r}): no directory {path.parent}")
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.npz")  # atomic: never torn
-        np.savez_compressed(
-            tmp,
+        atomic_savez(
+            path,
             X=self.X,
             U=self.U,
             K=self.K,
@@ -131,7 +131,6 @@ class Solution:
                 json.dumps({**self.stats(), "eps": self.eps, "mu": self.mu, "extra": self.extra})
             ),
         )
-        os.replace(tmp, path)
         return path
 
     @staticmethod

@@ -39,6 +39,7 @@ import numpy as np
 
 from .cli import add_task_args, console, register, task_name_from_args
 from .config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
+from .files import atomic_savez, atomic_write
 
 POINT_COLUMNS = (
     "final_cost",
@@ -167,7 +168,7 @@ def _adopt_older_point(points_dir: Path, values: dict[str, Any], pid: str) -> No
         r["id"] = pid
         if (points_dir / f"{old}.npz").exists():
             os.replace(points_dir / f"{old}.npz", points_dir / f"{pid}.npz")
-        _atomic_text(points_dir / f"{pid}.json", json.dumps(r, indent=1))
+        atomic_write(points_dir / f"{pid}.json", json.dumps(r, indent=1))
         (points_dir / f"{old}.json").unlink()
         return
 
@@ -299,28 +300,13 @@ def solve_point(
 # ------------------------------------------------------------------------------------------
 
 
-def _atomic_bytes(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    _atomic_bytes(path, text.encode())
-
-
 def save_point(points_dir: Path, result: dict) -> None:
     """npz first, then the json (the json's presence marks the point done)."""
     row = result["row"]
     pid = row["id"]
     if result.get("arrays"):
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **result["arrays"])
-        _atomic_bytes(points_dir / f"{pid}.npz", buf.getvalue())
-    _atomic_text(points_dir / f"{pid}.json", json.dumps(row, indent=1))
+        atomic_savez(points_dir / f"{pid}.npz", **result["arrays"])
+    atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))
 
 
 def load_point(points_dir: Path, pid: str) -> dict | None:
@@ -375,7 +361,7 @@ def write_tables(
     w.writeheader()
     for r in trs:
         w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols + ["id"]})
-    _atomic_text(out / "sweep.csv", buf.getvalue())
+    atomic_write(out / "sweep.csv", buf.getvalue())
     failed = sum(r.get("status") != "ok" for r in rows)
     doc = {
         **spec,
@@ -388,7 +374,7 @@ def write_tables(
         "columns": cols,
         "points": trs,
     }
-    _atomic_text(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
+    atomic_write(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
 
 
 # ------------------------------------------------------------------------------------------
@@ -790,7 +776,7 @@ def run_sweep(
         "environment": environment(),  # of this process (points: see their code column)
     }
     _check_same_sweep(out, spec)
-    _atomic_text(out / "sweep_spec.json", json.dumps(spec, indent=1))
+    atomic_write(out / "sweep_spec.json", json.dumps(spec, indent=1))
 
     ids = [point_id(p) for p in points]
     rows: dict[str, dict] = {}

@@ -1,0 +1,35 @@
+"""Atomic file writes: a reader, a crash or a killed run sees the old file or the new one,
+never a torn one (results, checkpoints and sweep points are all written this way)."""
+
+from __future__ import annotations
+
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def atomic_write(path: str | Path, data: bytes | str) -> Path:
+    """Writes ``data`` (text is UTF-8) to a hidden temporary file beside ``path``, flushes it
+    to disk and renames it over ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_savez(path: str | Path, compressed: bool = True, **arrays: np.ndarray) -> Path:
+    """``np.savez[_compressed](path, **arrays)``, written atomically (``path`` as given: no
+    ``.npz`` is appended)."""
+    buf = io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buf, **arrays)
+    return atomic_write(path, buf.getvalue())
