@@ -358,3 +358,11 @@ def test_settings_built_in_python_get_the_task_file_checks_and_are_not_changed()
     res = run_mpc(task, s)
     assert s.horizon == 0.3  # the caller's settings stay as given
     assert res.settings.horizon == pytest.approx(task.steps * task.config.plant.time_step)
+
+
+@pytest.mark.parametrize("flag", [["--rate", "0"], ["--set", "mpc.rate=0"]])
+def test_mpc_smoke_with_a_zero_rate_is_a_one_line_error(tmp_path, flag, capsys):
+    rc = main(["mpc", "cartpole-wall", "--smoke", *flag, "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "rate, horizon and duration must be positive" in err, err
+    assert not (tmp_path / "m").exists()

@@ -790,8 +790,8 @@ def cmd_mpc(args) -> int:
         truth_overrides=list(args.truth_set),
         warm_start_plan=args.warm_start_plan,
     )
-    if args.smoke and args.duration is None:  # a quick try: at most SMOKE_UPDATES updates
-        settings.duration = min(settings.duration, SMOKE_UPDATES / settings.rate)
+    if args.smoke and args.duration is None and settings.rate > 0:  # a quick try: at most
+        settings.duration = min(settings.duration, SMOKE_UPDATES / settings.rate)  # 10 updates
     settings.check(task)
     default = f"runs/{task.name}{'-smoke' if args.smoke else ''}-mpc"
     out = report.output_dir(args.out or default, task.name)
