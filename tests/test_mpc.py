@@ -163,12 +163,13 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
         (dict(pushes=[Push(0.1, "world", np.array([1.0, 0, 0]))]), "no movable body"),
         (dict(pushes=[Push(0.1, "cart", np.array([1.0, 0, 0]), -0.1)]), "push-duration"),
         (dict(rate=40.0), "the period must be whole steps, e.g. 50 Hz or 33.3333 Hz"),
+        (dict(duration=0.004), "shorter than one time step"),
     ],
 )
 def test_mpc_settings_that_cannot_run_are_refused(settings, needle):
     task = Task.load("cartpole-wall")
     with pytest.raises(ConfigError, match=needle):
-        MPCSettings(duration=1.0, **settings).check(task)
+        MPCSettings(**{"duration": 1.0, **settings}).check(task)
 
 
 def test_warm_start_plan_of_another_task_is_refused(tmp_path):

@@ -122,6 +122,10 @@ class MPCSettings:
             raise ConfigError(
                 f"mpc horizon {self.horizon:g} s: at least two time steps ({2 * dt:g} s)"
             )
+        if int(round(self.duration / dt)) < 1:
+            raise ConfigError(
+                f"mpc duration {self.duration:g} s: shorter than one time step ({dt:g} s)"
+            )
         if self.iterations_per_update < 1:
             raise ConfigError("mpc iterations per update: at least 1")
         if not self.feedback_scale >= 0:
