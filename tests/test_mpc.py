@@ -164,6 +164,8 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
         (dict(pushes=[Push(0.1, "cart", np.array([1.0, 0, 0]), -0.1)]), "push-duration"),
         (dict(rate=40.0), "the period must be whole steps, e.g. 50 Hz or 33.3333 Hz"),
         (dict(duration=0.004), "shorter than one time step"),
+        (dict(feedback_scale=float("inf")), "feedback-scale inf: must be finite"),
+        (dict(feedback_scale=-1.0), "feedback-scale -1: must be finite and >= 0"),
     ],
 )
 def test_mpc_settings_that_cannot_run_are_refused(settings, needle):

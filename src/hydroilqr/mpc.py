@@ -128,8 +128,8 @@ class MPCSettings:
             )
         if self.iterations_per_update < 1:
             raise ConfigError("mpc iterations per update: at least 1")
-        if not self.feedback_scale >= 0:
-            raise ConfigError("--feedback-scale: must be >= 0")
+        if not (math.isfinite(self.feedback_scale) and self.feedback_scale >= 0):
+            raise ConfigError(f"--feedback-scale {self.feedback_scale:g}: must be finite and >= 0")
         if self.line_search_steps < 1 or self.line_search_retries < 0:
             raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
         validate_mpc(self)  # the checks shared with a task file's mpc: section
