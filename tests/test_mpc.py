@@ -369,3 +369,15 @@ def test_mpc_smoke_with_a_zero_rate_is_a_one_line_error(tmp_path, flag, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "rate, horizon and duration must be positive" in err, err
     assert not (tmp_path / "m").exists()
+
+
+def test_a_plant_failing_in_its_first_step_keeps_the_previous_run(tmp_path, capsys):
+    out = tmp_path / "m"
+    args = ["mpc", "cartpole-wall", "--smoke", "--no-replay", "--out", str(out)]
+    assert main(args) == 0
+    before = (out / "mpc.json").read_bytes()
+    capsys.readouterr()
+    assert main([*args, "--push", "0:cart:1e300,0,0"]) == 3
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "failed at t = 0.000 s" in err, err
+    assert (out / "mpc.json").read_bytes() == before and (out / "mpc.npz").exists()

@@ -812,6 +812,8 @@ def cmd_mpc(args) -> int:
     with Progress(transient=True) as prog:
         bar = prog.add_task("simulating", total=1.0)
         res = run_mpc(task, settings, lambda k, n: prog.update(bar, completed=k / n))
+    if res.failure and len(res.U) == 0:  # nothing to keep: an earlier run's files stay
+        raise SimulationError(f"the controlled plant failed at {res.failure} (no step completed)")
     stats = res.stats()
     sol = res.as_solution()
     try:
