@@ -25,6 +25,11 @@ def test_parse_values():
     for bad in ("logspace:0:1:3", "logspace:1:2", "a,b", "linspace:0:1:0", "1,1"):
         with pytest.raises(ConfigError):
             parse_values(bad)
+    # a generated list that repeats a value would compute one point several times
+    for bad in ("linspace:1:1:3", "logspace:1e5:1e5:2", "logspace:1:1.0000000000001:3"):
+        with pytest.raises(ConfigError, match="repeated values"):
+            parse_values(bad)
+    assert parse_values("linspace:5:5:1") == [5.0]
     g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
     assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
     assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})

@@ -101,9 +101,15 @@ def parse_values(spec: str) -> list[float | int]:
             if a <= 0 or b <= 0:
                 raise ConfigError(f"--values {spec!r}: logspace needs positive START and STOP")
             vals = np.logspace(math.log10(a), math.log10(b), n)
-            # Exact decades where they fall (1e3, not 999.9999999999998).
-            return [float(f"{v:.12g}") for v in vals]
-        return [float(f"{v:.12g}") for v in np.linspace(a, b, n)]
+        else:
+            vals = np.linspace(a, b, n)
+        # Exact decades where they fall (1e3, not 999.9999999999998).
+        vals = [float(f"{v:.12g}") for v in vals]
+        if len(set(vals)) != len(vals):
+            raise ConfigError(
+                f"--values {spec!r}: repeated values (START and STOP too close for COUNT)"
+            )
+        return vals
     vals = [_number(p, f"--values {spec!r}") for p in spec.split(",") if p.strip()]
     if not vals:
         raise ConfigError(f"--values {spec!r}: no values")
