@@ -253,3 +253,15 @@ def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monke
         "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, workers=1
     )
     assert res["computed"] == 0
+
+
+def test_a_key_that_is_not_numeric_is_refused_before_any_work(tmp_path):
+    # `name` takes a number as text: every point would be the same task
+    for key, vals in (("name", [1]), ("description", [1, 2])):
+        with pytest.raises(ConfigError, match=f"--param {key}: not a numeric task key"):
+            run_sweep("cartpole-wall", [(key, vals)], tmp_path / "s", smoke=True)
+    assert not (tmp_path / "s").exists()
+    # a shorthand that creates the geometry entry it sets is numeric all the same
+    from hydroilqr.sweep import check_numeric_params
+
+    check_numeric_params("kinova-forward", {}, None, True, [("ball.friction", [0.3])])

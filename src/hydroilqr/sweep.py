@@ -118,6 +118,46 @@ def parse_values(spec: str) -> list[float | int]:
     return vals
 
 
+def _changed_leaves(a: Any, b: Any, path: str = "") -> list[tuple[str, Any]]:
+    """(dotted path, value in ``b``) of every leaf where two config dicts differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return [
+            leaf
+            for k in sorted(set(a) | set(b), key=str)
+            for leaf in _changed_leaves(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
+        ]
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        return [
+            leaf
+            for i, (x, y) in enumerate(zip(a, b))
+            for leaf in _changed_leaves(x, y, f"{path}.{i}")
+        ]
+    return [] if a == b else [(path, b)]
+
+
+def check_numeric_params(
+    task_arg: str, overrides: dict, cfg_arg, smoke: bool, params: list[tuple[str, list]]
+) -> None:
+    """ConfigError if a swept key sets anything but numbers in the task (``name`` or
+    ``description`` take a number as text: the sweep would solve one task over and over).
+    What a key sets: the leaves in which the task differs between two of its values."""
+    from .config import load_task
+
+    for key, vals in params:
+        a, b = vals[0], vals[-1] if len(vals) > 1 else vals[0] + 1
+        try:
+            ca, cb = (
+                load_task(task_arg, {**overrides, key: v}, cfg_arg, smoke).to_dict() for v in (a, b)
+            )
+        except ConfigError:
+            continue  # an invalid value: its point fails and says why
+        for where, v in _changed_leaves(ca, cb):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ConfigError(
+                    f"--param {key}: not a numeric task key (it sets {where}, a {type(v).__name__})"
+                )
+
+
 def grid(params: list[tuple[str, list]]) -> list[dict[str, Any]]:
     """All combinations, the first parameter varying slowest."""
     points: list[dict[str, Any]] = [{}]
@@ -765,6 +805,7 @@ def run_sweep(
         t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
         t.validate()
     task_cfg = t.config
+    check_numeric_params(task_arg, overrides, cfg_arg, smoke, params)
 
     out = Path(out)
     points_dir = out / "points"
