@@ -265,3 +265,13 @@ def test_naming_the_floating_body_position_is_the_default_choice():
     dyn = Task.load("kinova-forward", smoke=True).dynamics
     named, default = choose_object(dyn, "ball.position"), choose_object(dyn)
     assert named == default and named.kind == "floating"  # was "joint", without orientation
+
+
+def test_a_playback_without_replay_removes_the_previous_replay(run_dir, tmp_path):
+    from hydroilqr.cli import main
+
+    out = tmp_path / "pb"
+    args = ["playback", str(run_dir), "--speed", "1", "--truth-time-step", "0.005"]
+    assert main([*args, "--out", str(out)]) == 0 and (out / "playback.html").exists()
+    assert main([*args, "--no-replay", "--out", str(out)]) == 0
+    assert not (out / "playback.html").exists()  # it showed the earlier playback

@@ -752,6 +752,8 @@ def write_outputs(
     plot_playback(r, out / "playback.png", task.name)
     if replay:
         write_replay(task, r, out / "playback.html")
+    else:  # an earlier playback's replay would sit beside this one's results
+        (out / "playback.html").unlink(missing_ok=True)
     return data
 
 
