@@ -275,3 +275,12 @@ def test_a_playback_without_replay_removes_the_previous_replay(run_dir, tmp_path
     assert main([*args, "--out", str(out)]) == 0 and (out / "playback.html").exists()
     assert main([*args, "--no-replay", "--out", str(out)]) == 0
     assert not (out / "playback.html").exists()  # it showed the earlier playback
+
+
+def test_a_speed_the_truth_step_cannot_follow_or_simulate_is_refused(run_dir):
+    task, sol, _ = load_run(run_dir)  # plan step 0.01 s, 0.5 s long
+    with pytest.raises(ConfigError, match="less than one truth step"):
+        playback(task, sol, PlaybackSettings(speed=1e9))  # was: one truth step, exit 0
+    with pytest.raises(ConfigError, match="truth steps \\(at most"):
+        playback(task, sol, PlaybackSettings(speed=1e-9))  # was: MemoryError
+    PlaybackSettings(speed=10.0).check_against(task, 0.5)  # a plan step = one truth step

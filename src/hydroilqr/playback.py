@@ -58,6 +58,7 @@ from .state import quat_conj, quat_mul
 #: Default "real" contact approximation for each planner approximation (always a different one).
 TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "sap"}
 POLICIES = ("pd", "ilqr")
+MAX_TRUTH_STEPS = 1_000_000  # more is a mistyped --speed (already minutes of simulation)
 
 
 # ------------------------------------------------------------------------------------------
@@ -84,8 +85,9 @@ class PlaybackSettings:
     scale_velocity_reference: bool = True  # v̄_J = s · v_plan (pd policy)
     object: str | None = None  # state block compared planned vs actual (None: automatic)
 
-    def check_against(self, task) -> None:
-        """Settings that cannot fit ``task``'s plan (ConfigError)."""
+    def check_against(self, task, plan_duration: float | None = None) -> None:
+        """Settings that cannot fit ``task``'s plan (ConfigError); with ``plan_duration`` (s),
+        also a playback too long to simulate."""
         check_truth_overrides(self.truth_overrides)
         own = {
             "plant.time_step": "--truth-time-step",
@@ -101,6 +103,20 @@ class PlaybackSettings:
                 f"playback truth-time-step {self.truth_time_step:g} s: coarser than the plan's "
                 f"time step ({dt:g} s); the 'real' system must be simulated at least as finely"
             )
+        if dt / self.speed < self.truth_time_step * (1 - 1e-9):
+            raise ConfigError(
+                f"playback speed {self.speed:g}: a plan step ({dt:g} s) would last "
+                f"{dt / self.speed:.3g} s, less than one truth step ({self.truth_time_step:g} s): "
+                "lower --speed or --truth-time-step"
+            )
+        if plan_duration is not None:
+            steps = plan_duration / self.speed / self.truth_time_step
+            if steps > MAX_TRUTH_STEPS:
+                raise ConfigError(
+                    f"playback speed {self.speed:g}: {plan_duration / self.speed:.3g} s of "
+                    f"playback is {steps:.3g} truth steps (at most {MAX_TRUTH_STEPS:.0e}): raise "
+                    "--speed or --truth-time-step"
+                )
 
     def truth_contact_for(self, task) -> str:
         """The "real" system's contact approximation: ``truth_contact``, else the default
@@ -357,7 +373,7 @@ def playback(
     if the real system's time step fails, ConfigError on bad settings."""
     settings = settings or PlaybackSettings()
     settings.validate()
-    settings.check_against(task)
+    settings.check_against(task, float(sol.t[-1] - sol.t[0]))
     wall0 = time.perf_counter()
     planner = task.dynamics
     truth = Dynamics(truth_config(task, settings))
@@ -782,7 +798,7 @@ def cmd_playback(args) -> int:
         object=args.object,
     )
     settings.validate()
-    settings.check_against(task)
+    settings.check_against(task, float(sol.t[-1] - sol.t[0]))
     from .report import output_dir
 
     out = output_dir(
