@@ -140,3 +140,12 @@ def test_bench_refuses_a_task_twice_and_another_commands_directory(tmp_path, cap
     (tmp_path / "b" / "bench.json").write_text('{"task": "bench"}')
     rc = main(["solve", "cartpole-wall", "--smoke", "--out", str(tmp_path / "b")])
     assert rc == 2 and "holds a bench's results" in capsys.readouterr().err
+
+
+def test_fast_overrides_that_change_the_trajectory_are_refused(tmp_path, capsys):
+    # (b) ran with (a)'s initial guess, so its horizon was silently ignored
+    for fast in ("horizon=0.5", "plant.time_step=0.02"):
+        rc = main(["bench", "cartpole-wall", "--smoke", "--fast", fast, "--out", str(tmp_path)])
+        err = capsys.readouterr().err
+        assert rc == 2 and "both must solve the same trajectory" in err, err
+        assert not tmp_path.joinpath("bench.json").exists()

@@ -360,6 +360,28 @@ def _stats(sol) -> dict:
     }
 
 
+def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict, list]:
+    """The configurations ({"paper": [...], "fast": [...]}) and the two validated Tasks of
+    one benchmark; ConfigError if ``fast`` changes the problem being timed (its length or
+    time step: both runs share one initial guess and are compared per iteration)."""
+    from .task import Task
+
+    sets = list(sets or [])
+    th = [f"solver.threads={threads}"]
+    cfgs = {"paper": PAPER + th, "fast": FAST + th + list(fast or [])}
+    tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
+    for t in tasks:
+        t.validate()
+    a, b = tasks
+    if a.steps != b.steps or a.config.plant.time_step != b.config.plant.time_step:
+        raise ConfigError(
+            f"--fast: {a.name}'s fast configuration has {b.steps} steps of "
+            f"{b.config.plant.time_step:g} s, the paper's {a.steps} of "
+            f"{a.config.plant.time_step:g} s: both must solve the same trajectory (use --set)"
+        )
+    return cfgs, tasks
+
+
 def bench_task(
     name: str,
     iterations: int,
@@ -371,15 +393,8 @@ def bench_task(
     accuracy: bool = True,
     same_iterates: bool = True,
 ) -> dict:
-    from .task import Task
-
-    sets = list(sets or [])
-    th = [f"solver.threads={threads}"]
     fast = list(fast or [])
-    cfgs = {"paper": PAPER + th, "fast": FAST + th + fast}
-    tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
-    for t in tasks:
-        t.validate()
+    cfgs, tasks = bench_tasks(name, threads, smoke, sets, fast)
     N = tasks[0].steps
     # One initial guess for both (a 'hold' guess depends on the contact solver: take (a)'s).
     U0 = tasks[0].initial_guess(N)
