@@ -149,3 +149,13 @@ def test_fast_overrides_that_change_the_trajectory_are_refused(tmp_path, capsys)
         err = capsys.readouterr().err
         assert rc == 2 and "both must solve the same trajectory" in err, err
         assert not tmp_path.joinpath("bench.json").exists()
+
+
+def test_a_bench_failing_on_a_later_task_keeps_the_earlier_results(tmp_path, capsys):
+    (tmp_path / "bench.json").write_text('{"task": "bench", "tasks": {"earlier": {}}}')
+    rc = main(
+        ["bench", "cartpole-wall", "kinova-forward", "--smoke", "--iterations", "1"]
+        + ["--fast", "tip.hydroelastic_modulus=1e6", "--out", str(tmp_path)]
+    )  # `tip` is the cart-pole's; kinova-forward has no such geometry
+    assert rc == 2 and "geometry.tip" in capsys.readouterr().err
+    assert "earlier" in json.loads((tmp_path / "bench.json").read_text())["tasks"]

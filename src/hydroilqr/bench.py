@@ -609,6 +609,9 @@ def run_bench(
     seen: dict[str, str] = {}
     for name in names:
         key = load_task(name, sets, smoke=smoke).name  # results are stored by task name
+        # Every task's mistakes (e.g. a --fast key only one of them has) before bench.json
+        # is written: a failed bench keeps the directory's earlier results.
+        bench_tasks(name, threads, smoke, sets, fast)
         if key in seen:
             raise ConfigError(f"bench: {seen[key]!r} and {name!r} are both task {key!r}")
         seen[key] = name
