@@ -381,3 +381,9 @@ def test_a_plant_failing_in_its_first_step_keeps_the_previous_run(tmp_path, caps
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "failed at t = 0.000 s" in err, err
     assert (out / "mpc.json").read_bytes() == before and (out / "mpc.npz").exists()
+
+
+def test_horizon_on_a_shrinking_horizon_task_is_refused_not_ignored(tmp_path, capsys):
+    out = str(tmp_path / "m")
+    rc = main(["mpc", "kinova-forward", "--smoke", "--horizon", "0.05", "--out", out])
+    assert rc == 2 and "--horizon: kinova-forward plans to its own end" in capsys.readouterr().err

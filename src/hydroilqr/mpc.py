@@ -794,6 +794,11 @@ def cmd_mpc(args) -> int:
         truth_overrides=list(args.truth_set),
         warm_start_plan=args.warm_start_plan,
     )
+    if args.horizon is not None and settings.shrinking_horizon:
+        raise ConfigError(
+            f"--horizon: {task.name} plans to its own end (mpc.shrinking_horizon: true), so a "
+            "horizon does not apply; add --set mpc.shrinking_horizon=false for a receding one"
+        )
     if args.smoke and args.duration is None and settings.rate > 0:  # a quick try: at most
         settings.duration = min(settings.duration, SMOKE_UPDATES / settings.rate)  # 10 updates
     settings.check(task)
