@@ -284,3 +284,13 @@ def test_a_speed_the_truth_step_cannot_follow_or_simulate_is_refused(run_dir):
     with pytest.raises(ConfigError, match="truth steps \\(at most"):
         playback(task, sol, PlaybackSettings(speed=1e-9))  # was: MemoryError
     PlaybackSettings(speed=10.0).check_against(task, 0.5)  # a plan step = one truth step
+
+
+def test_pd_loop_options_with_the_ilqr_policy_are_refused_not_ignored(run_dir, tmp_path, capsys):
+    from hydroilqr.cli import main
+
+    out = str(tmp_path / "pb")
+    rc = main(["playback", str(run_dir), "--policy", "ilqr", "--kp", "100", "--out", out])
+    assert rc == 2 and "--kp: options of the PD+ loop" in capsys.readouterr().err
+    rc = main(["playback", str(run_dir), "--policy", "ilqr", "--kd", "1", "--rate", "200"])
+    assert rc == 2 and "--kd, --rate: options" in capsys.readouterr().err

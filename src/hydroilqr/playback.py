@@ -782,12 +782,16 @@ def cmd_playback(args) -> int:
     from .report import read_lock
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
+    pd_loop = {k: getattr(args, k) for k in ("kp", "kd", "rate") if getattr(args, k) is not None}
+    if args.policy == "ilqr" and pd_loop:
+        raise ConfigError(
+            f"{', '.join('--' + k for k in pd_loop)}: options of the PD+ loop; --policy ilqr "
+            "applies the plan's own gains K once per plan step"
+        )
     task, sol, _ = load_run(args.dir)
     settings = PlaybackSettings(
         speed=args.speed,
-        kp=args.kp,
-        kd=args.kd,
-        rate=args.rate,
+        **pd_loop,  # the rest: PlaybackSettings' defaults
         update_period=args.update_period,
         policy=args.policy,
         truth_time_step=args.truth_time_step,
@@ -859,9 +863,9 @@ def setup(p) -> None:
         default=None,
         help="playback speed (plan time per playback second); default 0.5 for pd, 1 for ilqr",
     )
-    p.add_argument("--kp", type=float, default=500.0, help="PD+ stiffness (default 500)")
-    p.add_argument("--kd", type=float, default=5.0, help="PD+ damping (default 5)")
-    p.add_argument("--rate", type=float, default=1000.0, help="PD+ control rate, Hz (default 1000)")
+    p.add_argument("--kp", type=float, help="PD+ stiffness (default 500)")
+    p.add_argument("--kd", type=float, help="PD+ damping (default 5)")
+    p.add_argument("--rate", type=float, help="PD+ control rate, Hz (default 1000)")
     p.add_argument(
         "--update-period",
         type=float,
