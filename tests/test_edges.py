@@ -1219,3 +1219,28 @@ def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypat
         files.atomic_write(p, '{"new": 2}')
     assert p.read_text() == '{"old": 1}'  # untouched, and no temporary file left behind
     assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "a.npz"]
+
+
+def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
+    import numpy as np
+
+    from hydroilqr.config import ConfigError, load_task
+    from hydroilqr.mpc import MPCSettings
+    from hydroilqr.solution import Solution
+    from hydroilqr.task import Task
+
+    for bad in (["horizon=2e6"], ["num_steps=20000000"]):
+        with pytest.raises(ConfigError, match="at most 1000000"):
+            load_task("cartpole-wall", bad)  # it would allocate and run for ever
+    with pytest.raises(ConfigError, match="receding_horizon: .* more than 1000000"):
+        load_task("cheetah-trot-1.0", ["receding_horizon.resolves=10000000"])
+    task = Task.load("cartpole-wall", smoke=True)
+    with pytest.raises(ConfigError, match="mpc horizon 1e\\+06 s: more than"):
+        MPCSettings(horizon=1e6).check(task)
+    from hydroilqr.api import solve
+
+    sol = solve(task.with_overrides({"solver.max_iterations": 1}))
+    sol.U[3, 0] = np.nan
+    p = sol.save(tmp_path / "plan")
+    with pytest.raises(ValueError, match="its U holds non-finite"):
+        Solution.load(p)

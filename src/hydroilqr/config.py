@@ -855,6 +855,9 @@ def _check_length(values: list[float], n: int, key: str) -> None:
         raise ConfigError(f"{key}: expected {n} numbers, got {len(values)}")
 
 
+MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2e6 is refused)
+
+
 def validate_mpc(m: Any) -> None:
     """Checks the ``mpc:`` settings that need no plant (an MPCConfig, or hydroilqr.mpc's
     MPCSettings, which has the same fields); ConfigError naming the key."""
@@ -982,6 +985,10 @@ def validate(cfg: TaskConfig) -> None:
             f"horizon: {cfg.horizon:g} s is not a whole number of time steps "
             f"({cfg.plant.time_step:g} s)"
         )
+    n = cfg.num_steps or round(steps)
+    if n > MAX_STEPS:  # it would not fail, it would allocate and run for ever
+        what = "num_steps" if cfg.num_steps else f"horizon: {cfg.horizon:g} s is"
+        raise ConfigError(f"{what} {n} time steps; at most {MAX_STEPS} (a longer time step?)")
     for name, p in cfg.geometry.items():
         _check_contact(p, f"geometry.{name}")
     for i, o in enumerate(cfg.scene):
@@ -1026,6 +1033,11 @@ def validate(cfg: TaskConfig) -> None:
         )
     if rh is not None and rh.max_iterations < 1:
         raise ConfigError("receding_horizon.max_iterations: must be >= 1")
+    if rh is not None and rh.resolves * rh.shift_steps + rh.window_steps > MAX_STEPS:
+        raise ConfigError(
+            f"receding_horizon: {rh.resolves} resolves of {rh.shift_steps} steps are more than "
+            f"{MAX_STEPS} time steps"
+        )
 
 
 def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:

@@ -36,6 +36,7 @@ from pydrake.multibody.tree import BodyIndex
 
 from .config import (
     DERIVATIVES,
+    MAX_STEPS,
     ConfigError,
     check_truth_overrides,
     unknown_key,
@@ -105,6 +106,11 @@ class MPCSettings:
         if self.threads < 0:
             raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
         dt = task.config.plant.time_step
+        for what, seconds in (("horizon", self.horizon), ("duration", self.duration)):
+            if seconds / dt > MAX_STEPS:
+                raise ConfigError(
+                    f"mpc {what} {seconds:g} s: more than {MAX_STEPS} time steps of {dt:g} s"
+                )
         if self.rate > 1.0 / dt * (1 + 1e-9):
             raise ConfigError(
                 f"mpc rate {self.rate:g} Hz: at most one update per time step "

@@ -161,6 +161,9 @@ class Solution:
                 extra=meta.get("extra", {}),
             )
         sol.check_shapes(path)
+        for name in ("X", "U", "K", "t"):  # a solve never writes these; an edited file might
+            if not np.isfinite(getattr(sol, name)).all():
+                raise ValueError(f"{path}: its {name} holds non-finite (NaN or infinite) values")
         return sol
 
     def check_shapes(self, where: str | Path = "solution") -> None:
