@@ -387,3 +387,11 @@ def test_horizon_on_a_shrinking_horizon_task_is_refused_not_ignored(tmp_path, ca
     out = str(tmp_path / "m")
     rc = main(["mpc", "kinova-forward", "--smoke", "--horizon", "0.05", "--out", out])
     assert rc == 2 and "--horizon: kinova-forward plans to its own end" in capsys.readouterr().err
+
+
+def test_mpc_plot_shows_position_blocks_not_velocity_groups():
+    from hydroilqr.mpc import plotted_blocks
+
+    assert plotted_blocks(Task.load("cartpole-wall")) == ["cart_position", "pole_angle"]
+    # arm_v (joint velocities, weighted in Q) has no "velocit" in its name
+    assert plotted_blocks(Task.load("kinova-forward")) == ["ball_position"]

@@ -676,6 +676,20 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
 # ------------------------------------------------------------------------------------------
 
 
+def plotted_blocks(task) -> list[str]:
+    """The (at most 4) weighted position blocks of the running cost that mpc.png plots:
+    euclidean blocks whose coordinates all lie in q (a velocity group such as the Kinova's
+    ``arm_v`` is left out whatever its name)."""
+    layout = task.dynamics.layout
+    return [
+        n
+        for n, w in task.config.cost.Q.items()
+        if np.any(np.asarray(w, float) > 0)
+        and layout.block(n).kind == "euclidean"
+        and all(c < layout.nq for c in layout.block(n).coords)
+    ][:4]
+
+
 def plot_mpc(task, res: MPCResult, path: Path) -> None:
     import matplotlib
 
@@ -683,14 +697,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     layout = task.dynamics.layout
-    names = [
-        n
-        for n, w in task.config.cost.Q.items()
-        if np.any(np.asarray(w, float) > 0)
-        and layout.block(n).kind == "euclidean"
-        and "velocit" not in n
-        and not n.endswith(".v")
-    ][:4]
+    names = plotted_blocks(task)
     fig, axes = plt.subplots(len(names) + 1, 1, figsize=(7, 2.0 * (len(names) + 1)), sharex=True)
     axes = np.atleast_1d(axes)
     xn = task.cost.nominal(res.t)
