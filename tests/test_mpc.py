@@ -389,9 +389,10 @@ def test_horizon_on_a_shrinking_horizon_task_is_refused_not_ignored(tmp_path, ca
     assert rc == 2 and "--horizon: kinova-forward plans to its own end" in capsys.readouterr().err
 
 
-def test_mpc_plot_shows_position_blocks_not_velocity_groups():
+def test_mpc_plot_shows_position_blocks_not_velocity_groups_with_units():
     from hydroilqr.mpc import plotted_blocks
 
-    assert plotted_blocks(Task.load("cartpole-wall")) == ["cart_position", "pole_angle"]
+    cartpole = [("cart_position", "m"), ("pole_angle", "rad")]
+    assert plotted_blocks(Task.load("cartpole-wall")) == cartpole
     # arm_v (joint velocities, weighted in Q) has no "velocit" in its name
-    assert plotted_blocks(Task.load("kinova-forward")) == ["ball_position"]
+    assert plotted_blocks(Task.load("kinova-forward")) == [("ball_position", "m")]

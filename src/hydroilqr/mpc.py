@@ -676,13 +676,28 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
 # ------------------------------------------------------------------------------------------
 
 
-def plotted_blocks(task) -> list[str]:
-    """The (at most 4) weighted position blocks of the running cost that mpc.png plots:
-    euclidean blocks whose coordinates all lie in q (a velocity group such as the Kinova's
-    ``arm_v`` is left out whatever its name)."""
-    layout = task.dynamics.layout
+def plotted_blocks(task) -> list[tuple[str, str]]:
+    """(name, unit) of the (at most 4) weighted position blocks of the running cost that
+    mpc.png plots: euclidean blocks whose coordinates all lie in q (a velocity group such as
+    the Kinova's ``arm_v`` is left out whatever its name). The unit: "m" or "rad" when every
+    coordinate is a prismatic/revolute joint's or a floating body's position, else ""."""
+    layout, plant = task.dynamics.layout, task.dynamics.plant
+    from pydrake.multibody.tree import JointIndex
+
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+    kind = {"prismatic": "m", "revolute": "rad", "quaternion_floating": "m"}
+
+    def unit(coords) -> str:
+        units = {
+            kind.get(j.type_name(), "")
+            for c in coords
+            for j in joints
+            if j.position_start() <= c < j.position_start() + j.num_positions()
+        }
+        return units.pop() if len(units) == 1 else ""
+
     return [
-        n
+        (n, unit(layout.block(n).coords))
         for n, w in task.config.cost.Q.items()
         if np.any(np.asarray(w, float) > 0)
         and layout.block(n).kind == "euclidean"
@@ -697,18 +712,18 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     layout = task.dynamics.layout
-    names = plotted_blocks(task)
-    fig, axes = plt.subplots(len(names) + 1, 1, figsize=(7, 2.0 * (len(names) + 1)), sharex=True)
+    blocks = plotted_blocks(task)
+    fig, axes = plt.subplots(len(blocks) + 1, 1, figsize=(7, 2.0 * (len(blocks) + 1)), sharex=True)
     axes = np.atleast_1d(axes)
     xn = task.cost.nominal(res.t)
-    for ax, name in zip(axes, names):
+    for ax, (name, unit) in zip(axes, blocks):
         b = layout.block(name)
         for j, c in enumerate(b.coords):
             ax.plot(res.t, res.X[:, c], label=f"{name}[{j}]" if len(b.coords) > 1 else name)
             ax.plot(
                 res.t, xn[:, c], "--", color="gray", lw=0.8, label="nominal" if j == 0 else None
             )
-        ax.set_ylabel(f"{name}\n(model units)")
+        ax.set_ylabel(f"{name} [{unit}]" if unit else f"{name}\n(model units)")
     for i, p in enumerate(res.settings.pushes):
         for ax in axes:
             ax.axvspan(
