@@ -719,10 +719,10 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     for ax, (name, unit) in zip(axes, blocks):
         b = layout.block(name)
         for j, c in enumerate(b.coords):
-            ax.plot(res.t, res.X[:, c], label=f"{name}[{j}]" if len(b.coords) > 1 else name)
-            ax.plot(
-                res.t, xn[:, c], "--", color="gray", lw=0.8, label="nominal" if j == 0 else None
-            )
+            lab = f"{name}[{j}]" if len(b.coords) > 1 else name
+            (line,) = ax.plot(res.t, res.X[:, c], label=lab)
+            # the nominal in its coordinate's colour: several share a panel (a ball's x, y, z)
+            ax.plot(res.t, xn[:, c], "--", color=line.get_color(), lw=0.8, label=f"{lab} nominal")
         ax.set_ylabel(f"{name} [{unit}]" if unit else f"{name}\n(model units)")
     for i, p in enumerate(res.settings.pushes):
         for ax in axes:
@@ -733,8 +733,8 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
                 alpha=0.15,
                 label="push" if i == 0 else None,
             )
-    for ax in axes[:-1]:
-        ax.legend(fontsize=7, loc="best")
+    for ax in axes[:-1]:  # beside the panel: a legend inside hid a target line
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     ax = axes[-1]
     ax.plot(res.update_times, 1e3 * np.array(res.solve_seconds), ".", ms=3, label="solve time")
     ax.axhline(1e3 / res.settings.rate, color="k", ls="--", lw=0.8, label="control period")
