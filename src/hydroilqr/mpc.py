@@ -740,6 +740,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     ax.axhline(1e3 / res.settings.rate, color="k", ls="--", lw=0.8, label="control period")
     ax.set_ylabel("ms")
     ax.set_xlabel("time [s]")
+    ax.set_xlim(res.t[0], res.t[-1])  # a push lasting past the run's end widened the axis
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
