@@ -713,10 +713,12 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     qi = r.q_indices
     for i, name in enumerate(r.joints):
         ax.plot(r.t, r.X[:, qi[i]] - r.X_plan[:, qi[i]], lw=1, label=name)
-    ax.set_ylabel("joint error\n(actual − plan)")
+    units = set(r.joint_units)
+    unit = f" [{units.pop()}]" if len(units) == 1 else " [m or rad]"
+    ax.set_ylabel(f"joint error{unit}\n(actual − plan)")
     ax.set_xlabel("playback time [s]")
     ax.grid(alpha=0.3)
-    if 1 < len(r.joints) <= 12:
+    if len(r.joints) <= 12:  # one joint too: which one it is (the cart-pole's cart)
         ax.legend(fontsize=6, ncol=4, loc="best")
     ob = m["object"]
     fig.suptitle(
