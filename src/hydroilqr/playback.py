@@ -722,8 +722,8 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
         ax.legend(fontsize=6, ncol=4, loc="best")
     ob = m["object"]
     fig.suptitle(
-        f"{title}: {m['policy']} at speed {r.settings.speed:g}, truth "
-        f"{r.truth_contact} dt={r.settings.truth_time_step:g}\nfinal gap "
+        f"{title}: {m['policy']} playback at speed {r.settings.speed:g}, truth plant "
+        f"{r.truth_contact} contact, dt={r.settings.truth_time_step:g} s\nfinal gap "
         f"{ob['final_gap']:.3g} {r.obj.unit}, max deviation "
         f"{ob['max_deviation']:.3g} {r.obj.unit}",
         fontsize=9,
