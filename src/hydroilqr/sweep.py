@@ -500,11 +500,12 @@ def plot_sweep(
             for x in bad:
                 ax.axvline(x, color="gray", ls=":", lw=1.2, label=once("failed"))
         ax.set_ylabel(labels.get(metric, metric))
-        if metric == "final_cost":
-            costs = [r.get("final_cost") for r in rows if r.get("status") == "ok"]
-            costs = [c for c in costs if c is not None and c > 0]
-            if costs and max(costs) / min(costs) > 20:
-                ax.set_yscale("log")
+        # log when the values span decades (overlap: 0.2 mm stiff, 100 mm tunnelled); not
+        # when one is 0 (no contact), which a log axis would drop
+        vals = [r.get(metric) for r in rows if r.get("status") == "ok"]
+        vals = [v for v in vals if v is not None]
+        if vals and min(vals) > 0 and max(vals) / min(vals) > 20:
+            ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
