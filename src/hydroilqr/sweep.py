@@ -447,7 +447,7 @@ def plot_sweep(
     panels = (["max_overlap_m"] if has_overlap else []) + ["final_cost"]
     labels = {
         "max_overlap_m": "max overlap [m]",
-        "final_cost": "final cost (circled: not converged)",
+        "final_cost": "final cost",  # circles: in the legend as "not converged"
     }
     fig, axes = plt.subplots(
         len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4), sharex=True, squeeze=False
