@@ -549,13 +549,18 @@ def plot_snapshots(
             continue
     if not chosen:
         return False
-    fig, axes = plt.subplots(1, len(chosen), figsize=(3.1 * len(chosen), 3.6), squeeze=False)
     walls = [o for o in task_cfg.scene if o.shape == "box"]
     # Common limits: every tip path and cart, plus a margin.
     xs = np.concatenate([np.r_[d["tip_xyz"][:, 0], d["cart_xyz"][:, 0]] for _, d in chosen])
     zs = np.concatenate([np.r_[d["tip_xyz"][:, 2], d["cart_xyz"][:, 2]] for _, d in chosen])
     xlim = (float(xs.min()) - 0.2, float(xs.max()) + 0.2)
     ylim = (float(zs.min()) - 0.15, float(zs.max()) + 0.15)
+    # equal-aspect panels ~2.6 in wide; the height follows (plus titles), no empty band
+    aspect = (ylim[1] - ylim[0]) / (xlim[1] - xlim[0])
+    fig, axes = plt.subplots(
+        1, len(chosen), figsize=(3.1 * len(chosen), 2.6 * aspect + 1.4), squeeze=False
+    )
+    unit = " Pa" if key.endswith("hydroelastic_modulus") else ""
     for ax, (r, d) in zip(axes[0], chosen):
         k = int(np.argmin(d["signed_distance"])) if "signed_distance" in d else 0
         tip, pin, cart = d["tip_xyz"], d["pin_xyz"], d["cart_xyz"]
@@ -584,7 +589,7 @@ def plot_snapshots(
         ov = r.get("max_overlap_m") or 0.0
         tun = " TUNNELLED" if r.get("tunnelled") else ""
         ax.set_title(
-            f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}\n"
+            f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}{unit}\n"
             f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}",
             fontsize=8,
         )
@@ -592,7 +597,10 @@ def plot_snapshots(
         ax.set_xlabel("x [m]", fontsize=8)
     axes[0, 0].set_ylabel("z [m]", fontsize=8)
     axes[0, 0].legend(fontsize=7, loc="upper right")
-    fig.suptitle("configuration of maximum overlap (grey: tip path over the horizon)", fontsize=9)
+    fig.suptitle(
+        f"{task_cfg.name}: configuration of maximum overlap (grey: tip path over the horizon)",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
