@@ -570,7 +570,10 @@ def plot(rows: list[dict], path: Path) -> None:
             colors.append({"paper": "tab:red", "fast": "tab:blue", "same": "tab:orange"}[key])
         labels.append((4 * i + (len(series) - 1) / 2, r["task"]))
     if data:
-        bp = ax.boxplot(data, positions=pos, widths=0.8, patch_artist=True)
+        # black medians: the default orange one vanished in the orange "(a) at (b)'s iterates" box
+        bp = ax.boxplot(
+            data, positions=pos, widths=0.8, patch_artist=True, medianprops={"color": "k"}
+        )
         for patch, c in zip(bp["boxes"], colors):
             patch.set_facecolor(c)
             patch.set_alpha(0.5)
