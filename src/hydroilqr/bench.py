@@ -579,12 +579,14 @@ def plot(rows: list[dict], path: Path) -> None:
             patch.set_alpha(0.5)
         ax.set_xticks([p for p, _ in labels], [n for _, n in labels])
         ax.set_yscale("log")
-        ax.legend(
+        ax.legend(  # below the task names: inside, it hid the tallest boxes' whiskers
             [bp["boxes"][i] for i in first.values()],
             [names[k] for k in first],
             fontsize="small",
+            loc="upper center",
+            bbox_to_anchor=(0.5, -0.1),
         )
-    ax.set_ylabel("iteration time (s)")
+    ax.set_ylabel("iteration time [s]")
     ax.set_title("iLQR iteration times (paper Fig. 8)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
