@@ -102,7 +102,7 @@ def plot_ball(task, sol, out: Path) -> None:
 
     _, P, targets, w = _ball_track(task, sol)
     t = np.asarray(sol.t)
-    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    fig, ax = plt.subplots(figsize=(6.2, 3.4))
     for i, (axis, color) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
         ax.plot(t, P[:, i], color=color, label=f"ball {axis}")
         if w[i] > 0:
@@ -111,7 +111,7 @@ def plot_ball(task, sol, out: Path) -> None:
     ax.set_ylabel("ball centre [m]")
     ax.set_title(f"{task.name}: ball position")
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # inside, it hid a target
     fig.tight_layout()
     fig.savefig(Path(out) / "ball.png", dpi=120)
     plt.close(fig)
