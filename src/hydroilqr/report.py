@@ -81,7 +81,7 @@ def plot_convergence(sol, path: Path, title: str) -> None:
         label = "iteration (continuation stages, each on its own model)"
     ax.set_xlabel(label)
     ax.set_ylabel("cost")
-    ax.set_title(title)
+    ax.set_title(f"{title}: iLQR cost per iteration")
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
