@@ -109,9 +109,18 @@ def test_ilqr_solves_lqr_in_one_step():
         H += Phi[k].T @ W[k] @ Phi[k]
         g += Phi[k].T @ W[k] @ free[k]
     U_opt = -np.linalg.solve(H, g)
+    J_opt = float(g @ U_opt + sum(free[k] @ W[k] @ free[k] for k in range(N + 1)))
     np.testing.assert_allclose(sol.U.ravel(), U_opt, rtol=1e-6, atol=1e-8)
     assert sol.converged
-    assert sol.eps[0] == 1.0
+    # One step: the first iteration takes the full step and lands on the optimum; the next
+    # predicts no decrease and stops there.
+    assert sol.eps[0] == 1.0 and sol.iterations <= 2
+    assert sol.costs[0] > 2 * J_opt
+    assert sol.costs[1] == pytest.approx(J_opt, rel=1e-9)
+    # The returned feedback is the LQR policy: Riccati gains, no feedforward left at the optimum.
+    Q, Qf, R = np.diag([1.0, 0.1]), np.diag([50.0, 5.0]), np.array([[0.01]])
+    np.testing.assert_allclose(sol.K, riccati_gains(A, B, Q, R, Qf, N), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(sol.kappa, 0.0, atol=1e-8)
 
 
 @pytest.fixture(scope="module")
