@@ -492,10 +492,10 @@ def test_returned_gains_are_those_around_the_final_trajectory():
     sol = solve(task)
     assert sol.eps[-1] > 0
     s = task.config.solver
+    # At the smallest workable μ (here Q_uu needs none), not the solver's last μ.
+    assert sol.extra["gains_mu"] == s.regularization_min
     A, B = linearize(task.dynamics, sol.X, sol.U, s.derivatives, rollout=True)
-    bp = backward_pass(
-        A, B, task.cost.quadratize(sol.X, sol.U, 0.0), max(sol.mu[-1], s.regularization_min)
-    )
+    bp = backward_pass(A, B, task.cost.quadratize(sol.X, sol.U, 0.0), s.regularization_min)
     np.testing.assert_allclose(sol.K, bp.K, rtol=1e-9, atol=1e-12)
 
 
