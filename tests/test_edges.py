@@ -829,6 +829,7 @@ def test_a_trial_that_blows_up_in_a_worker_keeps_the_pool():
     U, X = np.zeros((N, dyn.nu)), dyn.rollout(task.x0, np.zeros((N, dyn.nu)))
     K, kappa = np.zeros((N, dyn.nu, dyn.nx)), np.full((N, dyn.nu), -1e12)
     out = workers.closed_loop_rollouts(dyn, task.x0, U, X, K, kappa, [0.0, 1.0])
+    np.testing.assert_array_equal(out[0][0], X)  # ε = 0: the nominal itself, from a worker
     assert isinstance(out[1], SimulationError)
     assert workers.pool(dyn) is not None and workers.line_search_width(dyn) == 2
 

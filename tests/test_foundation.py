@@ -300,14 +300,18 @@ def test_autodiff_in_worker_processes_equals_serial():
 
 
 def test_line_search_in_worker_processes_equals_serial():
-    """Trials side by side in two processes give bitwise the serial iterates; a trial that
-    blows up in a worker comes back as a rejected (SimulationError) entry."""
+    """Trials side by side in two processes give bitwise the serial iterates. (Three smoke
+    iterations take steps of 1/4 to 1/32: rounds past the first. A trial blowing up in a worker:
+    test_edges::test_a_trial_that_blows_up_in_a_worker_keeps_the_pool.)"""
     from hydroilqr import workers
-    from hydroilqr.plant import SimulationError
 
     sols = []
     for w in (2, 1):
-        task = Task.load("cartpole-wall", [f"solver.line_search_workers={w}"], smoke=True)
+        task = Task.load(
+            "cartpole-wall",
+            [f"solver.line_search_workers={w}", "solver.max_iterations=3"],
+            smoke=True,
+        )
         dyn = task.dynamics
         assert workers.line_search_width(dyn) == w
         problem = Problem(dyn, task.cost, task.x0)
@@ -315,17 +319,9 @@ def test_line_search_in_worker_processes_equals_serial():
     par, ser = sols
     assert len(par.costs) > 2 and par.costs[-1] < par.costs[0]
     np.testing.assert_array_equal(par.costs, ser.costs)
+    assert par.eps == ser.eps
     np.testing.assert_array_equal(par.X, ser.X)
     np.testing.assert_array_equal(par.K, ser.K)
-
-    task = Task.load("cartpole-wall", ["solver.line_search_workers=2"], smoke=True)
-    dyn = task.dynamics
-    N = task.steps
-    U, X = np.zeros((N, dyn.nu)), dyn.rollout(task.x0, np.zeros((N, dyn.nu)))
-    K, kappa = np.zeros((N, dyn.nu, dyn.nx)), np.full((N, dyn.nu), -1e12)
-    out = workers.closed_loop_rollouts(dyn, task.x0, U, X, K, kappa, [0.0, 1.0])
-    np.testing.assert_array_equal(out[0][0], X)
-    assert isinstance(out[1], SimulationError)
 
 
 def test_blown_up_step_is_a_simulation_error(cartpole):
