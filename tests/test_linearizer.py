@@ -53,13 +53,26 @@ def test_reuse_tolerance_cap_and_shift(cartpole):
     assert lin.last_computed == 0 and np.array_equal(A_shifted, A[10:])
 
 
-def test_known_rollout_is_not_recomputed(cartpole):
+def test_known_rollout_is_not_recomputed(cartpole, monkeypatch):
     task, X, U = cartpole
     problem = task.problem()
+    dyn = problem.dynamics
+    calls, real = [], dyn.rollout
+
+    def counted(x0, U):
+        calls.append(len(U))
+        return real(x0, U)
+
+    monkeypatch.setattr(dyn, "rollout", counted)
     a = solve(problem, U, task.config.solver, max_iterations=2, final_gains=False)
+    assert calls == [30]  # the initial rollout (the line search rolls out in closed loop)
     b = solve(problem, U, task.config.solver, max_iterations=2, final_gains=False, X0=X)
+    assert calls == [30]  # X0 is that rollout: not computed again
     assert np.array_equal(a.X, b.X) and np.array_equal(a.K, b.K)
-    assert b.phase_seconds["rollout"][0] < a.phase_seconds["rollout"][0]
+    X_off = X.copy()
+    X_off[0, 0] += 1e-9  # not a rollout from x0: ignored, the rollout is computed
+    c = solve(problem, U, task.config.solver, max_iterations=2, final_gains=False, X0=X_off)
+    assert calls == [30, 30] and np.array_equal(c.X, a.X)
 
 
 def test_mpc_shrinking_horizon_on_prediction():
