@@ -614,22 +614,25 @@ def test_contact_polygons_and_classes():
 
 
 def test_probe_and_thread_scaling_read_the_times_the_right_way_round(monkeypatch):
-    import time
-
     from hydroilqr import bench, derivatives
 
+    clock = [0.0]  # bench's perf_counter: advanced only by the fake linearize (no sleeps)
+
     def fake_linearize(dyn, X, U, method, eps, threads, interval=1, **kw):
-        time.sleep(0.04 if method == "autodiff" else 0.02 if threads == 1 else 0.004)
+        clock[0] += 0.04 if method == "autodiff" else 0.02 if threads == 1 else 0.004
         return None
 
+    monkeypatch.setattr(bench, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
     monkeypatch.setattr(derivatives, "linearize", fake_linearize)
     monkeypatch.setattr(derivatives, "num_threads", lambda n: 2)
     task = Task.load("cartpole-wall", ["num_steps=5"])
     U0 = np.zeros((5, 1))
     monkeypatch.setattr(task.dynamics, "autodiff", lambda: None)
-    assert bench.probe_derivatives(task, U0, 1, repeats=1)["choice"] == "forward"  # the faster
+    probe = bench.probe_derivatives(task, U0, 1, repeats=1)
+    assert probe["choice"] == "forward"  # the faster
+    assert probe["seconds_per_step"] == pytest.approx({"autodiff": 0.04 / 5, "forward": 0.02 / 5})
     th = bench.thread_scaling(task, None, None, 2, repeats=1)
-    assert th["speedup"]["1"] == 1.0 and th["speedup"]["2"] > 2.0  # t(1) / t(2)
+    assert th["speedup"]["1"] == 1.0 and th["speedup"]["2"] == pytest.approx(5.0)  # t(1) / t(2)
 
 
 # ------------------------------------------------------------------------------------------
