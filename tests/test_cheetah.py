@@ -154,18 +154,28 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     ]
 
 
-def test_resume_refuses_another_runs_checkpoint(tmp_path):
+def test_resume_refuses_another_runs_checkpoint(tmp_path, capsys):
     from hydroilqr.cli import main
 
     out = str(tmp_path / "run")
-    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 0
-    assert main(["solve", "cheetah-trot-0.5", "--smoke", "--resume", out, "--no-replay"]) == 2
-    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out + "x"]) == 2
+    one = ["--set", "receding_horizon.resolves=1", "--no-replay"]  # one window is enough here
+
+    def err():
+        return capsys.readouterr().err
+
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, *one]) == 0
+    assert main(["solve", "cheetah-trot-0.5", "--smoke", "--resume", out, *one]) == 2
+    assert "different run" in err()
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out + "x", *one]) == 2
+    assert "runx: no checkpoint.npz there" in err()
     # A finished run may be solved again in place; an unfinished one needs --resume.
-    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 0
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, *one]) == 0
     (tmp_path / "run" / "summary.json").unlink()
-    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, "--no-replay"]) == 2
-    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out, "--no-replay"]) == 0
+    capsys.readouterr()
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--out", out, *one]) == 2
+    assert f"pass --resume {out}" in err()
+    assert main(["solve", "cheetah-trot-1.0", "--smoke", "--resume", out, *one]) == 0
+    assert (tmp_path / "run" / "summary.json").exists()
 
 
 def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
