@@ -168,3 +168,42 @@ def test_linearize_at_one_point_gives_one_pair(cartpole):
     np.testing.assert_allclose(Bf, B, atol=1e-6)
     with pytest.raises(ValueError, match=r"state x must have shape \[4\]"):
         linearize(dyn, x[:3], u)
+
+
+@pytest.mark.parametrize("method", ["central", "forward"])
+def test_batched_finite_differences_equal_a_per_step_per_column_reference(method):
+    """The batched path (every perturbed (x, u) of every step in one Drake call, on 1 or 2
+    threads) against the textbook loop: one dyn.step per perturbed column per time step, with
+    the same relative steps h_i = eps * max(1, |z_i|). Free flight and the tip in the wall."""
+    task = Task.load("cartpole-wall", ["num_steps=5"])
+    dyn = task.dynamics
+    free = np.array([0.013, 3.52, -0.21, 0.37])
+    theta = np.pi + np.arcsin((0.45 - 0.05 + 0.003 - 0.011) / 0.5)
+    touching = np.array([-0.011, theta, -0.05, 0.12])
+    assert not dyn.contact_surfaces(free) and dyn.contact_surfaces(touching)
+    X = np.stack([free, touching, touching])
+    U = np.array([[1.3], [-2.1], [0.7]])
+    X[2, 2:] += [0.3, -0.4]  # a different velocity at the same pose
+    eps, nx = 1e-6, dyn.nx
+    A_ref, B_ref = np.empty((3, nx, nx)), np.empty((3, nx, 1))
+    for k in range(3):
+        z = np.concatenate([X[k], U[k]])
+        cols = []
+        for i in range(z.size):
+            h = eps * max(1.0, abs(z[i]))
+            zp, zm = z.copy(), z.copy()
+            zp[i] += h
+            zm[i] -= h
+            fp = dyn.step(zp[:nx], zp[nx:])
+            if method == "central":
+                cols.append((fp - dyn.step(zm[:nx], zm[nx:])) / (2 * h))
+            else:
+                cols.append((fp - dyn.step(X[k], U[k])) / h)
+        J = np.stack(cols, axis=1)
+        A_ref[k], B_ref[k] = J[:, :nx], J[:, nx:]
+    for threads in (1, 2):
+        A, B = linearize(dyn, X, U, method, eps, threads=threads)
+        # The same arithmetic (bitwise equal when written); a few ulp of a state over h allowed.
+        np.testing.assert_allclose(A, A_ref, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(B, B_ref, rtol=1e-12, atol=1e-9)
+    assert np.abs(A[1] - A[0]).max() > 1e-3  # the contact step's partials differ (the wall)
