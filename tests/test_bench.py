@@ -39,9 +39,10 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     assert "tamsi" in " ".join(r["configs"]["paper"])
     # Exact derivative modes agree with AutoDiff where AutoDiff is exact.
     acc = r["accuracy"]
-    assert acc["central"]["max"]["free"] < 1e-4
-    # (in contact only if the smoke run touches the wall; test_foundation checks contact steps)
-    assert acc["central"]["max"].get("compliant-rigid", 0.0) < 1e-4
+    # every contact class the run visits (free, and compliant-rigid when the tip is on the
+    # wall: 20 of 200 steps when written; test_foundation checks contact steps regardless)
+    assert set(acc["central"]["max"]) == {*acc["contact_classes"], "all"} >= {"free", "all"}
+    assert all(e < 1e-4 for e in acc["central"]["max"].values()), acc["central"]["max"]
     assert set(r["threads"]["seconds"]) >= {"1"}
     # the paper's method also timed at (b)'s own iterates: one per iteration (b) started
     si = r["same_iterates"]
