@@ -265,12 +265,17 @@ def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
 def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
     from hydroilqr.mpc import MPCSettings, run_mpc
 
-    task = Task.load("cartpole-wall")
+    # Tilted away from the wall: a smooth, contact-free run. (Tilted into the wall, which of
+    # the two ends nearer upright flipped between gravities -12 and -14: contact luck.)
+    task = Task.load("cartpole-wall", ["initial_state.pole_angle=2.9"])
     ang = task.dynamics.layout.block("pole_angle").coords[0]
-    kw = dict(duration=0.5, rate=50.0, horizon=0.3, truth_overrides=["plant.gravity=[0, 0, -12]"])
+    kw = dict(duration=0.5, rate=50.0, horizon=0.3, truth_overrides=["plant.gravity=[0, 0, -13]"])
     fb = run_mpc(task, MPCSettings(**kw))
     ff = run_mpc(task, MPCSettings(feedback_scale=0.0, **kw))
-    assert np.abs(fb.X[:, ang] - np.pi).mean() < np.abs(ff.X[:, ang] - np.pi).mean()
+    assert not any(task.dynamics.contact_surfaces(x) for x in np.vstack([fb.X, ff.X]))
+    err_fb, err_ff = np.abs(fb.X[:, ang] - np.pi), np.abs(ff.X[:, ang] - np.pi)
+    # measured 0.1369 vs 0.1396 rad (final), 0.1414 vs 0.1421 (mean)
+    assert err_fb[-1] < err_ff[-1] - 1e-3 and err_fb.mean() < err_ff.mean()
     nowarm = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
     assert not np.array_equal(nowarm.X, fb.X)
 
