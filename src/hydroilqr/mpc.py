@@ -802,7 +802,7 @@ def _setup(p):
         help="a solved run (e.g. from `hydroilqr solve`) whose controls, by time, seed the "
         "first plan and each shifted plan's new steps (mpc.warm_start_plan)",
     )
-    p.add_argument("--out", help="output directory (default runs/TASK-mpc)")
+    p.add_argument("--out", help="output directory (default runs/TASK-mpc, runs/TASK-smoke-mpc)")
     p.add_argument("--no-replay", action="store_true", help="skip writing mpc.html")
     p.set_defaults(func=cmd_mpc)
 
