@@ -16,7 +16,7 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     geometry:                     # overrides of the model's collision properties
       tip: {hydroelastic_modulus: 2e6}      # by body name, collision name (every geometry
                                             # of that name) or BODY/COLLISION_NAME
-    plant: {time_step: 0.01, contact_approximation: sap}
+    plant: {time_step: 0.01, contact_approximation: sap}   # also contact_model, gravity
     horizon: 1.0                  # seconds (or num_steps: N)
     blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
     initial_state: {pole_angle: 3.64}
@@ -45,6 +45,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
     metrics: [default]
+    metric_params: {}             # names the metric sets need (e.g. ball: ball), and
+                                  # camera: {position: [...], target: [...]} for the replays
 
 Overrides use dotted keys (``--set solver.max_iterations=5``). A key whose first part names a
 ``geometry`` entry or a ``scene`` object may omit the section: ``tip.hydroelastic_modulus`` is
