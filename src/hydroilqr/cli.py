@@ -329,8 +329,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solve", help="solve a task and write its results")
     add_task_args(p)
-    p.add_argument("--derivatives", choices=DERIVATIVES)
-    p.add_argument("--max-iterations", type=int)
+    p.add_argument(
+        "--derivatives",
+        choices=DERIVATIVES,
+        help="how the partials are taken (default: the task's solver.derivatives; autodiff is "
+        "the paper's)",
+    )
+    p.add_argument(
+        "--max-iterations",
+        type=int,
+        help="sets solver.max_iterations (a receding-horizon task: its first window's)",
+    )
     p.add_argument("--threads", type=int, help="threads for batched derivatives (0 = all)")
     p.add_argument("--out", help="output directory (default runs/TASK, runs/TASK-smoke)")
     p.add_argument("--resume", metavar="DIR", help="continue an interrupted receding-horizon run")
