@@ -760,9 +760,15 @@ def _setup(p):
     p.add_argument(
         "--duration", type=float, help="simulated seconds (default: the task's mpc.duration)"
     )
-    p.add_argument("--rate", type=float, help="control updates per second")
-    p.add_argument("--horizon", type=float, help="planning horizon in seconds")
-    p.add_argument("--iterations-per-update", type=int, help="iLQR iterations per update")
+    p.add_argument("--rate", type=float, help="control updates per second (default: mpc.rate)")
+    p.add_argument(
+        "--horizon", type=float, help="planning horizon in seconds (default: mpc.horizon)"
+    )
+    p.add_argument(
+        "--iterations-per-update",
+        type=int,
+        help="iLQR iterations per update (default: mpc.iterations_per_update)",
+    )
     p.add_argument(
         "--realtime",
         action="store_true",
