@@ -29,7 +29,7 @@ import numpy as np
 
 from . import workers
 from .cli import console, register
-from .config import ConfigError
+from .config import ConfigError, DerivativeMethod
 from .files import atomic_write
 from .plant import hydroelastic_kind
 from .solution import PHASES
@@ -297,7 +297,9 @@ def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
 
     dyn = task.dynamics
     s = task.config.solver
-    method = s.derivatives if s.derivatives != "autodiff" else "forward"
+    method = DerivativeMethod(s.derivatives)
+    if method is DerivativeMethod.AUTODIFF:  # threads serve the finite differences only
+        method = DerivativeMethod.FORWARD
     counts = sorted({1, num_threads(threads)})
     times: dict[int, list[float]] = {n: [] for n in counts}
     for _ in range(repeats):
@@ -307,7 +309,7 @@ def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
             times[n].append(time.perf_counter() - t)
     med = {n: float(np.median(v)) for n, v in times.items()}
     return {
-        "method": method,
+        "method": method.value,
         "seconds": {str(n): v for n, v in med.items()},
         "speedup": {str(n): med[1] / v for n, v in med.items()},
     }

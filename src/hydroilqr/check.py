@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from .config import DerivativeMethod
 from .plant import SimulationError, hydroelastic_kind
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
@@ -305,7 +306,9 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     out["pairs"] = pairs
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
-    if any(p["model"] != "hydroelastic" for p in pairs) and cfg.solver.derivatives == "autodiff":
+    if any(p["model"] != "hydroelastic" for p in pairs) and (
+        DerivativeMethod(cfg.solver.derivatives) is DerivativeMethod.AUTODIFF
+    ):
         warn(
             "point-contact pairs under autodiff: Drake differentiates point contact only "
             "when one shape is a sphere; prefer central differences or set compliance"

@@ -58,6 +58,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import difflib
+import enum
 import math
 import re
 import types
@@ -159,10 +160,23 @@ class CostConfig:
     reference_blocks: list[str] = field(default_factory=list)
 
 
+class DerivativeMethod(enum.Enum):
+    """How the partials f_x, f_u are taken (``solver.derivatives``; see derivatives.py).
+
+    AUTODIFF: Drake AutoDiffXd through the discrete update (the paper's method); FORWARD and
+    CENTRAL: one-sided and central finite differences. Defined here (derivatives.py
+    re-exports it) so that validating ``solver.derivatives`` needs nothing from the layers
+    that use it."""
+
+    AUTODIFF = "autodiff"
+    FORWARD = "forward"
+    CENTRAL = "central"
+
+
 @dataclass
 class SolverConfig:
     max_iterations: int = 100
-    derivatives: str = "central"  # autodiff | forward | central
+    derivatives: str = "central"  # a DerivativeMethod value: autodiff | forward | central
     fd_epsilon: float = 1e-6
     threads: int = 0  # 0 = all cores
     relative_cost_tolerance: float = 1e-4
@@ -835,7 +849,7 @@ def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
 
 APPROXIMATIONS = ("sap", "similar", "lagged", "tamsi")
 CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
-DERIVATIVES = ("autodiff", "forward", "central")
+DERIVATIVES = tuple(m.value for m in DerivativeMethod)  # the YAML/CLI spellings
 WARM_START_TAILS = ("last", "guess")  # mpc.warm_start_tail
 
 

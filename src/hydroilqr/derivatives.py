@@ -22,24 +22,17 @@ linearly interpolates between them: a speed/accuracy trade-off reported by ``ben
 
 from __future__ import annotations
 
-import enum
-
 import numpy as np
 from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 from pydrake.common import Parallelism
 from pydrake.systems.analysis import BatchEvalUniquePeriodicDiscreteUpdate
 
+from .config import DerivativeMethod
 from .plant import Dynamics, SimulationError
 from .workers import Unavailable as WorkersUnavailable
 from .workers import autodiff as parallel_autodiff
 from .workers import cores
 from .workers import resolve as resolve_workers
-
-
-class DerivativeMethod(enum.Enum):
-    AUTODIFF = "autodiff"
-    FORWARD = "forward"
-    CENTRAL = "central"
 
 
 def num_threads(requested: int = 0) -> int:
