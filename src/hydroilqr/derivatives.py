@@ -31,12 +31,13 @@ from .config import DerivativeMethod
 from .plant import Dynamics, SimulationError
 from .workers import Unavailable as WorkersUnavailable
 from .workers import autodiff as parallel_autodiff
-from .workers import cores
 from .workers import resolve as resolve_workers
 
 
 def num_threads(requested: int = 0) -> int:
-    return requested if requested and requested > 0 else cores()
+    """A ``solver.threads`` setting as a thread count: 0 (or less) = one per core. The same rule
+    as worker counts (``workers.resolve``)."""
+    return resolve_workers(requested or 0)
 
 
 def linearize(
