@@ -10,6 +10,7 @@ contact approximation is chosen explicitly (``tamsi`` only to reproduce the pape
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.geometry import (
@@ -51,6 +52,17 @@ class Scene:
     actuation_port: int  # diagram input port index of the plant's actuation
     meshcat: object | None = None
     visualizers: tuple = ()
+
+
+class AutoDiffPlant(NamedTuple):
+    """The AutoDiffXd copy of a task's diagram (``Dynamics.autodiff``); unpacks as the tuple
+    (diagram, context, plant, plant_context, input_port) it used to be."""
+
+    diagram: object
+    context: object
+    plant: object
+    plant_context: object
+    input_port: object  # the diagram's actuation input port
 
 
 # ------------------------------------------------------------------------------------------
@@ -453,14 +465,15 @@ class Dynamics:
         return np.clip(U, -self.effort_limits, self.effort_limits)
 
     # -------------------------------------------------------------------------- helpers
-    def autodiff(self):
-        """(AutoDiffXd diagram, its context, plant, plant context, input port): built once."""
+    def autodiff(self) -> AutoDiffPlant:
+        """The AutoDiffXd diagram, its context, plant, plant context and input port: built
+        once."""
         if self._ad is None:
             ad_diagram = self.diagram.ToAutoDiffXd()
             ad_context = ad_diagram.CreateDefaultContext()
             ad_plant = ad_diagram.GetSubsystemByName(self.plant.get_name())
             ad_plant_context = ad_plant.GetMyMutableContextFromRoot(ad_context)
-            self._ad = (
+            self._ad = AutoDiffPlant(
                 ad_diagram,
                 ad_context,
                 ad_plant,
