@@ -31,6 +31,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -458,15 +459,26 @@ def solve(
     )
 
 
-def feedback_gains(A, B, quad, s: SolverConfig):
+class FeedbackGains(NamedTuple):
+    """K: [N, nu, nx], kappa: [N, nu] and the regularization μ they were computed at."""
+
+    K: np.ndarray
+    kappa: np.ndarray
+    mu: float
+
+
+def feedback_gains(
+    A: np.ndarray, B: np.ndarray, quad: Quadratization, s: SolverConfig
+) -> FeedbackGains | None:
     """The gains of eq. (8) around a trajectory: the backward pass at the smallest μ (from
     ``regularization_min``, raised as ``_increase`` does) for which Q_uu is positive definite.
-    A: [N, nx, nx], B: [N, nx, nu]. Returns (K: [N, nu, nx], kappa: [N, nu], μ) or None."""
+    A: [N, nx, nx], B: [N, nx, nu]. Returns FeedbackGains (unpacks as (K, kappa, μ)), or None
+    if Q_uu is indefinite up to ``regularization_max``."""
     mu = s.regularization_min
     while mu <= s.regularization_max:
         bp = backward_pass(A, B, quad, mu)
         if bp.ok:
-            return bp.K, bp.kappa, mu
+            return FeedbackGains(bp.K, bp.kappa, mu)
         mu = _increase(mu, s)
     return None
 
