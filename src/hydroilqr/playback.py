@@ -257,9 +257,20 @@ def truth_config(task, settings: PlaybackSettings):
 # ------------------------------------------------------------------------------------------
 
 
-def actuated_joints(plant):
+class ActuatedJoints(NamedTuple):
+    """The actuated 1-DoF joints, ordered as the actuation input vector (nu entries each)."""
+
+    actuators: list[str]  # actuator names
+    joints: list[str]  # joint names
+    units: list[str]  # "m" (prismatic) or "rad"
+    q_indices: np.ndarray  # [nu] indices of the joints' positions in x
+    v_indices: np.ndarray  # [nu] indices of the joints' velocities in x
+    effort_limits: np.ndarray  # [nu], inf where none
+
+
+def actuated_joints(plant) -> ActuatedJoints:
     """(actuator names, joint names, joint units, q indices, v indices, effort limits),
-    ordered as the actuation input vector."""
+    ordered as the actuation input vector; unpacks as that 6-tuple."""
     acts = [plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()]
     acts.sort(key=lambda a: a.input_start())
     names, joints, units, qi, vi, lim = [], [], [], [], [], []
@@ -277,7 +288,7 @@ def actuated_joints(plant):
         vi.append(plant.num_positions() + j.velocity_start())
         e = a.effort_limit()
         lim.append(e if np.isfinite(e) and e > 0 else np.inf)
-    return names, joints, units, np.array(qi, int), np.array(vi, int), np.array(lim)
+    return ActuatedJoints(names, joints, units, np.array(qi, int), np.array(vi, int), np.array(lim))
 
 
 def choose_object(
