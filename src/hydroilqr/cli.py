@@ -201,9 +201,7 @@ def cmd_solve(args) -> int:
     # failed or killed solve leaves them as they were.
     with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
         _clear_previous(out, keep=(receding.CHECKPOINT,))
-        summary = report.write_outputs(task, sol, out, replay=not args.no_replay)
-        summary["wall_seconds"] = wall
-        report.write_json(out / "summary.json", summary)
+        summary = report.write_outputs(task, sol, out, replay=not args.no_replay, wall_seconds=wall)
     for line in metrics_mod.summary_lines(summary["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]

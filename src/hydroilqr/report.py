@@ -120,8 +120,11 @@ class deferred_interrupt:
         return False
 
 
-def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
-    """Writes the standard outputs; returns the summary dict."""
+def write_outputs(
+    task, sol, out: str | Path, replay: bool = True, wall_seconds: float | None = None
+) -> dict:
+    """Writes the standard outputs; returns the summary dict. ``wall_seconds``: the solve's
+    wall time as the caller measured it (setup included), recorded last in summary.json."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sol.save(out / "solution.npz")
@@ -137,6 +140,8 @@ def write_outputs(task, sol, out: str | Path, replay: bool = True) -> dict:
         "base_dir": task.config.base_dir,
         "environment": environment(),
     }
+    if wall_seconds is not None:
+        summary["wall_seconds"] = wall_seconds
     write_json(out / "summary.json", summary)
     plot_convergence(sol, out / "convergence.png", task.name)
     for name in task.config.metrics:
