@@ -214,6 +214,59 @@ def test_quaternion_difference_jacobian():
     np.testing.assert_allclose(layout.diff(xq, ident)[:3], [0, 0, 2 * np.sin(a / 2)])
 
 
+def _reference_quadratization(cost, X, U, t0):
+    """The cost derivatives from the definitions, densely: l_x = 2 Jrᵀ W r, l_xx = 2 Jrᵀ W Jr
+    (r = x ⊖ x_nom, Jr = ∂r/∂x from diff_jacobian), l_u = 2 R u, l_uu = 2 R."""
+    N = U.shape[0]
+    Xn = cost.targets(N, t0)
+    r = cost.layout.diff(X, Xn)
+    Jr = cost.layout.diff_jacobian(X, Xn)
+    W = np.array([cost.q] * N + [cost.qf])
+    lx = np.stack([2 * Jr[k].T @ (W[k] * r[k]) for k in range(N + 1)])
+    lxx = np.stack([2 * Jr[k].T @ np.diag(W[k]) @ Jr[k] for k in range(N + 1)])
+    return lx, lxx, 2 * U * cost.r, np.stack([2 * np.diag(cost.r)] * N)
+
+
+@pytest.mark.parametrize("quaternion", [False, True])
+def test_quadratize_equals_the_dense_reference(quaternion):
+    """Both paths of QuadraticCost.quadratize (the coordinate permutation when there are no
+    quaternions, the Jacobian einsum otherwise) against the dense formulas."""
+    from hydroilqr.cost import QuadraticCost
+    from hydroilqr.state import Block
+
+    if quaternion:
+        blocks = [
+            Block("b.orientation", (0, 1, 2, 3), (0, 1, 2), "quaternion"),
+            Block("b.position", (4, 5, 6), (3, 4, 5)),
+            Block("b.angular_velocity", (7, 8, 9), (6, 7, 8)),
+            Block("b.velocity", (10, 11, 12), (9, 10, 11)),
+        ]
+        layout = StateLayout(7, 6, blocks, ["a", "b"])
+    else:  # tangent order differs from coordinate order by 3-cycles: the permutation matters
+        blocks = [
+            Block("p", (2, 0, 1), (0, 1, 2)),
+            Block("p.v", (3, 4, 5), (4, 5, 3)),
+        ]
+        layout = StateLayout(3, 3, blocks, ["a", "b"])
+    rng = np.random.default_rng(7)
+    nx, nt, N = layout.nx, 2 * layout.nv, 6
+    X = rng.standard_normal((N + 1, nx))
+    if quaternion:
+        X = layout.normalize(X)
+    U = rng.standard_normal((N, 2))
+    x_nom = layout.normalize(rng.standard_normal(nx)) if quaternion else rng.standard_normal(nx)
+    rate = np.zeros(nx)
+    rate[4 if quaternion else 0] = 0.3  # a moving nominal on a euclidean coordinate
+    cost = QuadraticCost(
+        layout, rng.uniform(0.1, 2, nt), rng.uniform(1, 5, nt), [0.2, 0.7], x_nom, rate, 0.1
+    )
+    quad = cost.quadratize(X, U, t0=0.4)
+    for got, want in zip(
+        (quad.lx, quad.lxx, quad.lu, quad.luu), _reference_quadratization(cost, X, U, 0.4)
+    ):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+
+
 def test_cartpole_smoke_solve_reaches_into_the_wall(tmp_path):
     from hydroilqr import metrics
 
