@@ -593,3 +593,26 @@ def test_package_data_ships_every_task_and_model_file():
     assert "tasks/cheetah_standing_torques.csv" in files
     missing = [f for f in files if not any(fnmatch.fnmatch(f, pat) for pat in patterns)]
     assert missing == []
+
+
+def test_line_search_kernel_accepts_a_descent_step_and_respects_the_deadline():
+    import time as _time
+
+    from hydroilqr.config import SolverConfig
+    from hydroilqr.derivatives import linearize
+    from hydroilqr.ilqr import backward_pass, line_search
+
+    task = Task.load("cartpole-wall", ["num_steps=30"])
+    prob = task.problem()
+    U = task.initial_guess(30)
+    X = task.dynamics.rollout(prob.x0, U)
+    J = prob.cost.total(X, U, 0.0)
+    A, B = linearize(task.dynamics, X, U, "central")
+    bp = backward_pass(A, B, prob.cost.quadratize(X, U, 0.0), 1e-6)
+    s = SolverConfig()
+    ls = line_search(prob, X, U, J, bp.K, bp.kappa, bp.dV, s)
+    assert ls.accepted and ls.J < J and ls.tried >= 1 and ls.X.shape == X.shape
+    np.testing.assert_allclose(ls.J, prob.cost.total(ls.X, ls.U, 0.0))
+    assert ls.eps == s.line_search_factor ** (ls.tried - 1)  # ε = 1, f, f², ...
+    late = line_search(prob, X, U, J, bp.K, bp.kappa, bp.dV, s, _time.perf_counter() - 1)
+    assert late.late and not late.accepted and late.tried == 0 and late.X is None

@@ -117,6 +117,67 @@ def expected_decrease(dV: tuple[float, float], eps: float) -> float:
 
 
 @dataclass
+class LineSearchResult:
+    """One line search: ``accepted``; the last step size tried ``eps`` (the accepted one) and
+    its predicted decrease ``expected``; the accepted trajectory X: [N+1, nx], U: [N, nu] and
+    its cost J (None / inf without one); ``tried``: trials evaluated; ``late``: stopped by the
+    deadline before a step was accepted."""
+
+    accepted: bool
+    eps: float
+    expected: float
+    X: np.ndarray | None
+    U: np.ndarray | None
+    J: float
+    tried: int
+    late: bool
+
+
+def line_search(
+    problem: Problem,
+    X: np.ndarray,
+    U: np.ndarray,
+    J: float,
+    K: np.ndarray,
+    kappa: np.ndarray,
+    dV: tuple[float, float],
+    s: SolverConfig,
+    deadline: float | None = None,
+) -> LineSearchResult:
+    """Forward passes (eq. 7) around X: [N+1, nx], U: [N, nu] of cost J, along the backward
+    pass's K: [N, nu, nx], kappa: [N, nu] (predicted change ``dV``): ε = 1, f, f², ... (f =
+    ``line_search_factor``, at most ``line_search_max_steps`` trials); the first trial whose
+    actual decrease is at least ``armijo`` times the predicted one is accepted. Trials run a
+    round at a time in the dynamics' line-search worker processes (1: serially); a rollout that
+    fails is a rejected trial. No round starts after ``deadline`` (a perf_counter value)."""
+    dyn, cost, t0 = problem.dynamics, problem.cost, problem.t0
+    x0 = np.asarray(problem.x0, dtype=float)
+    eps = expected = 0.0
+    next_eps, tried = 1.0, 0
+    while tried < s.line_search_max_steps:
+        if deadline is not None and time.perf_counter() > deadline:
+            return LineSearchResult(False, eps, expected, None, None, np.inf, tried, True)
+        # trials side by side in worker processes (1: serial)
+        n = min(workers.line_search_width(dyn), s.line_search_max_steps - tried)
+        trial_eps = []
+        for _ in range(n):  # ε, ε·f, ε·f², ... by repeated products, as serially
+            trial_eps.append(next_eps)
+            next_eps *= s.line_search_factor
+        for e, trial in zip(trial_eps, _trials(dyn, x0, U, X, K, kappa, trial_eps)):
+            eps = e
+            expected = expected_decrease(dV, eps)
+            tried += 1
+            if isinstance(trial, SimulationError):
+                continue  # a failed rollout is a rejected step
+            Xn, Un = trial
+            with np.errstate(over="ignore", invalid="ignore"):
+                Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
+            if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
+                return LineSearchResult(True, eps, expected, Xn, Un, Jn, tried, False)
+    return LineSearchResult(False, eps, expected, None, None, np.inf, tried, False)
+
+
+@dataclass
 class IterationInfo:
     """What a callback sees after each iteration: its number (from 1), the cost after it, the
     accepted step ε (0: none), μ, its wall time and phase split (seconds), the predicted
@@ -302,31 +363,13 @@ def solve(
                     expected = expected_full
                     break
                 t = time.perf_counter()
-                next_eps = 1.0
-                tried = 0
-                while tried < s.line_search_max_steps and not accepted:
-                    if deadline is not None and time.perf_counter() > deadline:
-                        late = True
-                        break
-                    # trials side by side in worker processes (1: serial)
-                    n = min(workers.line_search_width(dyn), s.line_search_max_steps - tried)
-                    trial_eps = []
-                    for _ in range(n):  # ε, ε·f, ε·f², ... by repeated products, as serially
-                        trial_eps.append(next_eps)
-                        next_eps *= s.line_search_factor
-                    for e, trial in zip(trial_eps, _trials(dyn, x0, U, X, K, kappa, trial_eps)):
-                        eps = e
-                        expected = expected_decrease(bp.dV, eps)
-                        Jn = np.inf  # a failed rollout is a rejected step
-                        if not isinstance(trial, SimulationError):
-                            Xn, Un = trial
-                            with np.errstate(over="ignore", invalid="ignore"):
-                                Jn = cost.total(Xn, Un, t0)  # a blown-up trial is just rejected
-                        if np.isfinite(Jn) and J - Jn >= s.armijo * expected and Jn < J:
-                            accepted = True
-                            break
-                    tried += n
+                ls = line_search(problem, X, U, J, K, kappa, bp.dV, s, deadline)
                 ph["line_search"] += time.perf_counter() - t
+                if ls.tried:
+                    eps, expected = ls.eps, ls.expected
+                accepted, late = ls.accepted, ls.late
+                if accepted:
+                    Xn, Un, Jn = ls.X, ls.U, ls.J
                 if accepted or late:
                     break
                 searches += 1
