@@ -10,6 +10,7 @@ from .config import ConfigError, SolverConfig, TaskConfig
 from .derivatives import DerivativeMethod, linearize
 from .ilqr import IterationInfo
 from .plant import Dynamics, SimulationError
+from .progress import IterationTable
 from .solution import Solution
 from .task import Task
 
@@ -18,6 +19,7 @@ __all__ = [
     "DerivativeMethod",
     "Dynamics",
     "IterationInfo",
+    "IterationTable",
     "SimulationError",
     "Solution",
     "SolverConfig",

@@ -16,6 +16,7 @@ from pathlib import Path
 from rich.console import Console
 
 from .config import DERIVATIVES, ConfigError
+from .progress import IterationTable
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
@@ -60,29 +61,6 @@ def load_task_from_args(args, extra_overrides: list[str] | None = None):
     task = Task.load(name, overrides, args.config, args.smoke)
     task.validate()
     return task
-
-
-class IterationTable:
-    """Prints one row per iteration: iteration, cost, ε, μ, seconds, phase split."""
-
-    def __init__(self, prefix: str = ""):
-        self.prefix = prefix
-        self.header = False
-
-    def __call__(self, info) -> None:
-        if not self.header:
-            console.print(
-                f"{self.prefix}[bold]{'iter':>4} {'cost':>12} {'eps':>8} {'reg':>8} "
-                f"{'sec':>7}  rollout/deriv/backward/linesearch[/bold]"
-            )
-            self.header = True
-        ph = info.phases
-        mark = "" if info.accepted else "  (no step)"
-        console.print(
-            f"{self.prefix}{info.iteration:>4} {info.cost:>12.6g} {info.eps:>8.3g} "
-            f"{info.mu:>8.1e} {info.seconds:>7.3f}  {ph['rollout']:.3f}/{ph['derivatives']:.3f}/"
-            f"{ph['backward_pass']:.3f}/{ph['line_search']:.3f}{mark}"
-        )
 
 
 # ------------------------------------------------------------------------------------------
@@ -187,7 +165,7 @@ def cmd_solve(args) -> int:
                     ) from None
                 raise
     else:
-        sol = api.solve(task, callbacks=[IterationTable()], stop_on_interrupt=True)
+        sol = api.solve(task, callbacks=[IterationTable(console)], stop_on_interrupt=True)
     wall = time.perf_counter() - t0
     console.print(
         f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "

@@ -223,7 +223,7 @@ class QuadraticCost:
             lxx = 2.0 * np.einsum("kij,ki,kil->kjl", J, W, J)
         else:
             # No quaternions: the tangent space is a permutation of the coordinates.
-            c, t = self.layout._euclid_index()
+            c, t = self.layout.euclidean_index()
             nx = self.layout.nx
             lx = np.zeros((N + 1, nx))
             lx[:, c] = 2.0 * W[:, t] * R[:, t]

@@ -1,7 +1,9 @@
-"""Progress display for long runs (receding-horizon resolves, sweeps)."""
+"""Progress display: an iteration table for solves (a callback), a progress bar for long runs
+(receding-horizon resolves, sweeps)."""
 
 from __future__ import annotations
 
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -10,6 +12,31 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+
+
+class IterationTable:
+    """A solve callback that prints one row per iteration: iteration, cost, ε, μ, seconds and
+    the phase split (``hydroilqr.solve(task, callbacks=[IterationTable()])``)."""
+
+    def __init__(self, console: Console | None = None, prefix: str = ""):
+        self.console = console or Console(highlight=False)
+        self.prefix = prefix
+        self.header = False
+
+    def __call__(self, info) -> None:
+        if not self.header:
+            self.console.print(
+                f"{self.prefix}[bold]{'iter':>4} {'cost':>12} {'eps':>8} {'reg':>8} "
+                f"{'sec':>7}  rollout/deriv/backward/linesearch[/bold]"
+            )
+            self.header = True
+        ph = info.phases
+        mark = "" if info.accepted else "  (no step)"
+        self.console.print(
+            f"{self.prefix}{info.iteration:>4} {info.cost:>12.6g} {info.eps:>8.3g} "
+            f"{info.mu:>8.1e} {info.seconds:>7.3f}  {ph['rollout']:.3f}/{ph['derivatives']:.3f}/"
+            f"{ph['backward_pass']:.3f}/{ph['line_search']:.3f}{mark}"
+        )
 
 
 class ResolveProgress:

@@ -250,7 +250,7 @@ class StateLayout:
         other shapes."""
         X, Xref = self._states(X, Xref)
         out = np.zeros(X.shape[:-1] + (2 * self.nv,))
-        idx_c, idx_t = self._euclid_index()
+        idx_c, idx_t = self.euclidean_index()
         out[..., idx_t] = X[..., idx_c] - Xref[..., idx_c]
         for b in self.quaternions:
             qe = quat_mul(quat_conj(Xref[..., list(b.coords)]), X[..., list(b.coords)])
@@ -265,7 +265,7 @@ class StateLayout:
             raise ValueError(f"X must have shape [T, {self.nx}], got {X.shape}")
         T = X.shape[0]
         J = np.zeros((T, 2 * self.nv, self.nx))
-        idx_c, idx_t = self._euclid_index()
+        idx_c, idx_t = self.euclidean_index()
         J[:, idx_t, idx_c] = 1.0
         for b in self.quaternions:
             qref_c = quat_conj(Xref[:, list(b.coords)])
@@ -291,7 +291,9 @@ class StateLayout:
                 f"Xref {Xref.shape} does not broadcast to the shape of X {X.shape}"
             ) from None
 
-    def _euclid_index(self):
+    def euclidean_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """(state coordinates, tangent coordinates) of every non-quaternion entry: the
+        coordinates where X ⊖ Xref is a plain difference, and where it lands in [2 nv]."""
         if not hasattr(self, "_euclid"):
             c, t = [], []
             for b in self.primitives.values():
