@@ -30,6 +30,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.multibody.tree import BodyIndex
@@ -318,6 +319,14 @@ class MPCResult:
         )
 
 
+class UpdateResult(NamedTuple):
+    """What a control update leaves in force: the plan (a Solution over the horizon; None
+    before the first) and whether this update made it (False: it failed, the old plan stays)."""
+
+    plan: Solution | None
+    ok: bool
+
+
 class Controller:
     """Receding- (or shrinking-) horizon iLQR with warm starts. ``update(x, t)`` returns a plan.
 
@@ -368,9 +377,10 @@ class Controller:
 
     def update(
         self, x: np.ndarray, t: float, full: bool = False, deadline: float | None = None
-    ) -> tuple[Solution | None, bool]:
-        """``full``: no reuse and no cap on the partials (the first, converged plan).
-        ``deadline``: a ``time.perf_counter()`` value after which no line-search trial starts."""
+    ) -> UpdateResult:
+        """A new plan from the measured state x: [nx] at time t (s). ``full``: no reuse and no
+        cap on the partials (the first, converged plan). ``deadline``: a ``time.perf_counter()``
+        value after which no line-search trial starts."""
         dt = self.dyn.dt
         X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
         on_prediction = False
@@ -432,7 +442,7 @@ class Controller:
         self.U = sol.U.copy()
         self.t_plan = t
         self.plan = sol
-        return sol, True
+        return UpdateResult(sol, True)
 
     def _new_controls(self, k0: int, n: int, x: np.ndarray) -> np.ndarray:
         """Controls for time steps k0 .. k0+n-1 that no plan has yet: the warm-start plan's
@@ -448,12 +458,12 @@ class Controller:
                 out.append(self.task.initial_guess(m, x, start=k0 + n - m))
         return np.vstack(out)
 
-    def _failed(self, U_before: np.ndarray) -> tuple[Solution | None, bool]:
+    def _failed(self, U_before: np.ndarray) -> UpdateResult:
         """Undo this update's shift: the old plan (and its time) stays in force. The partials
         were shifted with it, so they are dropped and taken afresh next time."""
         self.U = U_before
         self.linearizer.clear()
-        return self.plan, False
+        return UpdateResult(self.plan, False)
 
     def _policy_rollout(self, x, Xp, Kp):
         """The previous plan's policy from the measured state x: u_k = ū_k − K_k (x_k − x̄_k).
