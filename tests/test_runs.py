@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -177,6 +178,26 @@ def test_one_run_per_output_directory_at_a_time(tmp_path):
     time.sleep(0.1)
     assert output_dir(out, "cartpole-wall") == out  # released when its process ended
     assert output_dir(out, "cartpole-wall") == out  # and this process may ask again
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_a_read_only_run_directory_is_refused_before_the_solve(tmp_path, capsys):
+    """Its lock file, left by the earlier run, still opens for writing: the directory itself
+    must be checked, or the whole solve runs and then fails on its first file."""
+    out = tmp_path / "kept"
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"task": "cartpole-wall"}))
+    (out / ".hydroilqr.lock").write_text("1")
+    out.chmod(0o555)
+    try:
+        rc = cli.main(["solve", "cartpole-wall", "--smoke", "--out", str(out)])
+    finally:
+        out.chmod(0o755)
+    assert rc == 2
+    captured = capsys.readouterr()
+    assert f"--out {out}: not writable (Permission denied)" in captured.err
+    assert "iter" not in captured.out  # refused before solving
+    assert sorted(p.name for p in out.iterdir()) == [".hydroilqr.lock", "summary.json"]
 
 
 def test_solution_files_are_written_whole(tmp_path):

@@ -263,6 +263,9 @@ def _lock(out: Path) -> None:
     if key in _LOCKS:
         return
     path = _lock_file(out)
+    # An existing lock file opens for writing even in a directory made read-only since (a run
+    # directory kept as it was): that alone would let the solve run, then fail on its files.
+    _probe_writable(out)
     if key in _READ_LOCKS:  # this process reads it too (playback --out RUN): upgrade
         fd = _READ_LOCKS.pop(key)
     else:
@@ -289,6 +292,21 @@ def _lock(out: Path) -> None:
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     _LOCKS[key] = fd
+
+
+def _probe_writable(out: Path) -> None:
+    """ConfigError unless a file can be created (and removed) in ``out``."""
+    import os
+    import tempfile
+
+    from .config import ConfigError
+
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".hydroilqr-probe-", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
 
 
 def read_lock(run_dir: Path) -> None:
