@@ -182,6 +182,20 @@ def test_version_names_what_decides_the_last_bits(capsys):
     assert e.value.code == 0 and out.startswith("hydroilqr ") and "OpenBLAS kernels" in out
 
 
+def test_an_ascii_only_terminal_gets_escapes_not_a_traceback():
+    """PYTHONIOENCODING=ascii (or PYTHONUTF8=0 under LANG=C): help texts and check's table
+    use ū, x̄ and τ."""
+    import os
+
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
+    for args in (["playback", "--help"], ["check", "cartpole-wall"]):
+        r = subprocess.run(
+            [sys.executable, "-m", "hydroilqr", *args], env=env, capture_output=True, text=True
+        )
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "\\u03c4" in r.stdout  # check's damping column: τ
+
+
 def test_continuation_stages_warm_start_the_task(task):
     staged = task.with_overrides(
         {"continuation": [{"tip.hydroelastic_modulus": 1.0e5}], "solver.max_iterations": 2}

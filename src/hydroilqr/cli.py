@@ -373,9 +373,27 @@ def _join_negative_values(argv: list[str]) -> list[str]:
     return out
 
 
+def _escape_unencodable_output() -> None:
+    """Output streams that cannot encode every character (PYTHONIOENCODING=ascii, or
+    PYTHONUTF8=0 under LANG=C) print the units and symbols the messages use (μ, ε, τ, ū, ≥)
+    as escapes such as ``\\u03bc`` instead of failing on them."""
+    import codecs
+
+    for stream in (sys.stdout, sys.stderr):
+        encoding = getattr(stream, "encoding", None)
+        if not encoding or getattr(stream, "errors", None) != "strict":
+            continue
+        try:
+            if codecs.lookup(encoding).name != "utf-8":
+                stream.reconfigure(errors="backslashreplace")
+        except (AttributeError, LookupError, ValueError, OSError):
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
     import logging
 
+    _escape_unencodable_output()
     # Drake's INFO lines (e.g. "Meshcat listening ...") are noise for a command-line user;
     # warnings and errors still show.
     logging.getLogger("drake").setLevel(logging.WARNING)
