@@ -182,6 +182,16 @@ def test_version_names_what_decides_the_last_bits(capsys):
     assert e.value.code == 0 and out.startswith("hydroilqr ") and "OpenBLAS kernels" in out
 
 
+def test_version_says_unknown_when_git_gives_no_commit(capsys, monkeypatch):
+    """Outside a git checkout, or one git refuses (another user's: "dubious ownership")."""
+    from hydroilqr import cli, report
+
+    monkeypatch.setattr(report, "code_version", lambda: "")
+    with pytest.raises(SystemExit):
+        cli.main(["--version"])
+    assert "(code unknown; drake " in capsys.readouterr().out
+
+
 def test_an_ascii_only_terminal_gets_escapes_not_a_traceback():
     """PYTHONIOENCODING=ascii (or PYTHONUTF8=0 under LANG=C): help texts and check's table
     use ū, x̄ and τ."""
