@@ -277,13 +277,18 @@ def test_a_playback_without_replay_removes_the_previous_replay(run_dir, tmp_path
     assert not (out / "playback.html").exists()  # it showed the earlier playback
 
 
-def test_a_speed_the_truth_step_cannot_follow_or_simulate_is_refused(run_dir):
+def test_a_playback_under_one_truth_step_or_too_long_is_refused(run_dir):
     task, sol, _ = load_run(run_dir)  # plan step 0.01 s, 0.5 s long
     with pytest.raises(ConfigError, match="less than one truth step"):
         playback(task, sol, PlaybackSettings(speed=1e9))  # was: one truth step, exit 0
     with pytest.raises(ConfigError, match="truth steps \\(at most"):
         playback(task, sol, PlaybackSettings(speed=1e-9))  # was: MemoryError
     PlaybackSettings(speed=10.0).check_against(task, 0.5)  # a plan step = one truth step
+    # faster: a plan step is shorter than a truth step (as the PD+ reference, held for an
+    # update period, always skips plan steps): a coarse playback, but a valid one
+    PlaybackSettings(speed=2.0, truth_time_step=0.01).check_against(task, 0.5)
+    r = playback(task, sol, PlaybackSettings(policy="ilqr", speed=2.0, truth_time_step=0.01))
+    assert len(r.t) == 26  # 0.25 s of playback in 0.01 s steps
 
 
 def test_pd_loop_options_with_the_ilqr_policy_are_refused_not_ignored(run_dir, tmp_path, capsys):
