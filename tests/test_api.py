@@ -37,7 +37,7 @@ def test_solve_takes_own_guess_and_state_and_leaves_the_task_alone(task):
         ({"U0": np.full((200, 1), np.nan)}, r"U0 must be finite .*: U0\[0, 0\] is nan"),
         ({"U0": "zeros"}, "U0 must have shape"),
         ({"x0": np.zeros(3)}, "x0 must have shape"),
-        ({"x0": np.array([0.0, np.nan, 0.0, 0.0])}, "finite"),
+        ({"x0": np.array([0.0, np.nan, 0.0, 0.0])}, r"x0 must be finite .*: x0\[1\] is nan"),
     ],
 )
 def test_bad_guess_or_state_is_a_value_error(task, kwargs, match):

@@ -207,6 +207,16 @@ class Problem:
     t0: float = 0.0
 
 
+def check_finite(name: str, a: np.ndarray) -> None:
+    """ValueError naming the first NaN or infinite entry of the array ``name``, if any."""
+    if not np.isfinite(a).all():
+        where = np.argwhere(~np.isfinite(a))[0].tolist()
+        raise ValueError(
+            f"{name} must be finite (no NaN or infinite entries): "
+            f"{name}{where} is {a[tuple(where)]}"
+        )
+
+
 def callback_list(callbacks) -> list:
     """``callbacks`` as a list: None, one callable, or a list/tuple of callables. TypeError
     naming what was given otherwise."""
@@ -267,13 +277,8 @@ def solve(
         raise ValueError(f"x0 must have shape [{dyn.nx}] (nx), got {x0.shape}")
     if U0.ndim != 2 or U0.shape[1] != dyn.nu or U0.shape[0] < 1:
         raise ValueError(f"U0 must have shape [N, {dyn.nu}] (nu = {dyn.nu}), got {U0.shape}")
-    for name, a in (("x0", x0), ("U0", U0)):
-        if not np.isfinite(a).all():
-            where = np.argwhere(~np.isfinite(a))[0].tolist()
-            raise ValueError(
-                f"{name} must be finite (no NaN or infinite entries): "
-                f"{name}{where} is {a[tuple(where)]}"
-            )
+    check_finite("x0", x0)
+    check_finite("U0", U0)
     method = DerivativeMethod(s.derivatives)
     max_it = s.max_iterations if max_iterations is None else max_iterations
     callbacks = callback_list(callbacks)

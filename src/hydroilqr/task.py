@@ -18,7 +18,7 @@ import numpy as np
 
 from .config import ConfigError, TaskConfig, build_task, load_task, with_overrides
 from .cost import QuadraticCost
-from .ilqr import Problem
+from .ilqr import Problem, check_finite
 from .plant import Dynamics, SimulationError
 
 
@@ -208,6 +208,5 @@ class Task:
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (self.dynamics.nx,):
             raise ValueError(f"x0 must have shape [{self.dynamics.nx}] (nx), got {x0.shape}")
-        if not np.isfinite(x0).all():
-            raise ValueError("x0 must be finite (no NaN or infinite entries)")
+        check_finite("x0", x0)  # names the entry, as ilqr.solve does
         return self.dynamics.layout.normalize(x0, "x0")
