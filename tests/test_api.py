@@ -77,6 +77,10 @@ def test_callback_sees_iterates_and_can_stop(task):
     assert one.iterations == 2 and one.reason == "callback"
     with pytest.raises(TypeError, match="callbacks: expected a function .* got list of str"):
         solve(task, callbacks=["print"])
+    with pytest.raises(TypeError, match="callbacks: expected a function .* got int"):
+        solve(task, callbacks=3)
+    from_set = solve(task.with_overrides({"solver.max_iterations": 10}), callbacks={cb})
+    assert from_set.iterations == 2  # any iterable of functions, as before
     assert seen[0] == (1, (task.steps + 1, 4), (task.steps, 1))
 
 

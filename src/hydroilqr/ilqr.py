@@ -224,17 +224,19 @@ def callback_list(callbacks) -> list:
         return []
     if callable(callbacks):
         return [callbacks]
-    if not isinstance(callbacks, (list, tuple)) or not all(callable(c) for c in callbacks):
+    items = None
+    if not isinstance(callbacks, (str, bytes, dict)):
+        try:
+            items = list(callbacks)  # a list, tuple, or any other iterable of functions
+        except TypeError:
+            pass
+    if items is None or not all(callable(c) for c in items):
         raise TypeError(
             "callbacks: expected a function f(info) -> bool or a list of them, got "
             f"{type(callbacks).__name__}"
-            + (
-                f" of {', '.join(sorted({type(c).__name__ for c in callbacks}))}"
-                if isinstance(callbacks, (list, tuple))
-                else ""
-            )
+            + (f" of {', '.join(sorted({type(c).__name__ for c in items}))}" if items else "")
         )
-    return list(callbacks)
+    return items
 
 
 def solve(
