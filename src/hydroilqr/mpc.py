@@ -48,7 +48,7 @@ from .derivatives import Linearizer
 from .files import atomic_savez
 from .ilqr import Problem
 from .ilqr import solve as ilqr_solve
-from .plant import Dynamics, SimulationError
+from .plant import Dynamics, SimulationError, position_unit
 from .solution import PHASES, Solution, load_run_solution
 
 
@@ -695,11 +695,10 @@ def plotted_blocks(task) -> list[tuple[str, str]]:
     from pydrake.multibody.tree import JointIndex
 
     joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
-    kind = {"prismatic": "m", "revolute": "rad", "quaternion_floating": "m"}
 
     def unit(coords) -> str:
         units = {
-            kind.get(j.type_name(), "")
+            position_unit(j)
             for c in coords
             for j in joints
             if j.position_start() <= c < j.position_start() + j.num_positions()

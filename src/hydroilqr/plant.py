@@ -138,6 +138,15 @@ def _proximity_props(
     return props
 
 
+_POSITION_UNITS = {"prismatic": "m", "revolute": "rad", "quaternion_floating": "m"}
+
+
+def position_unit(joint) -> str:
+    """The unit of a Drake joint's position coordinates: "m" (prismatic, a floating body's
+    position), "rad" (revolute), "" for other joint types."""
+    return _POSITION_UNITS.get(joint.type_name(), "")
+
+
 def _shape(o: SceneObject):
     if o.shape == "box":
         return Box(*o.size)

@@ -51,7 +51,7 @@ from .config import (
     with_overrides,
 )
 from .files import atomic_savez
-from .plant import Dynamics, SimulationError
+from .plant import Dynamics, SimulationError, position_unit
 from .solution import Solution, load_run_solution
 from .state import quat_conj, quat_mul
 
@@ -185,7 +185,7 @@ class PlaybackResult:
     X_plan: np.ndarray  # [T+1, nx] plan at plan time speed·t
     reference: Reference
     joints: list[str]  # actuated joint of each actuator, in input order
-    joint_units: list[str]  # "rad" or "m"
+    joint_units: list[str]  # "rad", "m" (plant.position_unit)
     actuators: list[str]
     q_indices: np.ndarray  # [nu] index into x of each actuated joint's position
     v_indices: np.ndarray  # [nu] index into x of each actuated joint's velocity
@@ -285,7 +285,7 @@ def actuated_joints(plant) -> ActuatedJoints:
             )
         names.append(a.name())
         joints.append(j.name())
-        units.append("m" if j.type_name() == "prismatic" else "rad")
+        units.append(position_unit(j))
         qi.append(j.position_start())
         vi.append(plant.num_positions() + j.velocity_start())
         e = a.effort_limit()
@@ -310,7 +310,7 @@ def choose_object(
                 return ObjectSpec(b.name, "floating", b.coords, q.coords, "m")
         unit = "m" if requested.endswith("position") else ""
         if plant.HasJointNamed(requested) and plant.GetJointByName(requested).num_positions() == 1:
-            unit = "m" if plant.GetJointByName(requested).type_name() == "prismatic" else "rad"
+            unit = position_unit(plant.GetJointByName(requested))
         return ObjectSpec(requested, "joint", b.coords, unit=unit)
     for b in layout.quaternions:
         base = b.name[: -len(".orientation")]
@@ -330,7 +330,7 @@ def choose_object(
         raise ConfigError("playback: the model has no moving joint")
     for b in layout.primitives.values():
         if b.coords and b.coords[0] == first.position_start() and b.kind == "euclidean":
-            unit = "m" if first.type_name() == "prismatic" else "rad"
+            unit = position_unit(first)
             return ObjectSpec(b.name, "joint", b.coords, unit=unit)
     raise ConfigError(f"playback: no state block for joint {first.name()}")
 
