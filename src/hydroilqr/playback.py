@@ -43,6 +43,7 @@ from pydrake.multibody.tree import JointIndex
 from . import cli
 from .config import (
     APPROXIMATIONS,
+    MAX_STEPS,
     TASKS_DIR,
     ConfigError,
     check_truth_overrides,
@@ -58,7 +59,6 @@ from .state import quat_conj, quat_mul
 #: Default "real" contact approximation for each planner approximation (always a different one).
 TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "sap"}
 POLICIES = ("pd", "ilqr")
-MAX_TRUTH_STEPS = 1_000_000  # more is a mistyped --speed (already minutes of simulation)
 
 
 # ------------------------------------------------------------------------------------------
@@ -113,10 +113,10 @@ class PlaybackSettings:
                     f"({self.truth_time_step:g} s): lower --speed or --truth-time-step"
                 )
             steps = plan_duration / self.speed / self.truth_time_step
-            if steps > MAX_TRUTH_STEPS:
+            if steps > MAX_STEPS:  # a mistyped --speed (the limit of any trajectory)
                 raise ConfigError(
                     f"playback speed {self.speed:g}: {plan_duration / self.speed:.3g} s of "
-                    f"playback is {steps:.3g} truth steps (at most {MAX_TRUTH_STEPS:.0e}): raise "
+                    f"playback is {steps:.3g} truth steps (at most {MAX_STEPS:.0e}): raise "
                     "--speed or --truth-time-step"
                 )
 
