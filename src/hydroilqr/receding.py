@@ -145,7 +145,8 @@ def load_checkpoint(task, directory: str | Path) -> dict:
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
         )
-    if st.get("files", files_fingerprint(task.config)) != files_fingerprint(task.config):
+    files = files_fingerprint(task.config)
+    if st.get("files", files) != files:  # (a checkpoint from before fingerprints: accepted)
         raise ConfigError(
             f"{directory}: a model or initial-guess file of the task changed since its "
             "checkpoint was written; resuming would mix two models (restore the file, or "
