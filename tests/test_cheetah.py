@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from hydroilqr import Task
+from hydroilqr import Task, linearize
 from hydroilqr.api import solve
 from hydroilqr.config import list_tasks
 from hydroilqr.metrics import compute
@@ -70,17 +70,55 @@ def test_tasks_listed_and_paper_setup():
         assert U.shape == (5, 12) and np.all(np.abs(U) <= dyn.effort_limits)
 
 
+FEET = {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision"}
+
+
 def test_standing_contacts():
     task = Task.load("cheetah-trot-0.5")
     surfaces = task.dynamics.contact_surfaces(task.x0)
-    feet = {a for a, b, n in surfaces if "foot" in a and b == "ground" and n > 0}
-    assert feet == {
-        "FL_foot_collision",
-        "FR_foot_collision",
-        "HL_foot_collision",
-        "HR_foot_collision",
-    }
+    feet = {a for a, b, n in surfaces if "foot" in a and b == "ground_feet" and n > 0}
+    assert feet == FEET
     assert not any("body" in a for a, _, _ in surfaces)
+
+
+def test_ground_is_a_half_space_for_the_feet_and_a_box_for_the_body():
+    """The ground is two geometries with the same pressure field near the surface (box 1 m
+    thick: p = E d / 0.5 m; half space with slab 0.5 m): the feet touch only the half space
+    (cheaper contact), the compliant body only the box (a compliant half space cannot touch
+    compliant geometry)."""
+    task = Task.load("cheetah-trot-1.0")
+    dyn = task.dynamics
+    inspector = dyn.scene_graph.model_inspector()
+    names = {g: n for g, (n, _b) in dyn.geometry_names().items()}
+    pairs = {frozenset((names[a], names[b])) for a, b in inspector.GetCollisionCandidates()}
+    for foot in FEET:
+        assert frozenset((foot, "ground_feet")) in pairs
+        assert frozenset((foot, "ground")) not in pairs
+    assert frozenset(("body_collision", "ground")) in pairs
+    assert frozenset(("body_collision", "ground_feet")) not in pairs
+    # Body dropped onto the ground: it touches the box.
+    x = task.x0.copy()
+    lay = dyn.layout
+    x[list(lay.block("position").coords)] = [0.0, 0.0, 0.02]
+    touching = {(a, b) for a, b, n in dyn.contact_surfaces(x) if n > 0}
+    assert ("body_collision", "ground") in touching or ("ground", "body_collision") in touching
+
+
+def test_standing_partials_autodiff_equal_central_differences():
+    """Feet (rigid) on the compliant half space: AutoDiff is exact here, and central
+    differences agree with it to 1e-4 relative (issue 7's bar for exact modes)."""
+    task = Task.load("cheetah-trot-1.0")
+    dyn = task.dynamics
+    rng = np.random.default_rng(3)
+    u = task.initial_guess(1)[0]
+    X = dyn.rollout(task.x0, np.tile(u, (6, 1)))
+    x = X[-1] + 1e-4 * rng.standard_normal(dyn.nx)  # off the symmetric pose (a mesh kink)
+    x[:4] /= np.linalg.norm(x[:4])
+    A_ad, B_ad = linearize(dyn, x, u, method="autodiff")
+    A_fd, B_fd = linearize(dyn, x, u, method="central")
+    J_ad, J_fd = np.hstack([A_ad, B_ad]), np.hstack([A_fd, B_fd])
+    assert len([s for s in dyn.contact_surfaces(x) if s[2] > 0]) == 4
+    assert np.abs(J_fd - J_ad).max() / np.abs(J_ad).max() < 1e-4
 
 
 def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):

@@ -111,6 +111,11 @@ CASES = [
         ),
         "scene[0] (soft_floor)",
     ),
+    (
+        "unknown-no-contact-with",
+        edit(scene=[{"name": "wall", "shape": "box", "no_contact_with": ["gripper"]}]),
+        "scene[0].no_contact_with: 'gripper'",
+    ),
     ("unknown-initial-state-block", edit(initial_state={"knee": 0.3}), "initial_state.knee"),
     (
         "wrong-length-initial-state",

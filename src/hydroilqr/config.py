@@ -125,6 +125,10 @@ class SceneObject(ContactProperties):
     xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rpy: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     color: list[float] = field(default_factory=lambda: [0.6, 0.6, 0.6, 1.0])
+    # Collision geometries of the models this object never touches (names as in ``geometry:``:
+    # a body, a collision name, or BODY/GEOMETRY). Lets one ground be two geometries, e.g. a
+    # compliant half space for rigid feet and a compliant box for a compliant body.
+    no_contact_with: list[str] = field(default_factory=list)
 
 
 @dataclass

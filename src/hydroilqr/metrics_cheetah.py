@@ -27,7 +27,8 @@
 * ``iterations_per_resolve`` (mean) and ``resolve_seconds`` (mean) for receding-horizon runs.
 
 ``metric_params`` (all optional): ``body`` (floating body, default ``body``), ``body_collision``
-(default ``body_collision``), ``ground`` (default ``ground``), ``feet`` (collision names, default
+(default ``body_collision``), ``ground`` (a collision name or a list of them, for a ground made
+of several geometries; default ``ground``), ``feet`` (collision names, default
 ``{FL,FR,HL,HR}_foot_collision``), ``settle_time`` (default 0.2 s), ``window`` (default 1.0 s).
 
 Plots: ``velocity.png`` (forward base velocity against the target, paper Fig. 4) and
@@ -57,10 +58,12 @@ def _params(task) -> dict:
     feet = list(p.get("feet", FEET))
     if len(feet) != 4:
         raise ConfigError("metric_params.feet: expected four collision names (FL, FR, HL, HR)")
+    ground = p.get("ground", "ground")
+    ground = [ground] if isinstance(ground, str) else list(ground)
     return {
         "body": p.get("body", "body"),
         "body_collision": p.get("body_collision", "body_collision"),
-        "ground": p.get("ground", "ground"),
+        "ground": ground,
         "feet": feet,
         "settle_time": float(p.get("settle_time", 0.2)),
         "window": float(p.get("window", 1.0)),
@@ -95,7 +98,7 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return _cache["value"]
     p = _params(task)
     names = {n for n, _ in task.dynamics.geometry_names().values()}
-    for n in p["feet"] + [p["body_collision"], p["ground"]]:
+    for n in p["feet"] + [p["body_collision"], *p["ground"]]:
         if n not in names:
             raise ConfigError(f"metric_params: no collision geometry named {n!r}")
     X = np.asarray(sol.X)
@@ -105,9 +108,12 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     body = np.zeros(T, bool)
     for k, x in enumerate(X):
         for ga, _ba, gb, _bb, n in contact_pairs(task.dynamics, x):
-            if p["ground"] not in (ga, gb):
+            if ga in p["ground"]:
+                other = gb
+            elif gb in p["ground"]:
+                other = ga
+            else:
                 continue
-            other = gb if ga == p["ground"] else ga
             if other in p["feet"]:
                 j = p["feet"].index(other)
                 feet[k, j] = True

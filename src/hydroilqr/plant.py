@@ -9,6 +9,7 @@ contact approximation is chosen explicitly (``tamsi`` only to reproduce the pape
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -19,7 +20,9 @@ from pydrake.geometry import (
     AddContactMaterial,
     AddRigidHydroelasticProperties,
     Box,
+    CollisionFilterDeclaration,
     Cylinder,
+    GeometrySet,
     HalfSpace,
     ProximityProperties,
     RoleAssign,
@@ -36,6 +39,17 @@ from .state import StateLayout
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6
+
+
+class _NoDeformableNotice(logging.Filter):
+    """Drops Drake's notice, on registering any HalfSpace, that half spaces do not touch
+    deformable bodies: this project has none, and the notice reads like a problem."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "not currently supported for deformable contact" not in record.getMessage()
+
+
+logging.getLogger("drake").addFilter(_NoDeformableNotice())
 
 
 class SimulationError(RuntimeError):
@@ -236,6 +250,27 @@ def check_contact_pairs(task: TaskConfig, plant, scene_graph) -> None:
             )
 
 
+def _exclude_scene_contacts(task: TaskConfig, plant, scene_graph, scene_ids: list) -> None:
+    """Applies each scene object's ``no_contact_with`` as a SceneGraph collision filter.
+    scene_ids: the GeometryId of each entry of ``task.scene``."""
+    if not any(o.no_contact_with for o in task.scene):
+        return
+    geoms = collision_geometries(plant, scene_graph)
+    manager = scene_graph.collision_filter_manager()
+    for i, (o, gid) in enumerate(zip(task.scene, scene_ids)):
+        for key in o.no_contact_with:
+            hits = geometry_hits(key, geoms)
+            if not hits:
+                known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
+                raise ConfigError(
+                    f"scene[{i}].no_contact_with: {key!r} names no collision geometry or body "
+                    f"(known: {', '.join(known)})"
+                )
+            manager.Apply(
+                CollisionFilterDeclaration().ExcludeBetween(GeometrySet(gid), GeometrySet(hits))
+            )
+
+
 # ------------------------------------------------------------------------------------------
 # Building
 # ------------------------------------------------------------------------------------------
@@ -308,6 +343,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
 
     # Static scene geometry.
     world = plant.world_body()
+    scene_ids = []
     for i, o in enumerate(task.scene):
         X = RigidTransform(RollPitchYaw(o.rpy), np.asarray(o.xyz, dtype=float))
         try:
@@ -315,7 +351,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         except ConfigError as e:
             raise ConfigError(f"scene[{i}] ({o.name}): {e}") from None
         name = o.name or f"scene_{i}"
-        plant.RegisterCollisionGeometry(world, X, _shape(o), name, props)
+        scene_ids.append(plant.RegisterCollisionGeometry(world, X, _shape(o), name, props))
         if o.shape != "halfspace":
             plant.RegisterVisualGeometry(
                 world, X, _shape(o), name + "_visual", np.asarray([*o.color, 1.0][:4], dtype=float)
@@ -344,6 +380,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
 
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     plant.Finalize()
+    _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
     check_contact_pairs(task, plant, scene_graph)
     if plant.num_actuated_dofs() == 0:
         raise ConfigError("models: the model has no actuated joints")
