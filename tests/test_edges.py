@@ -1248,3 +1248,18 @@ def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
     p = sol.save(tmp_path / "plan")
     with pytest.raises(ValueError, match="its U holds non-finite"):
         Solution.load(p)
+
+
+def test_an_ascii_text_encoding_is_named_in_the_import_error():
+    """pydrake 1.51 cannot import under LC_ALL=C with PYTHONUTF8=0; the package says what to
+    set instead of Drake's bare "initialization failed"."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "LC_ALL": "C", "PYTHONUTF8": "0"}
+    p = subprocess.run(
+        [sys.executable, "-c", "import hydroilqr"], env=env, capture_output=True, text=True
+    )
+    assert p.returncode != 0
+    assert "PYTHONUTF8=1" in p.stderr.strip().splitlines()[-1]

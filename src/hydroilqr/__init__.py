@@ -5,14 +5,26 @@ Data flow: task YAML (config.py) -> plant/dynamics (plant.py) -> derivatives (de
 -> iLQR (ilqr.py, cost.py) -> Solution (solution.py) -> outputs, playback, replay.
 """
 
-from .api import solve
-from .config import ConfigError, SolverConfig, TaskConfig
-from .derivatives import DerivativeMethod, linearize
-from .ilqr import IterationInfo
-from .plant import Dynamics, SimulationError
-from .progress import IterationTable
-from .solution import Solution
-from .task import Task
+import locale as _locale
+import sys as _sys
+
+if not _sys.flags.utf8_mode and _locale.getpreferredencoding(False).lower() in (
+    "ascii",
+    "ansi_x3.4-1968",
+):  # pydrake 1.51 reads a UTF-8 file with the locale's encoding and fails to import
+    raise ImportError(
+        "pydrake cannot start with an ASCII text encoding (e.g. LC_ALL=C with PYTHONUTF8=0): "
+        "set PYTHONUTF8=1 or a UTF-8 locale (LC_ALL=C.UTF-8)"
+    )
+
+from .api import solve  # noqa: E402
+from .config import ConfigError, SolverConfig, TaskConfig  # noqa: E402
+from .derivatives import DerivativeMethod, linearize  # noqa: E402
+from .ilqr import IterationInfo  # noqa: E402
+from .plant import Dynamics, SimulationError  # noqa: E402
+from .progress import IterationTable  # noqa: E402
+from .solution import Solution  # noqa: E402
+from .task import Task  # noqa: E402
 
 __all__ = [
     "ConfigError",
