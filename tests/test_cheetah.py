@@ -76,17 +76,40 @@ FEET = {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_
 def test_standing_contacts():
     task = Task.load("cheetah-trot-0.5")
     surfaces = task.dynamics.contact_surfaces(task.x0)
-    feet = {a for a, b, n in surfaces if "foot" in a and b == "ground_feet" and n > 0}
+    feet = {a for a, b, n in surfaces if "foot" in a and b == "ground" and n > 0}
     assert feet == FEET
     assert not any("body" in a for a, _, _ in surfaces)
 
 
-def test_ground_is_a_half_space_for_the_feet_and_a_box_for_the_body():
-    """The ground is two geometries with the same pressure field near the surface (box 1 m
-    thick: p = E d / 0.5 m; half space with slab 0.5 m): the feet touch only the half space
-    (cheaper contact), the compliant body only the box (a compliant half space cannot touch
-    compliant geometry)."""
-    task = Task.load("cheetah-trot-1.0")
+def half_space_ground(name: str = "cheetah-trot-1.0") -> Task:
+    """The task with its ground split (tried in session 11, see _cheetah_base.yaml): the feet
+    touch a compliant half space with the box's pressure field near its top face (box 1 m
+    thick: p = E d / 0.5 m; half space with slab 0.5 m), the compliant body touches the box
+    (a compliant half space cannot touch compliant geometry)."""
+    box = Task.load(name).config.scene[0]
+    ground = {
+        k: getattr(box, k)
+        for k in ("name", "shape", "size", "xyz", "compliance", "hydroelastic_modulus")
+        + ("dissipation", "friction", "resolution_hint")
+    }
+    feet = {
+        **ground,
+        "name": "ground_feet",
+        "shape": "halfspace",
+        "xyz": [0, 0, 0],
+        "slab_thickness": 0.5,
+        "no_contact_with": ["body"],
+    }
+    del feet["size"], feet["resolution_hint"]
+    ground["no_contact_with"] = sorted(FEET)
+    return Task.load(
+        name,
+        overrides={"scene": [ground, feet], "metric_params.ground": ["ground", "ground_feet"]},
+    )
+
+
+def test_a_ground_of_two_geometries_each_touching_its_own():
+    task = half_space_ground()
     dyn = task.dynamics
     inspector = dyn.scene_graph.model_inspector()
     names = {g: n for g, (n, _b) in dyn.geometry_names().items()}
@@ -96,18 +119,24 @@ def test_ground_is_a_half_space_for_the_feet_and_a_box_for_the_body():
         assert frozenset((foot, "ground")) not in pairs
     assert frozenset(("body_collision", "ground")) in pairs
     assert frozenset(("body_collision", "ground_feet")) not in pairs
+    standing = {(a, b) for a, b, n in dyn.contact_surfaces(task.x0) if n > 0}
+    assert standing == {(f, "ground_feet") for f in FEET}
     # Body dropped onto the ground: it touches the box.
     x = task.x0.copy()
-    lay = dyn.layout
-    x[list(lay.block("position").coords)] = [0.0, 0.0, 0.02]
-    touching = {(a, b) for a, b, n in dyn.contact_surfaces(x) if n > 0}
-    assert ("body_collision", "ground") in touching or ("ground", "body_collision") in touching
+    x[list(dyn.layout.block("position").coords)] = [0.0, 0.0, 0.02]
+    touching = {frozenset((a, b)) for a, b, n in dyn.contact_surfaces(x) if n > 0}
+    assert frozenset(("body_collision", "ground")) in touching
+    # The standing state settles to the same height on both grounds (same pressure field).
+    U = task.initial_guess(40)
+    box = Task.load("cheetah-trot-1.0").dynamics
+    z = dyn.layout.block("position").coords[2]
+    assert abs(dyn.rollout(task.x0, U)[-1, z] - box.rollout(task.x0, U)[-1, z]) < 1e-5
 
 
 def test_standing_partials_autodiff_equal_central_differences():
-    """Feet (rigid) on the compliant half space: AutoDiff is exact here, and central
+    """Feet (rigid) on a compliant half space: AutoDiff is exact here, and central
     differences agree with it to 1e-4 relative (issue 7's bar for exact modes)."""
-    task = Task.load("cheetah-trot-1.0")
+    task = half_space_ground()
     dyn = task.dynamics
     rng = np.random.default_rng(3)
     u = task.initial_guess(1)[0]
@@ -279,7 +308,8 @@ def test_checkpoint_of_other_settings_refused(tmp_path):
         load_checkpoint(other, tmp_path)
 
 
-def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch):
+@pytest.mark.parametrize("tail", ["last", "guess"])
+def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch, tail):
     from hydroilqr import receding
 
     calls = []
@@ -287,20 +317,26 @@ def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch):
 
     def spy(problem, U0, *a, **k):
         sol = real(problem, U0, *a, **k)
-        calls.append((problem.t0, np.array(U0), sol.U.copy()))
+        calls.append((problem.t0, np.array(U0), sol.U.copy(), problem.x0.copy()))
         return sol
 
     monkeypatch.setattr(receding, "solve", spy)
-    task = Task.load("cheetah-trot-1.0", smoke=True)
+    task = Task.load(
+        "cheetah-trot-1.0", overrides=[f"receding_horizon.warm_start_tail={tail}"], smoke=True
+    )
     solve(task)
     rh, dt = task.config.receding_horizon, task.dynamics.dt
     assert [c[0] for c in calls] == pytest.approx(
         [r * rh.shift_steps * dt for r in range(rh.resolves)]
     )
-    S = rh.shift_steps
-    for (_, _, U_prev), (_, U0, _) in zip(calls, calls[1:]):
+    S, W = rh.shift_steps, rh.window_steps
+    for r, ((_, _, U_prev, _), (_, U0, _, x0)) in enumerate(zip(calls, calls[1:]), start=1):
         np.testing.assert_array_equal(U0[:-S], U_prev[S:])
-        np.testing.assert_array_equal(U0[-S:], np.tile(U_prev[-1], (S, 1)))
+        if tail == "last":
+            np.testing.assert_array_equal(U0[-S:], np.tile(U_prev[-1], (S, 1)))
+        else:  # the task's initial guess for the window's last S time steps
+            want = task.initial_guess(S, x0, start=r * S + W - S)
+            np.testing.assert_array_equal(U0[-S:], want)
 
 
 def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
@@ -341,3 +377,42 @@ def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
     envs = sol.extra["environments"]
     assert [e["from_resolve"] for e in envs] == [0, 1]
     assert envs[1]["environment"]["blas_core"] == "Haswell-elsewhere"
+
+
+def test_a_window_whose_warm_start_blows_up_starts_from_the_initial_guess(monkeypatch):
+    """If the shifted previous window cannot be rolled out from the kept state (its held last
+    control blows the simulation up), the window starts cold from the task's initial guess
+    instead of ending the run; the resolve records it."""
+    from hydroilqr.plant import SimulationError
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    dyn = task.dynamics
+    rollout = dyn.rollout
+    calls = []
+
+    def failing_once(x0, U):
+        calls.append(1)
+        if len(calls) == 2:  # the second window's warm start
+            raise SimulationError("step 9: the simulation diverged")
+        return rollout(x0, U)
+
+    monkeypatch.setattr(dyn, "rollout", failing_once)
+    sol = solve(task)
+    res = sol.extra["resolves"]
+    assert [r.get("cold_start", False) for r in res] == [False, True, False]
+    assert sol.X.shape == (task.config.receding_horizon.resolves * 4 + 1, dyn.nx)
+    assert np.isfinite(sol.X).all()
+
+
+def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch):
+    from hydroilqr.plant import SimulationError
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    dyn = task.dynamics
+
+    def failing(x0, U):
+        raise SimulationError("step 3: the simulation diverged")
+
+    monkeypatch.setattr(dyn, "rollout", failing)
+    with pytest.raises(SimulationError, match="resolve 0: initial rollout failed from the shifted"):
+        solve(task)

@@ -112,6 +112,11 @@ CASES = [
         "scene[0] (soft_floor)",
     ),
     (
+        "bad-warm-start-tail",
+        edit(receding_horizon={"warm_start_tail": "hold"}),
+        "receding_horizon.warm_start_tail",
+    ),
+    (
         "unknown-no-contact-with",
         edit(scene=[{"name": "wall", "shape": "box", "no_contact_with": ["gripper"]}]),
         "scene[0].no_contact_with: 'gripper'",

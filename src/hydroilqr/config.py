@@ -37,7 +37,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     receding_horizon: null        # {window_steps: W, shift_steps: S, resolves: R, max_iterations}:
                                   # R windows of W steps, each keeps its first S steps, so the
                                   # trajectory has R*S steps (horizon / num_steps are not used);
-                                  # max_iterations: per window after the first one
+                                  # max_iterations: per window after the first one;
+                                  # warm_start_tail: last (hold the last control) or guess
     continuation: []              # single solves: stages of dotted overrides solved first,
                                   # each warm-starting the next, e.g.
                                   # [{ball_collision.hydroelastic_modulus: 5.0e+5}]
@@ -221,6 +222,9 @@ class RecedingHorizonConfig:
     shift_steps: int = 4
     resolves: int = 100
     max_iterations: int = 10  # per resolve (the first window uses solver.max_iterations)
+    # The controls a shifted window lacks at its end: "last" holds the previous window's last
+    # control (the paper's code), "guess" takes the task's initial guess for those steps.
+    warm_start_tail: str = "last"
 
 
 @dataclass
@@ -1053,6 +1057,10 @@ def validate(cfg: TaskConfig) -> None:
         )
     if rh is not None and rh.max_iterations < 1:
         raise ConfigError("receding_horizon.max_iterations: must be >= 1")
+    if rh is not None and rh.warm_start_tail not in WARM_START_TAILS:
+        raise ConfigError(
+            f"receding_horizon.warm_start_tail: expected last or guess, got {rh.warm_start_tail!r}"
+        )
     if rh is not None and rh.resolves * rh.shift_steps + rh.window_steps > MAX_STEPS:
         raise ConfigError(
             f"receding_horizon: {rh.resolves} resolves of {rh.shift_steps} steps are more than "

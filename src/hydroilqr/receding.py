@@ -31,6 +31,27 @@ def shift_guess(U: np.ndarray, shift: int) -> np.ndarray:
     return np.vstack([U[shift:], np.tile(U[-1], (shift, 1))])
 
 
+def _warm_start(task, guess: np.ndarray, x0: np.ndarray, k0: int):
+    """The window's initial controls and their rollout: the shifted previous window
+    (guess: [W, nu]) or, if its rollout from x0: [nx] fails (a previous window can end in a
+    motion that blows up once its last control is held longer), the task's initial guess for
+    these time steps (from step k0). Returns (U: [W, nu], X: [W+1, nx], cold: bool); the
+    SimulationError of the initial guess if that fails as well."""
+    dyn = task.dynamics
+    try:
+        return guess, dyn.rollout(x0, guess), False
+    except SimulationError:
+        pass
+    cold = task.initial_guess(guess.shape[0], x0, start=k0)
+    try:
+        return cold, dyn.rollout(x0, cold), True
+    except SimulationError as e:
+        raise SimulationError(
+            f"initial rollout failed from the shifted previous window and from the task's "
+            f"initial guess: {e}"
+        ) from None
+
+
 def solve_receding(
     task,
     callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
@@ -63,16 +84,18 @@ def solve_receding(
         max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
         t_start = time.perf_counter()
         try:
+            guess, X0, cold = _warm_start(task, st["guess"], x0, r * S)
             # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
             # trajectory (one more linearization per window), as playback --policy ilqr needs.
             sol = solve(
                 # exactly the kept state (not re-normalized: the stitched X is a replay of U)
                 Problem(dyn, task.cost, x0, t0),
-                st["guess"],
+                guess,
                 cfg.solver,
                 callbacks,
                 max_it,
                 final_gains=True,
+                X0=X0,
             )
         except SimulationError as e:
             raise SimulationError(f"resolve {r}: {e}") from None
@@ -82,6 +105,9 @@ def solve_receding(
         st["K"] = np.concatenate([st["K"], sol.K[:S]])
         st["kappa"] = np.vstack([st["kappa"], sol.kappa[:S]])
         st["guess"] = shift_guess(sol.U, S)
+        if rh.warm_start_tail == "guess":  # the next window's last S steps: the task's guess
+            k_end = (r + 1) * S + W  # the time step after the next window's end
+            st["guess"][W - S :] = task.initial_guess(S, st["X"][-1], start=k_end - S)
         st["costs"] += [float(c) for c in sol.costs[1:]]
         st["iteration_seconds"] += sol.iteration_seconds
         for p in PHASES:
@@ -93,6 +119,7 @@ def solve_receding(
                 "cost": sol.final_cost,
                 "converged": sol.converged,
                 "reason": sol.reason,
+                **({"cold_start": True} if cold else {}),
             }
         )
         if r == 0:
