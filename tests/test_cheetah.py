@@ -416,3 +416,32 @@ def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch
     monkeypatch.setattr(dyn, "rollout", failing)
     with pytest.raises(SimulationError, match="resolve 0: initial rollout failed from the shifted"):
         solve(task)
+
+
+def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
+    """Checkpoints written before receding_horizon.warm_start_tail and scene no_contact_with
+    existed still resume: at their defaults those keys do not enter the fingerprint."""
+    import dataclasses
+    import hashlib
+    import json
+
+    from hydroilqr.receding import fingerprint
+
+    def before(cfg):  # the fingerprint as computed before the two keys existed
+        d = dataclasses.asdict(cfg)
+        d.pop("base_dir", None)
+        for key in ("threads", "autodiff_workers", "line_search_workers"):
+            d.get("solver", {}).pop(key, None)
+        d.pop("mpc", None)
+        del d["receding_horizon"]["warm_start_tail"]
+        for o in d["scene"]:
+            del o["no_contact_with"]
+        text = json.dumps(d, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    assert fingerprint(task.config) == before(task.config)
+    other = Task.load(
+        "cheetah-trot-1.0", overrides=["receding_horizon.warm_start_tail=guess"], smoke=True
+    )
+    assert fingerprint(other.config) != fingerprint(task.config)

@@ -232,6 +232,12 @@ def fingerprint(cfg) -> str:
         d.get("solver", {}).pop(key, None)
     d.pop("mpc", None)
     d.pop("base_dir", None)
+    # Keys added after checkpoints existed leave a fingerprint unchanged at their defaults.
+    if (d.get("receding_horizon") or {}).get("warm_start_tail") == "last":
+        del d["receding_horizon"]["warm_start_tail"]
+    for o in d.get("scene", []):
+        if not o.get("no_contact_with"):
+            o.pop("no_contact_with", None)
     text = json.dumps(d, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
