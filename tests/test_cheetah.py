@@ -208,7 +208,7 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     _interrupt_after(2, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
     # A fresh process would rebuild the task; so does this.
     task = Task.load("cheetah-trot-1.0", smoke=True)
-    assert load_checkpoint(task, tmp_path)["done"] == 2
+    assert load_checkpoint(task, tmp_path).done == 2
     seen = []  # only the missing resolve is computed
     resumed = solve(task, checkpoint_dir=tmp_path, on_resolve=lambda d, t, s: seen.append(d))
     assert seen == [3]

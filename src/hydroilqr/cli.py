@@ -97,7 +97,7 @@ def cmd_solve(args) -> int:
             raise ConfigError("--resume DIR writes into DIR; drop --out or make it the same")
         # refuses a foreign or missing checkpoint
         ck_state = receding.load_checkpoint(task, resume_dir)
-        unfinished = ck_state["done"] < task.config.receding_horizon.resolves
+        unfinished = ck_state.done < task.config.receding_horizon.resolves
         changed = receding.environment_change(ck_state) if unfinished else ""
         if changed:
             console.print(

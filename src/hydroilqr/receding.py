@@ -1,6 +1,8 @@
 """Receding-horizon solves (paper §IV-A): solve a W-step window, keep its first S steps, shift
 the start by S steps, warm-start the next window with the previous controls shifted by S (the
-last control repeated at the end), repeat R times. The result has R·S steps.
+last control repeated at the end, or the task's initial guess there: ``warm_start_tail``),
+repeat R times. The result has R·S steps. A warm start that cannot be rolled out from the kept
+state is replaced by the task's initial guess (a cold start, recorded in the window's entry).
 
 Each resolve is checkpointed (``checkpoint.npz`` in the run directory), so an interrupted run
 continues where it stopped and ends with the same trajectory as an uninterrupted one.
@@ -24,6 +26,38 @@ from .plant import SimulationError
 from .solution import PHASES, Solution
 
 CHECKPOINT = "checkpoint.npz"
+
+
+@dataclasses.dataclass
+class Checkpoint:
+    """A receding-horizon run after ``done`` resolves of S steps (what ``checkpoint.npz``
+    holds). X: [1 + done*S, nx], U: [done*S, nu], K: [done*S, nu, nx], kappa: [done*S, nu]
+    (the kept steps so far), guess: [W, nu] (the next window's warm start)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    K: np.ndarray
+    kappa: np.ndarray
+    guess: np.ndarray
+    done: int = 0
+    costs: list = dataclasses.field(default_factory=list)  # every iteration's cost, in order
+    iteration_seconds: list = dataclasses.field(default_factory=list)
+    phase_seconds: dict = dataclasses.field(default_factory=lambda: {p: [] for p in PHASES})
+    resolves: list = dataclasses.field(default_factory=list)  # per window: iterations, ...
+    fingerprint: str = ""  # of the task (``fingerprint``): a resume must match it
+    files: str = ""  # of the files the task reads (``files_fingerprint``)
+    environments: list = dataclasses.field(default_factory=list)  # who computed which windows
+
+    @classmethod
+    def start(cls, x0: np.ndarray, guess: np.ndarray, nx: int, nu: int) -> Checkpoint:
+        """No resolve done yet: x0: [nx], guess: [W, nu]."""
+        return cls(
+            X=x0[None, :].copy(),
+            U=np.zeros((0, nu)),
+            K=np.zeros((0, nu, nx)),
+            kappa=np.zeros((0, nu)),
+            guess=guess,
+        )
 
 
 def shift_guess(U: np.ndarray, shift: int) -> np.ndarray:
@@ -64,27 +98,27 @@ def solve_receding(
     W, S, R = rh.window_steps, rh.shift_steps, rh.resolves
     dyn = task.dynamics
     nx, nu = dyn.nx, dyn.nu
-    st = _empty_state(task.x0, task.initial_guess(W), nx, nu)
+    st = Checkpoint.start(task.x0, task.initial_guess(W), nx, nu)
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
     run_id = fingerprint(cfg)
     if ck is not None and ck.exists():
         st = load_checkpoint(task, ck.parent)
-    st["fingerprint"] = run_id
-    st["files"] = files_fingerprint(cfg)
+    st.fingerprint = run_id
+    st.files = files_fingerprint(cfg)
     # The environments that computed the windows (a resumed run may mix two: its results
     # then match neither, as last bits differ; summary.json's extra lists them).
     env = numeric_environment()
-    envs = st.setdefault("environments", [])
-    if st["done"] < R and (not envs or envs[-1]["environment"] != env):
-        envs.append({"from_resolve": st["done"], "environment": env})
-    while st["done"] < R:
-        r = st["done"]
-        x0 = st["X"][-1]
+    envs = st.environments
+    if st.done < R and (not envs or envs[-1]["environment"] != env):
+        envs.append({"from_resolve": st.done, "environment": env})
+    while st.done < R:
+        r = st.done
+        x0 = st.X[-1]
         t0 = r * S * dyn.dt
         max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
         t_start = time.perf_counter()
         try:
-            guess, X0, cold = _warm_start(task, st["guess"], x0, r * S)
+            guess, X0, cold = _warm_start(task, st.guess, x0, r * S)
             # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
             # trajectory (one more linearization per window), as playback --policy ilqr needs.
             sol = solve(
@@ -100,19 +134,19 @@ def solve_receding(
         except SimulationError as e:
             raise SimulationError(f"resolve {r}: {e}") from None
         wall = time.perf_counter() - t_start
-        st["X"] = np.vstack([st["X"], sol.X[1 : S + 1]])
-        st["U"] = np.vstack([st["U"], sol.U[:S]])
-        st["K"] = np.concatenate([st["K"], sol.K[:S]])
-        st["kappa"] = np.vstack([st["kappa"], sol.kappa[:S]])
-        st["guess"] = shift_guess(sol.U, S)
+        st.X = np.vstack([st.X, sol.X[1 : S + 1]])
+        st.U = np.vstack([st.U, sol.U[:S]])
+        st.K = np.concatenate([st.K, sol.K[:S]])
+        st.kappa = np.vstack([st.kappa, sol.kappa[:S]])
+        st.guess = shift_guess(sol.U, S)
         if rh.warm_start_tail == "guess":  # the next window's last S steps: the task's guess
             k_end = (r + 1) * S + W  # the time step after the next window's end
-            st["guess"][W - S :] = task.initial_guess(S, st["X"][-1], start=k_end - S)
-        st["costs"] += [float(c) for c in sol.costs[1:]]
-        st["iteration_seconds"] += sol.iteration_seconds
+            st.guess[W - S :] = task.initial_guess(S, st.X[-1], start=k_end - S)
+        st.costs += [float(c) for c in sol.costs[1:]]
+        st.iteration_seconds += sol.iteration_seconds
         for p in PHASES:
-            st["phase_seconds"][p] += sol.phase_seconds[p]
-        st["resolves"].append(
+            st.phase_seconds[p] += sol.phase_seconds[p]
+        st.resolves.append(
             {
                 "iterations": sol.iterations,
                 "seconds": wall,
@@ -123,23 +157,23 @@ def solve_receding(
             }
         )
         if r == 0:
-            st["costs"].insert(0, float(sol.costs[0]))
-        st["done"] = r + 1
+            st.costs.insert(0, float(sol.costs[0]))
+        st.done = r + 1
         if ck is not None:
             _save(ck, st)
         if on_resolve is not None:
             on_resolve(r + 1, R, sol)
-    res = st["resolves"]
-    N = st["U"].shape[0]
+    res = st.resolves
+    N = st.U.shape[0]
     return Solution(
-        X=st["X"],
-        U=st["U"],
-        K=st["K"],
-        kappa=st["kappa"],
+        X=st.X,
+        U=st.U,
+        K=st.K,
+        kappa=st.kappa,
         t=dyn.dt * np.arange(N + 1),
-        costs=np.array(st["costs"]),
-        iteration_seconds=st["iteration_seconds"],
-        phase_seconds=st["phase_seconds"],
+        costs=np.array(st.costs),
+        iteration_seconds=st.iteration_seconds,
+        phase_seconds=st.phase_seconds,
         converged=all(r_["converged"] for r_ in res) if res else False,
         reason=f"{sum(r_['converged'] for r_ in res)}/{len(res)} windows converged",
         derivatives=cfg.solver.derivatives,
@@ -149,13 +183,13 @@ def solve_receding(
             "resolves": res,
             "window_steps": W,
             "shift_steps": S,
-            "trajectory_cost": float(task.cost.total(st["X"], st["U"], 0.0)),
-            "environments": st.get("environments", []),
+            "trajectory_cost": float(task.cost.total(st.X, st.U, 0.0)),
+            "environments": st.environments,
         },
     )
 
 
-def load_checkpoint(task, directory: str | Path) -> dict:
+def load_checkpoint(task, directory: str | Path) -> Checkpoint:
     """The saved state of an interrupted run of ``task`` in ``directory``; ConfigError if the
     checkpoint is missing, unreadable or from a different run."""
     ck = Path(directory) / CHECKPOINT
@@ -167,35 +201,35 @@ def load_checkpoint(task, directory: str | Path) -> dict:
         raise ConfigError(
             f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
         ) from None
-    if st.get("fingerprint", fingerprint(task.config)) != fingerprint(task.config):
+    if st.fingerprint and st.fingerprint != fingerprint(task.config):
         raise ConfigError(
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
         )
     files = files_fingerprint(task.config)
-    if st.get("files", files) != files:  # (a checkpoint from before fingerprints: accepted)
+    if st.files and st.files != files:  # (a checkpoint from before fingerprints: accepted)
         raise ConfigError(
             f"{directory}: a model or initial-guess file of the task changed since its "
             "checkpoint was written; resuming would mix two models (restore the file, or "
             "choose another --out)"
         )
     rh = task.config.receding_horizon
-    done, S = st.get("done"), rh.shift_steps
+    done, S = st.done, rh.shift_steps
     nx, nu = task.dynamics.nx, task.dynamics.nu
     consistent = (
         isinstance(done, int)
         and 0 <= done <= rh.resolves
-        and len(st.get("resolves", [])) == done
-        and st["X"].shape == (1 + done * S, nx)
-        and st["U"].shape == (done * S, nu)
-        and st["K"].shape == (done * S, nu, nx)
-        and st["kappa"].shape == (done * S, nu)
-        and st["guess"].shape == (rh.window_steps, nu)
+        and len(st.resolves) == done
+        and st.X.shape == (1 + done * S, nx)
+        and st.U.shape == (done * S, nu)
+        and st.K.shape == (done * S, nu, nx)
+        and st.kappa.shape == (done * S, nu)
+        and st.guess.shape == (rh.window_steps, nu)
     )
     if not consistent:
         raise ConfigError(
             f"{ck}: its contents disagree with each other (resolves done {done!r}, "
-            f"{st['X'].shape[0]} states); remove it to start over"
+            f"{st.X.shape[0]} states); remove it to start over"
         )
     return st
 
@@ -206,21 +240,6 @@ def finished_run(directory: str | Path) -> bool:
     d = Path(directory)
     ck, summary = d / CHECKPOINT, d / "summary.json"
     return summary.exists() and (not ck.exists() or summary.stat().st_mtime >= ck.stat().st_mtime)
-
-
-def _empty_state(x0, guess, nx, nu):
-    return {
-        "done": 0,
-        "X": x0[None, :].copy(),
-        "U": np.zeros((0, nu)),
-        "K": np.zeros((0, nu, nx)),
-        "kappa": np.zeros((0, nu)),
-        "guess": guess,
-        "costs": [],
-        "iteration_seconds": [],
-        "phase_seconds": {p: [] for p in PHASES},
-        "resolves": [],
-    }
 
 
 def fingerprint(cfg) -> str:
@@ -251,11 +270,11 @@ def numeric_environment() -> dict:
     return {k: env.get(k) for k in keys}
 
 
-def environment_change(st: dict) -> str:
+def environment_change(st: Checkpoint) -> str:
     """ "" if a checkpoint's state ``st`` (``load_checkpoint``) was computed in this
     environment, else what differs (a resumed run mixes both: bitwise reproducible in
     neither)."""
-    envs = st.get("environments") or []
+    envs = st.environments
     if not envs:
         return ""
     old, new = envs[-1]["environment"], numeric_environment()
@@ -280,34 +299,30 @@ def files_fingerprint(cfg) -> str:
     return h.hexdigest()[:16]
 
 
-def _save(path: Path, st: dict) -> None:
-    """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint."""
-    keys = (
-        "done",
-        "costs",
-        "iteration_seconds",
-        "phase_seconds",
-        "resolves",
-        "fingerprint",
-        "files",
-        "environments",
-    )
-    meta = {k: st[k] for k in keys if k in st}
+_ARRAYS = ("X", "U", "K", "kappa", "guess")
+
+
+def _save(path: Path, st: Checkpoint) -> None:
+    """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint. The
+    arrays as arrays, the rest as JSON in ``meta``."""
+    meta = {f.name: getattr(st, f.name) for f in dataclasses.fields(st) if f.name not in _ARRAYS}
     atomic_savez(
         path,
         compressed=False,
-        X=st["X"],
-        U=st["U"],
-        K=st["K"],
-        kappa=st["kappa"],
-        guess=st["guess"],
+        X=st.X,
+        U=st.U,
+        K=st.K,
+        kappa=st.kappa,
+        guess=st.guess,
         meta=np.array(json.dumps(meta)),
     )
 
 
-def _load(path: Path) -> dict:
+def _load(path: Path) -> Checkpoint:
+    """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys)."""
     with np.load(path, allow_pickle=False) as d:
-        st = json.loads(str(d["meta"]))
-        for k in ("X", "U", "K", "kappa", "guess"):
-            st[k] = np.array(d[k])
-    return st
+        meta = json.loads(str(d["meta"]))
+        arrays = {k: np.array(d[k]) for k in _ARRAYS}
+    if not isinstance(meta, dict):
+        raise ValueError("meta is not a mapping")
+    return Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)
