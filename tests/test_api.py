@@ -170,7 +170,7 @@ def test_worker_pools_close_with_their_tasks():
     pools = []
     for _ in range(2):
         t = base.with_overrides({"solver.max_iterations": 1})
-        workers.warm_up(t.dynamics)
+        workers.warm_up(t.dynamics, 2)
         pools.append(t.dynamics._worker_pool)
         del t
         gc.collect()

@@ -341,15 +341,40 @@ def test_cli_solve_writes_outputs(tmp_path):
 
 
 def test_autodiff_in_worker_processes_equals_serial():
-    task = Task.load("cartpole-wall", ["solver.autodiff_workers=2"])
+    from hydroilqr import workers
+
+    task = Task.load("cartpole-wall")
     dyn = task.dynamics
     U = np.linspace(-3, 3, 12)[:, None]
     X = dyn.rollout(np.array([-0.05, 3.5, 0.0, 0.0]), U)
-    A_par, B_par = linearize(dyn, X, U, "autodiff")
-    task.config.solver.autodiff_workers = 1
+    A_par, B_par = linearize(dyn, X, U, "autodiff", autodiff_workers=2)
+    assert workers.pool_size(dyn) == 2  # the processes were used
     A_ser, B_ser = linearize(dyn, X, U, "autodiff")
     np.testing.assert_array_equal(A_par, A_ser)
     np.testing.assert_array_equal(B_par, B_ser)
+
+
+def test_solve_uses_the_worker_counts_of_its_settings_not_the_tasks():
+    """ilqr.solve(problem, U0, settings) sizes its worker processes from ``settings``
+    (the task's own solver section says 1 here) and gives the serial iterates."""
+    import dataclasses
+
+    from hydroilqr import workers
+
+    task = Task.load("cartpole-wall", ["solver.max_iterations=2"], smoke=True)
+    assert task.config.solver.autodiff_workers == task.config.solver.line_search_workers == 1
+    s = dataclasses.replace(
+        task.config.solver, derivatives="autodiff", autodiff_workers=2, line_search_workers=2
+    )
+    U0 = task.initial_guess(task.steps)
+    par = ilqr_solve(Problem(task.dynamics, task.cost, task.x0), U0, s)
+    assert workers.pool_size(task.dynamics) == 2
+    serial = Task.load("cartpole-wall", ["solver.max_iterations=2"], smoke=True)
+    s1 = dataclasses.replace(s, autodiff_workers=1, line_search_workers=1)
+    ser = ilqr_solve(Problem(serial.dynamics, serial.cost, serial.x0), U0, s1)
+    assert workers.pool_size(serial.dynamics) == 1
+    np.testing.assert_array_equal(par.X, ser.X)
+    np.testing.assert_array_equal(par.costs, ser.costs)
 
 
 def test_line_search_in_worker_processes_equals_serial():
@@ -366,7 +391,7 @@ def test_line_search_in_worker_processes_equals_serial():
             smoke=True,
         )
         dyn = task.dynamics
-        assert workers.line_search_width(dyn) == w
+        assert workers.line_search_width(dyn, w) == w
         problem = Problem(dyn, task.cost, task.x0)
         sols.append(ilqr_solve(problem, task.initial_guess(task.steps), task.config.solver))
     par, ser = sols

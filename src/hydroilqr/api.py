@@ -66,8 +66,9 @@ def solve(
         # A dict changes fields of each solve's own solver section (a stage may have its own);
         # a SolverConfig replaces them all.
         own = [_with_changes(st.config.solver, settings) for st in stages]
-        task.config.solver = _with_changes(saved, settings)  # for this solve only (the worker
-        for st, s in zip(stages, own):  # processes read it)
+        # For this solve only (the receding-horizon and continuation paths read the sections).
+        task.config.solver = _with_changes(saved, settings)
+        for st, s in zip(stages, own):
             st.config.solver = s
     try:
         if task.config.receding_horizon is not None:

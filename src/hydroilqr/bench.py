@@ -262,7 +262,16 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
     def jac(method, interval=1, adaptive=False):
         t = time.perf_counter()
         A, B = linearize(
-            dyn, X, U, method, s.fd_epsilon, threads, interval, rollout=True, adaptive=adaptive
+            dyn,
+            X,
+            U,
+            method,
+            s.fd_epsilon,
+            threads,
+            interval,
+            rollout=True,
+            adaptive=adaptive,
+            autodiff_workers=s.autodiff_workers,
         )
         return np.concatenate([A, B], axis=2), time.perf_counter() - t
 
@@ -331,7 +340,8 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
     for _ in range(repeats):
         for m in best:
             t = time.perf_counter()
-            linearize(dyn, Xs, Us, m, task.config.solver.fd_epsilon, threads, 1)
+            s = task.config.solver  # AutoDiff with the task's processes, as it would run
+            linearize(dyn, Xs, Us, m, s.fd_epsilon, threads, 1, autodiff_workers=s.autodiff_workers)
             best[m] = min(best[m], (time.perf_counter() - t) / idx.size)
     return {"seconds_per_step": best, "choice": min(best, key=best.get)}
 
@@ -412,7 +422,9 @@ def bench_task(
         f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
     )
     for t in tasks:  # worker processes (if any) start here, not inside a timed iteration
-        workers.warm_up(t.dynamics)
+        s = t.config.solver
+        size = max(workers.resolve(n) for n in (s.autodiff_workers, s.line_search_workers))
+        workers.warm_up(t.dynamics, size)
     same = SameIterates(tasks[0]) if same_iterates else None
     t0 = time.perf_counter()
     res = run_alternating(tasks, U0, iterations, block, shadow=same)

@@ -50,6 +50,7 @@ def linearize(
     interval: int = 1,
     rollout: bool = False,
     adaptive: bool = False,
+    autodiff_workers: int = 1,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Partials along a trajectory. X: [N+1, nx] (only X[:N] used), U: [N, nu].
     At one point: x: [nx] and u: [nu] (a number for one actuator) give A: [nx, nx] and
@@ -62,6 +63,9 @@ def linearize(
     ``adaptive=True`` (with ``interval > 1``) adds keypoints on both sides of every step where
     the set of touching geometry pairs changes, so interpolation never spans a contact event.
 
+    ``autodiff_workers``: AutoDiff in that many processes (each with its own plant; 0 = one per
+    core; the default 1 is serial, whatever the task's ``solver.autodiff_workers`` says).
+
     Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails (or x or u
     holds NaN), ValueError for wrong shapes.
     """
@@ -72,7 +76,7 @@ def linearize(
         raise ValueError(f"derivative method {method!r}: expected one of {valid}") from None
     if np.ndim(X) == 1 and np.ndim(U) <= 1:  # one state and input
         x, u = dyn.check_arguments(X, np.atleast_1d(U))
-        A, B = _fd_or_ad(dyn, x[None], u[None], method, eps, threads, None)
+        A, B = _fd_or_ad(dyn, x[None], u[None], method, eps, threads, None, autodiff_workers)
         return A[0], B[0]
     X, U = dyn.check_arguments(X, U, x_rows=True, u_rows=True)  # NaN -> SimulationError
     N = U.shape[0]
@@ -82,9 +86,10 @@ def linearize(
     if interval > 1 and N > 2:
         keys = keypoints(dyn, X, N, interval, adaptive)
         nxt = X[np.asarray(keys) + 1] if rollout else None
-        Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt)
+        Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt, autodiff_workers)
         return _interpolate(keys, Ak, Bk, N)
-    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, X[1 : N + 1] if rollout else None)
+    nxt = X[1 : N + 1] if rollout else None
+    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, nxt, autodiff_workers)
 
 
 def keypoints(dyn: Dynamics, X: np.ndarray, N: int, interval: int, adaptive: bool) -> list[int]:
@@ -127,8 +132,10 @@ class Linearizer:
         adaptive: bool = False,
         reuse_tolerance: float = 0.0,
         max_steps: int = 0,
+        autodiff_workers: int = 1,
     ):
         self.dyn = dyn
+        self.autodiff_workers = autodiff_workers
         self.method = DerivativeMethod(method)
         self.eps, self.threads = eps, threads
         self.interval, self.adaptive = interval, adaptive
@@ -148,6 +155,7 @@ class Linearizer:
             s.derivative_interval,
             s.derivative_adaptive,
             s.derivative_reuse_tolerance,
+            autodiff_workers=s.autodiff_workers,
         )
 
     def shift(self, steps: int) -> None:
@@ -194,7 +202,16 @@ class Linearizer:
         if todo.size:
             rollout = rollout and X.shape[0] == N + 1
             nxt = X[todo + 1] if rollout else None
-            A, B = _fd_or_ad(self.dyn, X[todo], U[todo], self.method, self.eps, self.threads, nxt)
+            A, B = _fd_or_ad(
+                self.dyn,
+                X[todo],
+                U[todo],
+                self.method,
+                self.eps,
+                self.threads,
+                nxt,
+                self.autodiff_workers,
+            )
             self.A[todo], self.B[todo], self.Z[todo] = A, B, Z[todo]
         self.last_computed = int(todo.size)
         have = keys[np.isfinite(self.Z[keys, 0])]
@@ -207,10 +224,10 @@ class Linearizer:
         return _interpolate(list(keys), self.A[keys], self.B[keys], N)
 
 
-def _fd_or_ad(dyn, X, U, method, eps, threads, next_states):
+def _fd_or_ad(dyn, X, U, method, eps, threads, next_states, autodiff_workers=1):
     N = U.shape[0]
     if method is DerivativeMethod.AUTODIFF:
-        workers = resolve_workers(dyn.task.solver.autodiff_workers)
+        workers = resolve_workers(autodiff_workers)
         if workers > 1 and N >= 2 * workers:
             try:
                 return parallel_autodiff(dyn, X[:N], U, workers)

@@ -158,7 +158,8 @@ def line_search(
         if deadline is not None and time.perf_counter() > deadline:
             return LineSearchResult(False, eps, expected, None, None, np.inf, tried, True)
         # trials side by side in worker processes (1: serial)
-        n = min(workers.line_search_width(dyn), s.line_search_max_steps - tried)
+        width = workers.line_search_width(dyn, s.line_search_workers)
+        n = min(width, s.line_search_max_steps - tried)
         trial_eps = []
         for _ in range(n):  # ε, ε·f, ε·f², ... by repeated products, as serially
             trial_eps.append(next_eps)
@@ -257,8 +258,8 @@ def solve(
     task with its own settings use ``hydroilqr.solve(task, U0=..., x0=...)``).
     ``callbacks``: a function or a list of them, called with an ``IterationInfo`` after every
     iteration; one returning True stops the solve (``reason == "callback"``).
-    Worker processes (``autodiff_workers``, ``line_search_workers``) follow the settings of
-    the dynamics' task (``problem.dynamics.task.solver``), not ``settings``.
+    Worker processes follow ``settings.autodiff_workers`` (through the default linearizer)
+    and ``settings.line_search_workers``.
 
     ``linearizer`` computes the partials (default: one built from ``settings``); MPC passes
     its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
@@ -316,6 +317,12 @@ def solve(
     accepted = False
 
     lin = linearizer or Linearizer.from_settings(dyn, s)
+    # One pool serves both kinds of work: sized for the larger (made here, on first use).
+    ad = getattr(lin, "autodiff_workers", 1)  # (a Linearizer stand-in: none)
+    ad = ad if getattr(lin, "method", None) is DerivativeMethod.AUTODIFF else 1
+    size = max(workers.resolve(ad), workers.resolve(s.line_search_workers))
+    if size > 1 and hasattr(dyn, "task"):  # (duck-typed test dynamics: serial)
+        workers.pool(dyn, size)
     derivative_steps: list[int] = []
 
     def partials(X, U):

@@ -363,6 +363,7 @@ class Controller:
             s.derivative_adaptive,
             settings.derivative_reuse_tolerance,
             settings.derivative_steps_per_update,
+            autodiff_workers=s.autodiff_workers,
         )
         self.derivative_steps: list[float] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one

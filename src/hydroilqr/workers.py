@@ -8,14 +8,15 @@ what this process would compute (tests check both uses).
 
 Two kinds of work are sent to it:
 
-* ``autodiff``: the AutoDiff partials of a contiguous chunk of time steps
-  (``solver.autodiff_workers``, used by derivatives.py);
-* ``closed_loop_rollouts``: line-search trials, one step size per process
-  (``solver.line_search_workers``, used by ilqr.py). A round evaluates ε, ε·f, ε·f², ... side
-  by side and the first acceptable one in that order is taken, so the iterates are those of the
-  serial line search.
+* ``autodiff``: the AutoDiff partials of a contiguous chunk of time steps (the solver
+  setting ``autodiff_workers``, passed by derivatives.py);
+* ``closed_loop_rollouts``: line-search trials, one step size per process (the solver setting
+  ``line_search_workers``, passed by ilqr.py to ``line_search_width``). A round evaluates ε,
+  ε·f, ε·f², ... side by side and the first acceptable one in that order is taken, so the
+  iterates are those of the serial line search.
 
-The pool has ``max(autodiff_workers, line_search_workers) − 1`` processes (0 = one per core).
+The worker counts are arguments (0 = one per core). The pool is created by its first user with
+that user's size (``pool(dyn, size)``: size − 1 processes); a later, larger request shares it.
 Where child processes are not allowed (inside a daemonic process, e.g. a sweep worker) the
 pool is marked unavailable and everything runs serially here.
 """
@@ -50,18 +51,20 @@ def resolve(count: int) -> int:
 
 
 def pool_size(dyn: Dynamics) -> int:
-    s = dyn.task.solver
-    return max(resolve(s.autodiff_workers), resolve(s.line_search_workers))
+    """Processes of the Dynamics' pool, this one included (1: no pool)."""
+    p = getattr(dyn, "_worker_pool", None)
+    return p._max_workers + 1 if p else 1
 
 
-def pool(dyn: Dynamics) -> ProcessPoolExecutor | None:
-    """The Dynamics' pool, created on first use; None if it has no extra processes or child
-    processes cannot be started here."""
+def pool(dyn: Dynamics, size: int = 0) -> ProcessPoolExecutor | None:
+    """The Dynamics' pool, created on first use with ``size`` processes in all (this one
+    included; 0 = one per core); None if it has none (size 1 at creation) or child processes
+    cannot be started here."""
     p = getattr(dyn, "_worker_pool", None)
     if p is False:
         return None
     if p is None:
-        size = pool_size(dyn)
+        size = resolve(size)
         if size < 2:
             return None
         try:
@@ -121,10 +124,12 @@ def mark_unavailable(dyn: Dynamics) -> None:
     dyn._worker_pool = False
 
 
-def warm_up(dyn: Dynamics) -> None:
-    """Start the pool's processes and build their plants now (e.g. before timing), not on
-    first use."""
-    p = pool(dyn)
+def warm_up(dyn: Dynamics, size: int) -> None:
+    """Start a pool of ``size`` processes (0 = one per core; 1: none) and build their plants
+    now (e.g. before timing), not on first use."""
+    if resolve(size) < 2:
+        return
+    p = pool(dyn, size)
     if p is not None:
         for f in [p.submit(_ready) for _ in range(pool_size(dyn) - 1)]:
             f.result()
@@ -135,8 +140,8 @@ class Unavailable(RuntimeError):
 
 
 def _submit(dyn: Dynamics, fn, *args):
-    p = pool(dyn)
-    if p is None:
+    p = getattr(dyn, "_worker_pool", None)  # (created by the caller)
+    if not p:
         raise Unavailable("no worker processes")
     try:
         return p.submit(fn, *args)
@@ -191,6 +196,7 @@ def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     split into ``workers`` contiguous chunks, the first computed here. Raises Unavailable."""
     from .derivatives import autodiff_serial
 
+    pool(dyn, workers)
     chunks = np.array_split(np.arange(U.shape[0]), workers)
     futures = [_submit(dyn, _autodiff, X[c], U[c]) for c in chunks[1:]]
     parts = [autodiff_serial(dyn, X[chunks[0]], U[chunks[0]])]
@@ -205,11 +211,11 @@ def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     return np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts])
 
 
-def line_search_width(dyn: Dynamics) -> int:
-    """How many line-search trials one round evaluates side by side (1 = serial)."""
-    task = getattr(dyn, "task", None)  # (test dynamics without a task: serial)
-    w = resolve(task.solver.line_search_workers) if task is not None else 1
-    if w < 2 or pool(dyn) is None:
+def line_search_width(dyn: Dynamics, requested: int) -> int:
+    """How many line-search trials one round evaluates side by side (1 = serial), for the
+    solver setting ``line_search_workers`` = requested (0 = one per core)."""
+    w = resolve(requested)
+    if w < 2 or not hasattr(dyn, "task") or pool(dyn, w) is None:  # (test dynamics: serial)
         return 1
     return min(w, pool_size(dyn))
 
@@ -218,6 +224,7 @@ def closed_loop_rollouts(dyn: Dynamics, x0, Ubar, Xbar, K, kappa, eps_list):
     """Forward passes of eq. (7) for each ε in eps_list, the first here and the others in
     worker processes. Returns a list of (X: [N+1, nx], U: [N, nu]) or SimulationError (a
     rejected trial) per ε. Raises Unavailable only before anything was computed."""
+    pool(dyn, len(eps_list))
     futures = [_submit(dyn, _rollout, x0, Ubar, Xbar, K, kappa, e) for e in eps_list[1:]]
     try:
         out = [dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps_list[0])]
