@@ -834,7 +834,7 @@ def test_a_trial_that_blows_up_in_a_worker_keeps_the_pool():
     out = workers.closed_loop_rollouts(dyn, task.x0, U, X, K, kappa, [0.0, 1.0])
     np.testing.assert_array_equal(out[0][0], X)  # ε = 0: the nominal itself, from a worker
     assert isinstance(out[1], SimulationError)
-    assert workers.pool(dyn) is not None and workers.line_search_width(dyn, 2) == 2
+    assert workers.pool(dyn, 2) is not None and workers.line_search_width(dyn, 2) == 2
 
 
 # ------------------------------------------------------------------------------------------
@@ -982,7 +982,7 @@ def test_worker_processes_exit_when_their_parent_is_killed(tmp_path):
         "from hydroilqr import Task, workers\n"
         "task = Task.load('kinova-forward', ['solver.autodiff_workers=2'], smoke=True)\n"
         "workers.warm_up(task.dynamics, 2)\n"
-        "pool = workers.pool(task.dynamics)\n"
+        "pool = workers.pool(task.dynamics, 2)\n"
         "print(' '.join(str(p) for p in pool._processes), flush=True)\n"
         "time.sleep(600)\n"
     )

@@ -52,11 +52,10 @@ def resolve(count: int) -> int:
 
 def pool_size(dyn: Dynamics) -> int:
     """Processes of the Dynamics' pool, this one included (1: no pool)."""
-    p = getattr(dyn, "_worker_pool", None)
-    return p._max_workers + 1 if p else 1
+    return getattr(dyn, "_worker_pool_size", 1) if getattr(dyn, "_worker_pool", None) else 1
 
 
-def pool(dyn: Dynamics, size: int = 0) -> ProcessPoolExecutor | None:
+def pool(dyn: Dynamics, size: int) -> ProcessPoolExecutor | None:
     """The Dynamics' pool, created on first use with ``size`` processes in all (this one
     included; 0 = one per core); None if it has none (size 1 at creation) or child processes
     cannot be started here."""
@@ -79,7 +78,7 @@ def pool(dyn: Dynamics, size: int = 0) -> ProcessPoolExecutor | None:
             return None
         # Shut down with its Dynamics (or at exit): many Tasks must not pile up processes.
         weakref.finalize(dyn, p.shutdown, wait=False, cancel_futures=True)
-        dyn._worker_pool = p
+        dyn._worker_pool, dyn._worker_pool_size = p, size
     return p
 
 
