@@ -118,7 +118,9 @@ def solve_receding(
         max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
         t_start = time.perf_counter()
         try:
+            t_roll = time.perf_counter()
             guess, X0, cold = _warm_start(task, st.guess, x0, r * S)
+            t_roll = time.perf_counter() - t_roll  # the window's initial rollout(s)
             # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
             # trajectory (one more linearization per window), as playback --policy ilqr needs.
             sol = solve(
@@ -144,6 +146,9 @@ def solve_receding(
             st.guess[W - S :] = task.initial_guess(S, st.X[-1], start=k_end - S)
         st.costs += [float(c) for c in sol.costs[1:]]
         st.iteration_seconds += sol.iteration_seconds
+        if sol.iteration_seconds:  # counted in the first iteration, as in a single solve
+            sol.iteration_seconds[0] += t_roll
+            sol.phase_seconds["rollout"][0] += t_roll
         for p in PHASES:
             st.phase_seconds[p] += sol.phase_seconds[p]
         st.resolves.append(
