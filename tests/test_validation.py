@@ -119,7 +119,7 @@ CASES = [
     (
         "unknown-no-contact-with",
         edit(scene=[{"name": "wall", "shape": "box", "no_contact_with": ["gripper"]}]),
-        "scene[0].no_contact_with: 'gripper'",
+        "scene[0].no_contact_with: no collision geometry or body named 'gripper'",
     ),
     ("unknown-initial-state-block", edit(initial_state={"knee": 0.3}), "initial_state.knee"),
     (

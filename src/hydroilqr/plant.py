@@ -189,6 +189,17 @@ def geometry_hits(key: str, geoms: dict) -> list:
     return by_body or by_name
 
 
+def named_geometries(key: str, geoms: dict, where: str) -> list:
+    """``geometry_hits``, or a ConfigError naming ``where`` and the known names if none."""
+    hits = geometry_hits(key, geoms)
+    if not hits:
+        known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
+        raise ConfigError(
+            f"{where}: no collision geometry or body named {key!r} (known: {', '.join(known)})"
+        )
+    return hits
+
+
 def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
     """GeometryId value -> (collision name without model scope, body name)."""
     inspector = scene_graph.model_inspector()
@@ -259,13 +270,7 @@ def _exclude_scene_contacts(task: TaskConfig, plant, scene_graph, scene_ids: lis
     manager = scene_graph.collision_filter_manager()
     for i, (o, gid) in enumerate(zip(task.scene, scene_ids)):
         for key in o.no_contact_with:
-            hits = geometry_hits(key, geoms)
-            if not hits:
-                known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
-                raise ConfigError(
-                    f"scene[{i}].no_contact_with: {key!r} names no collision geometry or body "
-                    f"(known: {', '.join(known)})"
-                )
+            hits = named_geometries(key, geoms, f"scene[{i}].no_contact_with")
             manager.Apply(
                 CollisionFilterDeclaration().ExcludeBetween(GeometrySet(gid), GeometrySet(hits))
             )
@@ -362,14 +367,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         geoms = collision_geometries(plant, scene_graph)
         inspector = scene_graph.model_inspector()
         for key, p in task.geometry.items():
-            hits = geometry_hits(key, geoms)
-            if not hits:
-                known = sorted({n for n, _ in geoms.values()} | {b for _, b in geoms.values()})
-                raise ConfigError(
-                    f"geometry.{key}: no collision geometry or body of that name "
-                    f"(known: {', '.join(known)})"
-                )
-            for gid in hits:
+            for gid in named_geometries(key, geoms, f"geometry.{key}"):
                 old = inspector.GetProximityProperties(gid)
                 shape = type(inspector.GetShape(gid)).__name__.lower()
                 try:
