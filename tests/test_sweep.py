@@ -30,6 +30,8 @@ def test_parse_values():
         with pytest.raises(ConfigError, match="repeated values"):
             parse_values(bad)
     assert parse_values("linspace:5:5:1") == [5.0]
+    with pytest.raises(ConfigError, match="at most 10000 points"):
+        parse_values("linspace:0:1:100000000000")  # refused before numpy allocates it
     g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
     assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
     assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})
@@ -265,3 +267,18 @@ def test_a_key_that_is_not_numeric_is_refused_before_any_work(tmp_path):
     from hydroilqr.sweep import check_numeric_params
 
     check_numeric_params("kinova-forward", {}, None, True, [("ball.friction", [0.3])])
+
+
+def test_a_grid_of_too_many_points_is_refused_before_any_solve(tmp_path):
+    vals = ",".join(str(i) for i in range(1, 201))  # 200 x 200 = 40000 points
+    with pytest.raises(ConfigError, match="40000 points; at most 10000"):
+        run_sweep(
+            "cartpole-wall",
+            [
+                ("tip.hydroelastic_modulus", parse_values(vals)),
+                ("solver.max_iterations", parse_values(vals)),
+            ],
+            tmp_path / "o",
+            smoke=True,
+        )
+    assert not (tmp_path / "o" / "points").exists()

@@ -85,6 +85,9 @@ def _number(text: str, what: str) -> float | int:
     return v
 
 
+MAX_POINTS = 10_000  # points in one sweep
+
+
 def parse_values(spec: str) -> list[float | int]:
     """``1,2,3`` | ``logspace:A:B:N`` (A..B inclusive, log spaced) | ``linspace:A:B:N``."""
     spec = spec.strip()
@@ -97,6 +100,8 @@ def parse_values(spec: str) -> list[float | int]:
         n = _number(parts[3], f"--values {spec!r}")
         if not isinstance(n, int) or n < 1:
             raise ConfigError(f"--values {spec!r}: COUNT must be a positive integer")
+        if n > MAX_POINTS:  # (before numpy allocates them)
+            raise ConfigError(f"--values {spec!r}: COUNT {n}; at most {MAX_POINTS} points")
         if kind == "logspace":
             if a <= 0 or b <= 0:
                 raise ConfigError(f"--values {spec!r}: logspace needs positive START and STOP")
@@ -808,6 +813,12 @@ def run_sweep(
     # One thread per solve: the cluster already runs one worker process per core.
     if not any(k == "solver.threads" for k in overrides):
         overrides["solver.threads"] = 1
+    n = math.prod(len(v) for _, v in params)
+    if n > MAX_POINTS:  # each point is a solve with its own directory and a row of the table
+        raise ConfigError(
+            f"--values: {n} points; at most {MAX_POINTS} in one sweep (fewer values, or split "
+            "the range over several sweeps into the same --out)"
+        )
     points = grid(params)
     # Fail fast on a bad key/value: build the first and last point here.
     for p in (points[0], points[-1]):
