@@ -13,6 +13,7 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     scene:                        # static geometry welded to the world
       - {name: ground, shape: box, size: [25, 25, 1], xyz: [0, 0, -0.5],
          compliance: compliant, hydroelastic_modulus: 5e6, dissipation: 0, friction: 0.5}
+        # (halfspace: slab_thickness; no_contact_with: [names] keeps it from touching those)
     geometry:                     # overrides of the model's collision properties
       tip: {hydroelastic_modulus: 2e6}      # by body name, collision name (every geometry
                                             # of that name) or BODY/COLLISION_NAME
