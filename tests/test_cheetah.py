@@ -445,3 +445,21 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
         "cheetah-trot-1.0", overrides=["receding_horizon.warm_start_tail=guess"], smoke=True
     )
     assert fingerprint(other.config) != fingerprint(task.config)
+
+
+def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):
+    from hydroilqr import cli, receding
+
+    real, calls = receding._warm_start, []
+
+    def second_cold(task, guess, x0, k0):
+        calls.append(k0)
+        U, X, _ = real(task, guess, x0, k0)
+        return U, X, len(calls) == 2
+
+    monkeypatch.setattr(receding, "_warm_start", second_cold)
+    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), "--no-replay"])
+    assert rc == 0
+    assert (
+        "note: 1 window(s) started from the initial guess (resolves 1)" in capsys.readouterr().out
+    )

@@ -171,6 +171,13 @@ def cmd_solve(args) -> int:
         f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
         f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s"
     )
+    cold = [i for i, r in enumerate(sol.extra.get("resolves", [])) if r.get("cold_start")]
+    if cold:
+        console.print(
+            f"note: {len(cold)} window(s) started from the initial guess (resolves "
+            f"{', '.join(map(str, cold[:8]))}{' ...' if len(cold) > 8 else ''}): the shifted "
+            "previous window blew the simulation up when rolled out (extra.resolves)"
+        )
     if args.view:
         from .replay import meshcat_instance
 
