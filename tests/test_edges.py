@@ -436,6 +436,10 @@ def test_check_names_the_contact_model_of_each_pair():
     kinds, warnings = models([*rigid, post, "solver.derivatives=autodiff"])
     assert sorted(kinds) == ["hydroelastic", "point (fallback)"]
     assert any("point-contact pairs under autodiff" in w for w in warnings)
+    # A scene object's no_contact_with removes its pairs (the wall here: none left).
+    filtered = post.replace("compliance: rigid}", "compliance: rigid, no_contact_with: [tip]}")
+    kinds, _ = models([*rigid, filtered])
+    assert kinds == ["hydroelastic"]  # only the post's pair with the tip
 
 
 # ------------------------------------------------------------------------------------------

@@ -303,6 +303,12 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     console.print(t)
     if len(pairs) > shown:
         console.print(f"  ... and {len(pairs) - shown} more pairs")
+    for i, o in enumerate(cfg.scene):
+        if o.no_contact_with:
+            console.print(
+                f"  scene[{i}] ({o.name or f'scene_{i}'}) never touches: "
+                f"{', '.join(o.no_contact_with)} (no_contact_with; not listed above)"
+            )
     out["pairs"] = pairs
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
