@@ -1,6 +1,7 @@
 """Mini Cheetah gait discovery (paper §IV-A): task setup and smoke-sized receding-horizon solves."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -81,31 +82,15 @@ def test_standing_contacts():
     assert not any("body" in a for a, _, _ in surfaces)
 
 
-def half_space_ground(name: str = "cheetah-trot-1.0") -> Task:
-    """The task with its ground split (tried in session 11, see _cheetah_base.yaml): the feet
-    touch a compliant half space with the box's pressure field near its top face (box 1 m
-    thick: p = E d / 0.5 m; half space with slab 0.5 m), the compliant body touches the box
-    (a compliant half space cannot touch compliant geometry)."""
-    box = Task.load(name).config.scene[0]
-    ground = {
-        k: getattr(box, k)
-        for k in ("name", "shape", "size", "xyz", "compliance", "hydroelastic_modulus")
-        + ("dissipation", "friction", "resolution_hint")
-    }
-    feet = {
-        **ground,
-        "name": "ground_feet",
-        "shape": "halfspace",
-        "xyz": [0, 0, 0],
-        "slab_thickness": 0.5,
-        "no_contact_with": ["body"],
-    }
-    del feet["size"], feet["resolution_hint"]
-    ground["no_contact_with"] = sorted(FEET)
-    return Task.load(
-        name,
-        overrides={"scene": [ground, feet], "metric_params.ground": ["ground", "ground_feet"]},
-    )
+SPLIT = Path(__file__).parent.parent / "examples" / "cheetah-split-ground.yaml"
+
+
+def half_space_ground() -> Task:
+    """examples/cheetah-split-ground.yaml: the feet touch a compliant half space with the box's
+    pressure field near its top face (box 1 m thick: p = E d / 0.5 m; half space with slab
+    0.5 m), the compliant body touches the box (a compliant half space cannot touch compliant
+    geometry)."""
+    return Task.from_yaml(SPLIT)
 
 
 def test_a_ground_of_two_geometries_each_touching_its_own():
