@@ -46,6 +46,8 @@ PAPER = [
 # of AutoDiff and batched forward differences, chosen per task by a short probe
 # (``probe_derivatives``; ``--fast solver.derivatives=...`` skips it); exact derivatives at
 # every other step and on both sides of every contact event, interpolated in between.
+# (``--fast solver.fd_forces=true``: finite differences over generalized forces, see
+# docs/performance.md.)
 FAST = [
     "plant.contact_approximation=sap",
     "solver.derivative_interval=2",

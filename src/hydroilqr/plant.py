@@ -64,6 +64,7 @@ class Scene:
     plant: object
     scene_graph: object
     actuation_port: int  # diagram input port index of the plant's actuation
+    force_port: int = -1  # diagram input port index of the plant's applied generalized force
     meshcat: object | None = None
     visualizers: tuple = ()
 
@@ -383,6 +384,10 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     if plant.num_actuated_dofs() == 0:
         raise ConfigError("models: the model has no actuated joints")
     port = builder.ExportInput(plant.get_actuation_input_port(), "actuation")
+    # Unfixed (so zero) except in the finite differences over generalized forces (derivatives).
+    force_port = builder.ExportInput(
+        plant.get_applied_generalized_force_input_port(), "generalized_force"
+    )
 
     visualizers = ()
     if meshcat is not None:
@@ -400,7 +405,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
             cvis = ContactVisualizer.AddToBuilder(builder, plant, meshcat, cparams)
             visualizers += (cvis,)
     diagram = builder.Build()
-    return Scene(diagram, plant, scene_graph, int(port), meshcat, visualizers)
+    return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
 
 
 class Dynamics:
@@ -561,6 +566,37 @@ class Dynamics:
             if np.linalg.norm(step) < 1e-8:
                 break
         return u
+
+    def force_path(self):
+        """For finite differences over generalized forces (``derivatives``): the diagram
+        context with the actuation fixed to zero and the applied generalized force port as the
+        input, the actuation matrix ``B: [nv, nu]`` (τ = B u), and whether a step depends on
+        (v, u) only through the free-motion velocity v* = v + dt M(q)⁻¹ (B u − C(q, v) v +
+        τ_g(q)): SAP or TAMSI contact, no joint damping, no PD-controlled actuators and no force
+        element but gravity. ``None`` if the model does not qualify. Built once."""
+        if not hasattr(self, "_force_path"):
+            p = self.plant
+            ok = (
+                self.task.plant.contact_approximation in ("sap", "tamsi")
+                and p.num_force_elements() == 1
+                and not any(
+                    p.get_joint_actuator(i).has_controller() for i in p.GetJointActuatorIndices()
+                )
+                and not any(
+                    np.any(p.get_joint(j).default_damping_vector() != 0)
+                    for j in p.GetJointIndices()
+                    if p.get_joint(j).num_velocities() > 0
+                )
+            )
+            self._force_path = None
+            if ok:
+                context = self.diagram.CreateDefaultContext()
+                self._input.FixValue(context, np.zeros(self.nu))
+                port = self.diagram.get_input_port(self.scene.force_port)
+                port.FixValue(context, np.zeros(self.nv))
+                plant_context = p.GetMyMutableContextFromRoot(context)
+                self._force_path = (context, plant_context, port, p.MakeActuationMatrix())
+        return self._force_path
 
     def _effort_limits(self) -> np.ndarray:
         lim = []

@@ -1,0 +1,74 @@
+"""Finite differences over generalized forces (derivatives._force_differences) against the
+plain (x, u) differences they replace."""
+
+import numpy as np
+import pytest
+
+from hydroilqr import Task
+from hydroilqr.derivatives import _finite_differences, linearize
+
+
+def _compare(dyn, X, U, central):
+    A1, B1 = _finite_differences(dyn, X, U, central, 1e-6, 1, forces=True)
+    A0, B0 = _finite_differences(dyn, X, U, central, 1e-6, 1, forces=False)
+    J1, J0 = np.concatenate([A1, B1], axis=2), np.concatenate([A0, B0], axis=2)
+    return np.array([np.abs(J1[k] - J0[k]).max() / np.abs(J0[k]).max() for k in range(len(J0))])
+
+
+def test_cartpole_through_wall_contact():
+    task = Task.load("cartpole-wall", overrides=["num_steps=40"])
+    dyn = task.dynamics
+    assert dyn.force_path() is not None
+    U = 8.0 * np.random.default_rng(1).standard_normal((40, 1))
+    X = dyn.rollout(task.x0, U)
+    assert _compare(dyn, X[:-1], U, central=True).max() < 1e-6
+    assert _compare(dyn, X[:-1], U, central=False).max() < 1e-4
+
+
+def test_cheetah_standing_and_commands_beyond_effort_limits():
+    """Four feet in contact, a floating base (quaternion), and two commands beyond their
+    effort limits, whose columns of f_u are zero either way (Drake clips)."""
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    dyn = task.dynamics
+    U = np.tile(task.initial_guess(1)[0], (4, 1))
+    U += 0.5 * np.random.default_rng(2).standard_normal(U.shape)
+    X = dyn.rollout(task.x0, U)
+    U[1, 2] = 3.0 * dyn.effort_limits[2]
+    U[3, 5] = -3.0 * dyn.effort_limits[5]
+    X = X[:-1]
+    assert _compare(dyn, X, U, central=True).max() < 1e-5
+    _, B = _finite_differences(dyn, X, U, True, 1e-6, 1, forces=True)
+    assert np.all(B[1][:, 2] == 0) and np.all(B[3][:, 5] == 0)
+
+
+def test_kinova_moving_arm_and_falling_ball():
+    """A 7-joint chain moving fast (a full mass matrix, Coriolis terms) and a free ball in the
+    air: f_v = G_τ (M/dt − ∂(Cv)/∂v) is then checked on its own, without contact. (With the ball
+    at rest on the ground, its spin is held by torsional friction, a steep regularized law where
+    differences of either kind are off from AutoDiff by up to 1e-2 on some steps, differently.)"""
+    task = Task.load("kinova-forward", smoke=True)
+    dyn = task.dynamics
+    x0 = task.x0.copy()
+    x0[dyn.nq - 1] = 0.6  # ball z
+    x0[dyn.nq : dyn.nq + 7] = np.linspace(-1.5, 1.5, 7)  # arm joint velocities, rad/s
+    x0[dyn.nq + 7 : dyn.nq + 10] = [0.5, -2.0, 1.0]  # ball spin
+    U = task.initial_guess(10) + 0.2
+    X = dyn.rollout(x0, U)
+    assert not dyn.contact_pairs(X[5])
+    assert _compare(dyn, X[:-1], U, central=True).max() < 1e-6
+
+
+@pytest.mark.parametrize("approximation", ["lagged", "similar"])
+def test_other_contact_approximations_use_plain_differences(approximation):
+    """Lagged and similar approximations take normal forces at the previous velocity: a step
+    is then not a function of the free-motion velocity alone, so (x, u) differences are kept."""
+    task = Task.load(
+        "cartpole-wall",
+        overrides=["num_steps=10", f"plant.contact_approximation={approximation}"],
+    )
+    assert task.dynamics.force_path() is None
+    U = np.ones((10, 1))
+    X = task.dynamics.rollout(task.x0, U)
+    A, B = linearize(task.dynamics, X, U, "central")
+    A0, B0 = _finite_differences(task.dynamics, X[:-1], U, True, 1e-6, 0, forces=False)
+    assert np.array_equal(A, A0) and np.array_equal(B, B0)
