@@ -43,7 +43,8 @@ PAPER = [
     "solver.line_search_workers=1",  # one trial after another
 ]
 # The fastest configuration measured on this machine (docs/performance.md): SAP; the cheaper
-# of AutoDiff and batched forward differences, chosen per task by a short probe
+# of AutoDiff (in one worker process per core) and batched forward differences (on threads),
+# chosen per task by a short probe
 # (``probe_derivatives``; ``--fast solver.derivatives=...`` skips it); exact derivatives at
 # every other step and on both sides of every contact event, interpolated in between.
 # (``--fast solver.fd_forces=true``: finite differences over generalized forces, see
@@ -52,6 +53,7 @@ FAST = [
     "plant.contact_approximation=sap",
     "solver.derivative_interval=2",
     "solver.derivative_adaptive=true",
+    "solver.autodiff_workers=0",
 ]
 
 
