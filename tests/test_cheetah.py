@@ -404,8 +404,9 @@ def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch
 
 
 def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
-    """Checkpoints written before receding_horizon.warm_start_tail and scene no_contact_with
-    existed still resume: at their defaults those keys do not enter the fingerprint."""
+    """Checkpoints written before receding_horizon.warm_start_tail, scene no_contact_with and
+    solver.fd_forces existed still resume: at their defaults those keys do not enter the
+    fingerprint."""
     import dataclasses
     import hashlib
     import json
@@ -419,6 +420,7 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
             d.get("solver", {}).pop(key, None)
         d.pop("mpc", None)
         del d["receding_horizon"]["warm_start_tail"]
+        del d["solver"]["fd_forces"]
         for o in d["scene"]:
             del o["no_contact_with"]
         text = json.dumps(d, sort_keys=True, default=str)
@@ -430,6 +432,8 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
         "cheetah-trot-1.0", overrides=["receding_horizon.warm_start_tail=guess"], smoke=True
     )
     assert fingerprint(other.config) != fingerprint(task.config)
+    forces = Task.load("cheetah-trot-1.0", overrides=["solver.fd_forces=true"], smoke=True)
+    assert fingerprint(forces.config) != fingerprint(task.config)
 
 
 def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):

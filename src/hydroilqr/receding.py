@@ -259,6 +259,8 @@ def fingerprint(cfg) -> str:
     # Keys added after checkpoints existed leave a fingerprint unchanged at their defaults.
     if (d.get("receding_horizon") or {}).get("warm_start_tail") == "last":
         del d["receding_horizon"]["warm_start_tail"]
+    if not (d.get("solver") or {}).get("fd_forces", True):
+        del d["solver"]["fd_forces"]
     for o in d.get("scene", []):
         if not o.get("no_contact_with"):
             o.pop("no_contact_with", None)
