@@ -118,11 +118,15 @@ def test_a_ground_of_two_geometries_each_touching_its_own():
     assert abs(dyn.rollout(task.x0, U)[-1, z] - box.rollout(task.x0, U)[-1, z]) < 1e-5
 
 
-def test_standing_partials_autodiff_equal_central_differences():
+@pytest.mark.parametrize("fd_forces", [False, True])
+def test_standing_partials_autodiff_equal_central_differences(fd_forces):
     """Feet (rigid) on a compliant half space: AutoDiff is exact here, and central
-    differences agree with it to 1e-4 relative (issue 7's bar for exact modes)."""
+    differences (over (x, u) or over generalized forces) agree with it to 1e-4 relative
+    (issue 7's bar for exact modes)."""
     task = half_space_ground()
+    task.config.solver.fd_forces = fd_forces
     dyn = task.dynamics
+    assert dyn.task.solver.fd_forces is fd_forces and dyn.force_path() is not None
     rng = np.random.default_rng(3)
     u = task.initial_guess(1)[0]
     X = dyn.rollout(task.x0, np.tile(u, (6, 1)))
