@@ -1,11 +1,15 @@
 """Finite differences over generalized forces (derivatives._force_differences) against the
 plain (x, u) differences they replace."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from hydroilqr import Task
 from hydroilqr.derivatives import _finite_differences, linearize
+
+GRIPPER = str(Path(__file__).parent.parent / "examples" / "gripper-brick.yaml")
 
 
 def _compare(dyn, X, U, central):
@@ -72,3 +76,20 @@ def test_other_contact_approximations_use_plain_differences(approximation):
     A, B = linearize(task.dynamics, X, U, "central")
     A0, B0 = _finite_differences(task.dynamics, X[:-1], U, True, 1e-6, 0, forces=False)
     assert np.array_equal(A, A0) and np.array_equal(B, B0)
+
+
+def test_damped_joints_under_sap_but_not_under_tamsi():
+    """Drake's planar gripper has damped finger joints (0.1 N m s). SAP applies the damping
+    implicitly and the differences over forces match; TAMSI does not, and keeps (x, u)."""
+    task = Task.load(GRIPPER, overrides=["num_steps=10"])
+    dyn = task.dynamics
+    assert dyn.force_path() is not None
+    U = task.initial_guess(10) + 0.3 * np.random.default_rng(0).standard_normal((10, dyn.nu))
+    X = dyn.rollout(task.x0, U)
+    assert any(dyn.contact_pairs(x) for x in X)
+    assert _compare(dyn, X[:-1], U, central=True).max() < 1e-6
+    tamsi = Task.load(
+        GRIPPER,
+        overrides=["num_steps=10", "plant.contact_approximation=tamsi"],
+    )
+    assert tamsi.dynamics.force_path() is None

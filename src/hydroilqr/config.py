@@ -184,11 +184,12 @@ class SolverConfig:
     max_iterations: int = 100
     derivatives: str = "central"  # a DerivativeMethod value: autodiff | forward | central
     fd_epsilon: float = 1e-6
-    # Finite differences over applied generalized forces where the model allows (SAP or TAMSI,
-    # no joint damping, no PD actuators): nq + nv perturbed steps per time step instead of
-    # nx + nu, f_v and f_u then follow from f_τ (derivatives._force_differences). Same partials
-    # up to rounding; pays with many actuators (Mini Cheetah partials 1.25x faster), not with
-    # one (cart-pole: no faster). Off: perturb (x, u) one coordinate at a time.
+    # Finite differences over applied generalized forces where the model allows (SAP, or TAMSI
+    # without joint damping; no PD actuators: Dynamics.force_path): nq + nv perturbed steps per
+    # time step instead of nx + nu, f_v and f_u then follow from f_τ
+    # (derivatives._force_differences). Same partials up to rounding; pays with many actuators
+    # (Mini Cheetah and planar gripper partials 1.25-1.3x faster), not with one (cart-pole: no
+    # faster). Off: perturb (x, u) one coordinate at a time.
     fd_forces: bool = False
     threads: int = 0  # 0 = all cores
     relative_cost_tolerance: float = 1e-4
