@@ -93,3 +93,15 @@ def test_damped_joints_under_sap_but_not_under_tamsi():
         overrides=["num_steps=10", "plant.contact_approximation=tamsi"],
     )
     assert tamsi.dynamics.force_path() is None
+
+
+def test_rollout_next_states_serve_as_the_unperturbed_steps():
+    """Forward differences reuse a rollout's next states as f(x_k, u_k); through the force
+    input the unperturbed step is bitwise the actuation input's, so both give the same partials."""
+    task = Task.load("cartpole-wall", overrides=["num_steps=30", "solver.fd_forces=true"])
+    dyn = task.dynamics
+    U = 6.0 * np.random.default_rng(4).standard_normal((30, 1))
+    X = dyn.rollout(task.x0, U)
+    A1, B1 = linearize(dyn, X, U, "forward", rollout=True)
+    A0, B0 = linearize(dyn, X, U, "forward", rollout=False)
+    assert np.array_equal(A1, A0) and np.array_equal(B1, B0)
