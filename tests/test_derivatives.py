@@ -105,3 +105,18 @@ def test_rollout_next_states_serve_as_the_unperturbed_steps():
     A1, B1 = linearize(dyn, X, U, "forward", rollout=True)
     A0, B0 = linearize(dyn, X, U, "forward", rollout=False)
     assert np.array_equal(A1, A0) and np.array_equal(B1, B0)
+
+
+def test_check_reports_the_steps_per_time_step():
+    from rich.console import Console
+
+    from hydroilqr.check import check_task
+
+    quiet = Console(quiet=True)
+    grip = check_task(Task.load(GRIPPER, overrides=["num_steps=10"]), quiet, rollout_steps=3)
+    assert grip["fd_steps_per_time_step"] == 18  # nq + nv = 9 + 9, not nx + nu = 24
+    lagged = Task.load(
+        "cartpole-wall",
+        overrides=["num_steps=10", "solver.fd_forces=true", "plant.contact_approximation=lagged"],
+    )
+    assert check_task(lagged, quiet, rollout_steps=3)["fd_steps_per_time_step"] == 5

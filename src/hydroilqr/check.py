@@ -173,6 +173,27 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         f"derivatives={cfg.solver.derivatives}"
     )
 
+    if cfg.solver.derivatives in ("forward", "central"):
+        plain, forces = dyn.nx + dyn.nu, dyn.nq + dyn.nv
+        qualifies = dyn.force_path() is not None
+        out["fd_steps_per_time_step"] = forces if cfg.solver.fd_forces and qualifies else plain
+        if cfg.solver.fd_forces and qualifies:
+            console.print(
+                f"  differences over generalized forces (solver.fd_forces): {forces} perturbed "
+                f"steps per time step instead of {plain}"
+            )
+        elif cfg.solver.fd_forces:
+            console.print(
+                "  solver.fd_forces: this model does not qualify (it needs SAP, or TAMSI without "
+                "joint damping, and no PD actuators): plain differences, "
+                f"{plain} steps per time step"
+            )
+        elif qualifies and forces < plain - 1:
+            console.print(
+                f"  (solver.fd_forces: true would take {forces} perturbed steps per time step "
+                f"instead of {plain}; docs/performance.md)"
+            )
+
     if cfg.continuation:
         task.validate()  # builds every stage: bad keys or sizes are named here
         for i, stage in enumerate(cfg.continuation):
