@@ -283,6 +283,24 @@ def test_foot_slip_is_zero_standing_and_body_speed_when_dragged():
     np.testing.assert_allclose(dragged, 1.0, atol=1e-9)
 
 
+def test_foot_load_standing_carries_the_weight():
+    """Standing with the standing torques: the four feet carry the robot's weight between
+    them, each about a quarter (front and hind legs are alike)."""
+    from types import SimpleNamespace
+
+    from hydroilqr.metrics_cheetah import foot_vertical_forces
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    dyn = task.dynamics
+    U = np.tile(task.initial_guess(1)[0], (3, 1))
+    X = dyn.rollout(task.x0, U)
+    F = foot_vertical_forces(task, SimpleNamespace(X=X, U=U))
+    mg = dyn.plant.CalcTotalMass(dyn.plant_context) * 9.81
+    assert F.shape == (3, 4)
+    np.testing.assert_allclose(F.sum(axis=1) / mg, 1.0, rtol=0.05)
+    np.testing.assert_allclose(F / mg, 0.25, atol=0.05)
+
+
 def test_checkpoint_of_other_settings_refused(tmp_path):
     from hydroilqr.config import ConfigError
     from hydroilqr.receding import load_checkpoint

@@ -64,6 +64,9 @@ def test_cheetah_metrics_on_a_synthetic_contact_pattern(cheetah, monkeypatch):
     sol, feet, faces, body, S = _synthetic_cheetah_run(cheetah)
     monkeypatch.setattr(mc, "contacts", lambda task, s: (feet, faces, body))
     monkeypatch.setattr(mc, "foot_slip_speeds", lambda task, s: S)
+    F = np.tile(10.0 * np.arange(1, 5), (len(sol.t) - 1, 1))  # [N, 4]: 10, 20, 30, 40 N
+    F[:4] = 500.0  # while settling: ignored
+    monkeypatch.setattr(mc, "foot_vertical_forces", lambda task, s: F)
     m = mc.cheetah_metrics(cheetah, sol)
 
     settled = np.arange(len(sol.t)) >= 4  # t - t0 >= 0.2 s
@@ -95,6 +98,10 @@ def test_cheetah_metrics_on_a_synthetic_contact_pattern(cheetah, monkeypatch):
     slip = {lab: np.median(S[stance[:, j], j]) for j, lab in enumerate(("FL", "FR", "HL", "HR"))}
     assert all(v < 0.05 for v in slip.values())  # the three fast steps do not move the median
     assert m["foot_slip_mps"] == pytest.approx(slip)
+    mg = cheetah.dynamics.plant.CalcTotalMass(cheetah.dynamics.plant_context) * 9.81
+    assert m["foot_load"] == pytest.approx(
+        {lab: 10.0 * (j + 1) / mg for j, lab in enumerate(("FL", "FR", "HL", "HR"))}
+    )
     assert m["max_foot_faces"] == 9
     assert m["mean_foot_faces"] == pytest.approx(faces[feet].mean())
     assert m["mean_foot_faces"] > faces.mean()  # over touching states only

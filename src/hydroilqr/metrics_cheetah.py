@@ -22,6 +22,10 @@
 * ``foot_slip_mps``: per foot, the median horizontal speed of the foot's lowest material point
   while it touches the ground (t ≥ 0.2 s): ~0 for a planted (rolling, pivoting) foot, large
   for one that slides;
+* ``foot_load``: per foot, its mean vertical ground force while it touches the ground (t ≥ 0.2
+  s), as a fraction of the robot's weight m·g, from the contact solve of each step (x_k, u_k):
+  a standing robot has ~0.25 on each foot; a foot that touches but carries ~0 only grazes
+  (or is dragged lightly, with ``foot_slip_mps``);
 * ``max_foot_faces`` / ``mean_foot_faces``: contact polygons of one foot on the ground (most,
   and mean over the states where it touches);
 * ``iterations_per_resolve`` (mean) and ``resolve_seconds`` (mean) for receding-horizon runs.
@@ -153,6 +157,45 @@ def foot_slip_speeds(task, sol) -> np.ndarray:
     return S
 
 
+def foot_vertical_forces(task, sol) -> np.ndarray:
+    """Vertical ground force on each foot (N, from the contact results of the step from
+    (X[k], U[k])): [N, 4] for X: [N+1, nx], U: [N, nu] (the last state has no step); [0, 4]
+    for a run without controls."""
+    dyn = task.dynamics
+    plant = dyn.plant
+    p = _params(task)
+    ids = {gid: name for gid, (name, _) in dyn.geometry_names().items()}
+    X = np.asarray(sol.X)
+    U = getattr(sol, "U", None)
+    U = np.zeros((0, dyn.nu)) if U is None else np.asarray(U)
+    if U.ndim != 2 or U.shape[1] != dyn.nu or len(U) >= len(X):
+        U = np.zeros((0, dyn.nu))  # no controls for these states: no forces
+    F = np.zeros((len(U), 4))
+    port = plant.get_contact_results_output_port()
+    for k in range(len(U)):
+        plant.SetPositionsAndVelocities(dyn.plant_context, X[k])
+        dyn._input.FixValue(dyn.context, U[k])
+        results = port.Eval(dyn.plant_context)
+        for i in range(results.num_hydroelastic_contacts()):
+            info = results.hydroelastic_contact_info(i)
+            s = info.contact_surface()
+            names = (ids.get(s.id_M()), ids.get(s.id_N()))
+            if not any(n in p["ground"] for n in names):
+                continue
+            for n in names:
+                if n in p["feet"]:
+                    F[k, p["feet"].index(n)] += abs(info.F_Ac_W().translational()[2])
+        for i in range(results.num_point_pair_contacts()):
+            info = results.point_pair_contact_info(i)
+            names = (ids.get(info.point_pair().id_A), ids.get(info.point_pair().id_B))
+            if not any(n in p["ground"] for n in names):
+                continue
+            for n in names:
+                if n in p["feet"]:
+                    F[k, p["feet"].index(n)] += abs(info.contact_force()[2])
+    return F
+
+
 def pair_sync(f: np.ndarray) -> dict[str, float]:
     """f: [T, 4] foot contact flags (FL, FR, HL, HR) -> for each pair kind, the fraction of
     steps in which both feet of a pair are in the same phase, averaged over its pairs."""
@@ -198,6 +241,7 @@ def cheetah_metrics(task, sol) -> dict:
         "pair_sync": pair_sync(f),
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
         "foot_slip_mps": _stance_slip(task, sol, feet, settled, labels),
+        "foot_load": _foot_load(task, sol, feet, settled, labels),
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
     }
@@ -216,6 +260,23 @@ def _stance_slip(task, sol, feet, settled, labels) -> dict[str, float]:
     on = feet & settled[:, None]
     return {
         lab: float(np.median(S[on[:, j], j])) if on[:, j].any() else 0.0
+        for j, lab in enumerate(labels)
+    }
+
+
+def _foot_load(task, sol, feet, settled, labels) -> dict[str, float]:
+    """Per foot, mean vertical force over the stepped states where it touches the ground
+    (t ≥ settle), divided by m·g."""
+    dyn = task.dynamics
+    weight = dyn.plant.CalcTotalMass(dyn.plant_context) * float(
+        np.linalg.norm(dyn.plant.gravity_field().gravity_vector())
+    )
+    F = foot_vertical_forces(task, sol)
+    if not len(F):
+        return {}  # a run without controls
+    on = (feet & settled[:, None])[: len(F)]
+    return {
+        lab: float(np.mean(F[on[:, j], j]) / weight) if on[:, j].any() and weight > 0 else 0.0
         for j, lab in enumerate(labels)
     }
 
