@@ -64,7 +64,7 @@ def test_ilqr_policy_on_the_planner_model_reproduces_the_plan(run_dir):
     np.testing.assert_allclose(r.reference.u, pd.reference.u, rtol=0, atol=1e-12)
 
 
-def test_cli_playback_writes_outputs(run_dir, tmp_path):
+def test_cli_playback_writes_outputs(run_dir, tmp_path, capsys):
     from hydroilqr.cli import main
 
     out = tmp_path / "pb"
@@ -84,6 +84,10 @@ def test_cli_playback_writes_outputs(run_dir, tmp_path):
         )
         == 0
     )
+    # The PD+ policy's warning (the pole is unactuated) goes to stderr, the report to stdout.
+    cap = capsys.readouterr()
+    assert "warning:" in cap.err and "unactuated" in cap.err and "warning:" not in cap.out
+    assert "truth steps in" in cap.out
     data = json.loads((out / "playback.json").read_text())
     for key in ("object", "joint_tracking", "settings", "truth", "saturated_fraction"):
         assert key in data

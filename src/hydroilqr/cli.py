@@ -21,6 +21,13 @@ from .progress import IterationTable
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
 console = Console(stderr=False, highlight=False, width=None if sys.stdout.isatty() else 160)
+# Warnings go to stderr, so they stay visible when a run's report on stdout is piped or kept.
+err_console = Console(stderr=True, highlight=False, width=None if sys.stderr.isatty() else 160)
+
+
+def warn(message: str) -> None:
+    """Prints ``warning: message`` on stderr (rich markup allowed)."""
+    err_console.print(f"[yellow]warning:[/yellow] {message}")
 
 
 # ------------------------------------------------------------------------------------------
@@ -100,8 +107,8 @@ def cmd_solve(args) -> int:
         unfinished = ck_state.done < task.config.receding_horizon.resolves
         changed = receding.environment_change(ck_state) if unfinished else ""
         if changed:
-            console.print(
-                f"[yellow]warning:[/yellow] resuming in another environment ({changed}): the "
+            warn(
+                f"resuming in another environment ({changed}): the "
                 "finished windows keep their last bits and the rest get this environment's, so "
                 "the result will match an uninterrupted run in neither (extra.environments)"
             )
@@ -139,7 +146,7 @@ def cmd_solve(args) -> int:
 
     warning = "" if resume_dir else start_warning(task)  # a resumed run starts elsewhere
     if warning:
-        console.print(f"[yellow]warning:[/yellow] {warning} (see `hydroilqr check`)")
+        warn(f"{warning} (see `hydroilqr check`)")
     t0 = time.perf_counter()
     if cfg.receding_horizon is not None:
         from .progress import ResolveProgress

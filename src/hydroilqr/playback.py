@@ -833,7 +833,7 @@ def cmd_playback(args) -> int:
     )
     early = advisories(task.dynamics.plant, settings)
     for w in early:
-        con.print(f"[yellow]warning:[/yellow] {w}")
+        cli.warn(w)
     r = playback(task, sol, settings)
     from .report import deferred_interrupt
 
@@ -853,7 +853,7 @@ def cmd_playback(args) -> int:
     )
     for w in data.get("warnings", []):
         if w not in early:
-            con.print(f"[yellow]warning:[/yellow] {w}")
+            cli.warn(w)
     con.print(
         f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
         + ("" if args.no_replay else ", playback.html")
