@@ -1,7 +1,8 @@
 """Command-line interface: ``hydroilqr <command> ...`` (see ``hydroilqr --help``).
 
 Every command reports bad input as one line on stderr and exits non-zero; set
-HYDROILQR_DEBUG=1 to see tracebacks.
+HYDROILQR_DEBUG=1 to see tracebacks. Warnings of a run also go to stderr (``warn``), its report
+to stdout.
 """
 
 from __future__ import annotations
