@@ -137,7 +137,7 @@ def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):
 
 
 def test_audit_cases_round_trip_overrides_resolver_and_truthy_callbacks(task):
-    from hydroilqr.config import yaml_value
+    from hydroilqr.problem.config import yaml_value
 
     kin = Task.load("kinova-forward", smoke=True)  # sets num_steps
     again = Task.from_dict(kin.config.to_dict(), base_dir=kin.config.base_dir)
@@ -164,7 +164,7 @@ def test_computed_guess_holds_the_given_state():
 def test_worker_pools_close_with_their_tasks():
     import gc
 
-    from hydroilqr import workers
+    from hydroilqr.model import workers
 
     base = Task.load("cartpole-wall", smoke=True, overrides=["solver.line_search_workers=2"])
     pools = []
@@ -188,7 +188,8 @@ def test_version_names_what_decides_the_last_bits(capsys):
 
 def test_version_says_unknown_when_git_gives_no_commit(capsys, monkeypatch):
     """Outside a git checkout, or one git refuses (another user's: "dubious ownership")."""
-    from hydroilqr import cli, report
+    from hydroilqr import cli
+    from hydroilqr.output import report
 
     monkeypatch.setattr(report, "code_version", lambda: "")
     with pytest.raises(SystemExit):
@@ -251,8 +252,8 @@ def test_stopping_inside_a_stage_returns_the_task_models_trajectory(task):
 def test_a_worker_dying_during_autodiff_costs_time_not_the_solve(monkeypatch):
     from concurrent.futures.process import BrokenProcessPool
 
-    from hydroilqr import workers
-    from hydroilqr.derivatives import autodiff_serial
+    from hydroilqr.model import workers
+    from hydroilqr.model.derivatives import autodiff_serial
 
     class Dead:  # the future of a chunk whose worker process was killed
         def result(self):
@@ -279,7 +280,7 @@ def test_settings_dict_changes_each_stage_own_solver_section():
 
 
 def test_continuation_stage_solves_its_model_and_seeds_the_next():
-    from hydroilqr.ilqr import solve as ilqr_solve
+    from hydroilqr.solver.ilqr import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=2")
     staged = task.with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
@@ -301,7 +302,7 @@ def test_a_continuation_reports_the_initial_cost_on_the_task_model():
 
 
 def test_a_dict_task_extends_a_file_relative_to_its_base_dir(tmp_path):
-    from hydroilqr.config import TASKS_DIR
+    from hydroilqr.problem.config import TASKS_DIR
 
     data = {"extends": "cartpole-wall.yaml", "name": "soft"}
     data["geometry"] = {"tip": {"hydroelastic_modulus": 1e5}}

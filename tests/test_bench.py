@@ -58,7 +58,9 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     import numpy as np
     import pytest
 
-    from hydroilqr import Task, bench, ilqr
+    from hydroilqr import Task
+    from hydroilqr.solver import ilqr
+    from hydroilqr.studies import bench
 
     seen, order = [], []
 
@@ -111,7 +113,7 @@ def test_fast_derivative_paths_match_exact_ones():
     import numpy as np
 
     from hydroilqr import Task
-    from hydroilqr.derivatives import contact_events, linearize
+    from hydroilqr.model.derivatives import contact_events, linearize
 
     task = Task.load("cartpole-wall", ["horizon=0.6"])
     dyn = task.dynamics

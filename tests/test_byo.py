@@ -13,7 +13,7 @@ import pytest
 from rich.console import Console
 
 from hydroilqr import Task, cli, solve
-from hydroilqr.check import check_task
+from hydroilqr.problem.check import check_task
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"

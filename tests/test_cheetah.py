@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task, linearize
-from hydroilqr.api import solve
-from hydroilqr.config import list_tasks
 from hydroilqr.metrics import compute
-from hydroilqr.receding import CHECKPOINT
+from hydroilqr.problem.config import list_tasks
+from hydroilqr.solver.api import solve
+from hydroilqr.solver.receding import CHECKPOINT
 
 TASKS = ["cheetah-trot-0.5", "cheetah-trot-1.0"]
 
@@ -140,7 +140,7 @@ def test_standing_partials_autodiff_equal_central_differences(fd_forces):
 
 
 def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
-    from hydroilqr import report
+    from hydroilqr.output import report
 
     task, sol, _ = smoke_run
     rh = task.config.receding_horizon
@@ -192,7 +192,7 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     _, full, full_dir = smoke_run
     assert (full_dir / CHECKPOINT).exists()
 
-    from hydroilqr.receding import load_checkpoint
+    from hydroilqr.solver.receding import load_checkpoint
 
     _interrupt_after(2, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
     # A fresh process would rebuild the task; so does this.
@@ -238,7 +238,7 @@ def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
     import json
     import shutil
 
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     _, _, full_dir = smoke_run
     shutil.copy(full_dir / CHECKPOINT, tmp_path / CHECKPOINT)
@@ -254,7 +254,7 @@ def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
 
 def test_pair_sync_names_the_gait():
     """pair_sync on synthetic contact patterns: a trot, a pace and a bound."""
-    from hydroilqr.metrics_cheetah import pair_sync as sync
+    from hydroilqr.metrics.cheetah import pair_sync as sync
 
     phase = (np.arange(40) // 5) % 2 == 0  # 5 steps down, 5 up
     trot = np.stack([phase, ~phase, ~phase, phase], axis=1)  # FL+HR, FR+HL together
@@ -270,7 +270,7 @@ def test_foot_slip_is_zero_standing_and_body_speed_when_dragged():
     translates rigidly."""
     from types import SimpleNamespace
 
-    from hydroilqr.metrics_cheetah import foot_slip_speeds
+    from hydroilqr.metrics.cheetah import foot_slip_speeds
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     x = task.x0.copy()
@@ -288,7 +288,7 @@ def test_foot_load_standing_carries_the_weight():
     them, each about a quarter (front and hind legs are alike)."""
     from types import SimpleNamespace
 
-    from hydroilqr.metrics_cheetah import foot_vertical_forces
+    from hydroilqr.metrics.cheetah import foot_vertical_forces
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     dyn = task.dynamics
@@ -302,8 +302,8 @@ def test_foot_load_standing_carries_the_weight():
 
 
 def test_checkpoint_of_other_settings_refused(tmp_path):
-    from hydroilqr.config import ConfigError
-    from hydroilqr.receding import load_checkpoint
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.solver.receding import load_checkpoint
 
     def stop(done, total, sol):
         raise _Stop
@@ -317,7 +317,7 @@ def test_checkpoint_of_other_settings_refused(tmp_path):
 
 @pytest.mark.parametrize("tail", ["last", "guess"])
 def test_windows_start_at_their_time_and_from_shifted_controls(monkeypatch, tail):
-    from hydroilqr import receding
+    from hydroilqr.solver import receding
 
     calls = []
     real = receding.solve
@@ -351,8 +351,8 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
     changed would stitch two models into one trajectory."""
     import shutil
 
-    from hydroilqr.config import TASKS_DIR, ConfigError
-    from hydroilqr.receding import load_checkpoint
+    from hydroilqr.problem.config import TASKS_DIR, ConfigError
+    from hydroilqr.solver.receding import load_checkpoint
 
     model = tmp_path / "cheetah.sdf"
     shutil.copy(TASKS_DIR.parent / "models" / "mini_cheetah" / "mini_cheetah.sdf", model)
@@ -369,7 +369,7 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
 
 
 def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
-    from hydroilqr import receding
+    from hydroilqr.solver import receding
 
     _interrupt_after(1, Task.load("cheetah-trot-1.0", smoke=True), tmp_path)
     task = Task.load("cheetah-trot-1.0", smoke=True)
@@ -390,7 +390,7 @@ def test_a_window_whose_warm_start_blows_up_starts_from_the_initial_guess(monkey
     """If the shifted previous window cannot be rolled out from the kept state (its held last
     control blows the simulation up), the window starts cold from the task's initial guess
     instead of ending the run; the resolve records it."""
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     dyn = task.dynamics
@@ -412,7 +412,7 @@ def test_a_window_whose_warm_start_blows_up_starts_from_the_initial_guess(monkey
 
 
 def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch):
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     dyn = task.dynamics
@@ -433,7 +433,7 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
     import hashlib
     import json
 
-    from hydroilqr.receding import fingerprint
+    from hydroilqr.solver.receding import fingerprint
 
     def before(cfg):  # the fingerprint as computed before the two keys existed
         d = dataclasses.asdict(cfg)
@@ -459,7 +459,8 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
 
 
 def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):
-    from hydroilqr import cli, receding
+    from hydroilqr import cli
+    from hydroilqr.solver import receding
 
     real, calls = receding._warm_start, []
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.derivatives import _finite_differences, linearize
+from hydroilqr.model.derivatives import _finite_differences, linearize
 
 GRIPPER = str(Path(__file__).parent.parent / "examples" / "gripper-brick.yaml")
 
@@ -110,7 +110,7 @@ def test_rollout_next_states_serve_as_the_unperturbed_steps():
 def test_check_reports_the_steps_per_time_step():
     from rich.console import Console
 
-    from hydroilqr.check import check_task
+    from hydroilqr.problem.check import check_task
 
     quiet = Console(quiet=True)
     grip = check_task(Task.load(GRIPPER, overrides=["num_steps=10"]), quiet, rollout_steps=3)

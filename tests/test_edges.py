@@ -59,7 +59,7 @@ def _synthetic_cheetah_run(task):
 
 
 def test_cheetah_metrics_on_a_synthetic_contact_pattern(cheetah, monkeypatch):
-    from hydroilqr import metrics_cheetah as mc
+    from hydroilqr.metrics import cheetah as mc
 
     sol, feet, faces, body, S = _synthetic_cheetah_run(cheetah)
     monkeypatch.setattr(mc, "contacts", lambda task, s: (feet, faces, body))
@@ -111,7 +111,7 @@ def test_cheetah_metrics_on_a_synthetic_contact_pattern(cheetah, monkeypatch):
 def test_foot_slip_is_zero_for_feet_rolling_on_their_lowest_points(cheetah):
     """The whole robot rolls about the line through the feet's lowest points (x axis): those
     material points stand still, the sphere centres (one radius above) do not."""
-    from hydroilqr.metrics_cheetah import foot_slip_speeds
+    from hydroilqr.metrics.cheetah import foot_slip_speeds
 
     dyn = cheetah.dynamics
     lay = dyn.layout
@@ -141,7 +141,7 @@ def test_foot_slip_is_zero_for_feet_rolling_on_their_lowest_points(cheetah):
 
 def test_kinova_metrics_on_a_synthetic_ball_path_and_contacts(monkeypatch):
     """kinova-up weights only the ball's final z (Qf); its running Q here weighs every axis."""
-    from hydroilqr import metrics_kinova as mk
+    from hydroilqr.metrics import kinova as mk
 
     task = Task.load("kinova-up", ["cost.Q.ball_position=[1, 1, 1]"], smoke=True)
     lay = task.dynamics.layout
@@ -273,8 +273,8 @@ def test_overlapping_blocks_each_coordinate_is_reported_under_the_block_whose_we
 
 
 def test_cost_settings_that_cannot_apply_are_config_errors(tmp_path):
-    from hydroilqr.config import ConfigError
-    from hydroilqr.solution import Solution
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.solver.solution import Solution
 
     with pytest.raises(ConfigError, match="cost.reference_blocks: given without cost.reference"):
         _ = Task.load("cartpole-wall", ["cost.reference_blocks=[pole_angle]"]).cost
@@ -297,7 +297,7 @@ def test_cost_settings_that_cannot_apply_are_config_errors(tmp_path):
 
 
 def _quat_layout():
-    from hydroilqr.state import Block, StateLayout
+    from hydroilqr.model.state import Block, StateLayout
 
     return StateLayout(
         7,
@@ -355,7 +355,7 @@ def test_state_difference_names_wrong_shapes():
 
 
 def test_layout_quaternion_values_are_unit_and_checked():
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     layout = _quat_layout()
     x = layout.normalize(np.r_[2.0, 0, 0, 0, np.ones(9)])
@@ -381,7 +381,7 @@ def _check(task, **kw):
 
     from rich.console import Console
 
-    from hydroilqr.check import check_task
+    from hydroilqr.problem.check import check_task
 
     return check_task(task, Console(file=io.StringIO()), **kw)
 
@@ -467,7 +467,7 @@ def test_check_names_the_contact_model_of_each_pair():
     ],
 )  # fmt: skip
 def test_settings_that_cannot_run_are_refused(override, needle):
-    from hydroilqr.config import ConfigError, load_task
+    from hydroilqr.problem.config import ConfigError, load_task
 
     extra = ["solver.regularization_min=1e-6"] if "regularization_max" in override else []
     with pytest.raises(ConfigError, match=needle.replace(".", r"\.")):
@@ -475,7 +475,7 @@ def test_settings_that_cannot_run_are_refused(override, needle):
 
 
 def test_settings_at_the_edges_of_their_ranges_are_accepted():
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     ok = [
         "solver.short_step=0",  # 0 = always shrink after a success (documented)
@@ -496,7 +496,7 @@ def test_settings_at_the_edges_of_their_ranges_are_accepted():
 
 
 def test_a_child_task_num_steps_wins_over_its_base_horizon(tmp_path):
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     urdf = "package://drake/examples/pendulum/Pendulum.urdf"
     (tmp_path / "base.yaml").write_text(
@@ -507,7 +507,7 @@ def test_a_child_task_num_steps_wins_over_its_base_horizon(tmp_path):
 
 
 def test_geometry_overrides_by_dotted_name_and_shorthand_errors():
-    from hydroilqr.config import ConfigError, load_task
+    from hydroilqr.problem.config import ConfigError, load_task
 
     cfg = load_task("cartpole-wall", ["geometry.my.tip.friction=0.3"])
     assert cfg.geometry["my.tip"].friction == 0.3  # a geometry name with a dot in it
@@ -525,7 +525,7 @@ def test_geometry_overrides_by_dotted_name_and_shorthand_errors():
 
 
 def _fake_solution(X, iteration_seconds, phases, costs):
-    from hydroilqr.solution import Solution
+    from hydroilqr.solver.solution import Solution
 
     N = X.shape[0] - 1
     return Solution(
@@ -536,7 +536,7 @@ def _fake_solution(X, iteration_seconds, phases, costs):
 
 
 def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
-    from hydroilqr import bench
+    from hydroilqr.studies import bench
 
     def fake_runs(tasks, U0, iterations, block=1, shadow=None):
         X = np.tile(tasks[0].x0, (3, 1))
@@ -580,7 +580,8 @@ def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
 
 
 def test_bench_alternates_blocks_of_iterations(monkeypatch):
-    from hydroilqr import bench, ilqr
+    from hydroilqr.solver import ilqr
+    from hydroilqr.studies import bench
 
     order = []
 
@@ -603,7 +604,7 @@ def test_bench_alternates_blocks_of_iterations(monkeypatch):
 
 
 def test_contact_polygons_and_classes():
-    from hydroilqr.bench import contact_state, polygons
+    from hydroilqr.studies.bench import contact_state, polygons
 
     task = Task.load("cartpole-wall", ["num_steps=5"])
     lay = task.dynamics.layout
@@ -625,7 +626,8 @@ def test_contact_polygons_and_classes():
 
 
 def test_probe_and_thread_scaling_read_the_times_the_right_way_round(monkeypatch):
-    from hydroilqr import bench, derivatives
+    from hydroilqr.model import derivatives
+    from hydroilqr.studies import bench
 
     clock = [0.0]  # bench's perf_counter: advanced only by the fake linearize (no sleeps)
 
@@ -652,7 +654,7 @@ def test_probe_and_thread_scaling_read_the_times_the_right_way_round(monkeypatch
 
 
 def test_solution_save_load_round_trip_keeps_every_field(tmp_path):
-    from hydroilqr.solution import Solution
+    from hydroilqr.solver.solution import Solution
 
     N, nx, nu = 3, 2, 1
     rng = np.random.default_rng(0)
@@ -690,7 +692,7 @@ def test_solution_save_load_round_trip_keeps_every_field(tmp_path):
 
 
 def test_an_existing_file_is_loaded_as_given_not_its_npz_sibling(tmp_path):
-    from hydroilqr.solution import solution_file
+    from hydroilqr.solver.solution import solution_file
 
     (tmp_path / "plan").write_bytes(b"x")
     (tmp_path / "plan.npz").write_bytes(b"y")
@@ -709,8 +711,8 @@ SMALL = ["num_steps=5", "solver.max_iterations=1"]
 
 
 def test_parse_values_and_grid_edges():
-    from hydroilqr.config import ConfigError
-    from hydroilqr.sweep import grid, parse_values
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies.sweep import grid, parse_values
 
     assert parse_values("linspace:0:0.3:4") == [0.0, 0.1, 0.2, 0.3]  # not 0.09999999999999999
     with pytest.raises(ConfigError, match="positive START and STOP"):
@@ -722,8 +724,8 @@ def test_parse_values_and_grid_edges():
 
 
 def test_sweep_refuses_bad_specs_before_starting(tmp_path):
-    from hydroilqr.config import ConfigError
-    from hydroilqr.sweep import run_sweep
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies.sweep import run_sweep
 
     with pytest.raises(ConfigError, match="at most two"):
         run_sweep("cartpole-wall", [("a", [1]), ("b", [1]), ("c", [1])], tmp_path / "a")
@@ -738,8 +740,8 @@ def test_sweep_refuses_bad_specs_before_starting(tmp_path):
 def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path):
     import json
 
-    from hydroilqr.config import ConfigError
-    from hydroilqr.sweep import point_id, run_sweep
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies.sweep import point_id, run_sweep
 
     out = tmp_path / "s"
     (out / "points").mkdir(parents=True)
@@ -770,7 +772,7 @@ def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path
 def test_an_older_point_file_does_not_replace_the_current_one(tmp_path):
     import json
 
-    from hydroilqr.sweep import _adopt_older_point, point_id
+    from hydroilqr.studies.sweep import _adopt_older_point, point_id
 
     old = point_id({KEY: 1000000}, {KEY: repr(1000000)})
     new = point_id({KEY: 1e6})
@@ -788,9 +790,9 @@ def test_an_older_point_file_does_not_replace_the_current_one(tmp_path):
 def test_line_search_rounds_go_to_the_workers_and_stop_at_max_steps(monkeypatch):
     """Rounds of two trials (as with line_search_workers=2): sent together, the first acceptable
     one taken (bitwise the serial iterates), and never more trials than line_search_max_steps."""
-    from hydroilqr import workers
-    from hydroilqr.ilqr import solve as ilqr_solve
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model import workers
+    from hydroilqr.model.plant import SimulationError
+    from hydroilqr.solver.ilqr import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
     dyn = task.dynamics
@@ -834,8 +836,8 @@ def test_line_search_rounds_go_to_the_workers_and_stop_at_max_steps(monkeypatch)
 
 
 def test_a_trial_that_blows_up_in_a_worker_keeps_the_pool():
-    from hydroilqr import workers
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model import workers
+    from hydroilqr.model.plant import SimulationError
 
     task = Task.load("cartpole-wall", ["solver.line_search_workers=2"], smoke=True)
     dyn = task.dynamics
@@ -909,9 +911,9 @@ def test_python_dash_m_runs_the_command_line():
 
 
 def test_a_failed_command_leaves_no_empty_output_directory(tmp_path, monkeypatch):
-    from hydroilqr import api
     from hydroilqr.cli import main
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
+    from hydroilqr.solver import api
 
     def fail(*a, **k):
         raise SimulationError("contact solver did not converge")
@@ -931,7 +933,7 @@ def test_check_warns_that_a_rigid_geometrys_modulus_is_unused():
     from rich.console import Console
 
     from hydroilqr import Task
-    from hydroilqr.check import check_task
+    from hydroilqr.problem.check import check_task
 
     task = Task.load(
         "cartpole-wall",
@@ -947,8 +949,8 @@ def test_final_gains_are_regularized_only_as_q_uu_needs():
     eq. (8): the backward pass around the final trajectory at the smallest workable μ, not
     gains shrunk to ~0 by the solver's μ."""
     from hydroilqr import Task
-    from hydroilqr.derivatives import linearize
-    from hydroilqr.ilqr import backward_pass, solve
+    from hydroilqr.model.derivatives import linearize
+    from hydroilqr.solver.ilqr import backward_pass, solve
 
     task = Task.load(
         "cartpole-wall",
@@ -969,7 +971,7 @@ def test_mpc_smoke_runs_a_few_updates_unless_a_duration_is_given(tmp_path):
     import json
 
     from hydroilqr.cli import main
-    from hydroilqr.mpc import SMOKE_UPDATES
+    from hydroilqr.control.mpc import SMOKE_UPDATES
 
     assert main(["mpc", "cartpole-wall", "--smoke", "--out", str(tmp_path / "a")]) == 0
     doc = json.loads((tmp_path / "a" / "mpc.json").read_text())
@@ -990,7 +992,7 @@ def test_worker_processes_exit_when_their_parent_is_killed(tmp_path):
     script = tmp_path / "pool.py"
     script.write_text(
         "import sys, time\n"
-        "from hydroilqr import Task, workers\n"
+        "from hydroilqr import Task\nfrom hydroilqr.model import workers\n"
         "task = Task.load('kinova-forward', ['solver.autodiff_workers=2'], smoke=True)\n"
         "workers.warm_up(task.dynamics, 2)\n"
         "pool = workers.pool(task.dynamics, 2)\n"
@@ -1037,8 +1039,8 @@ def test_sibling_defaults_agree():
     """Linearizer and linearize read X the same way by default (not as a rollout of U);
     PlaybackSettings picks the CLI's default speed per policy; batch_step is step, batched."""
     from hydroilqr import Task
-    from hydroilqr.derivatives import Linearizer, batch_step, linearize
-    from hydroilqr.playback import PlaybackSettings
+    from hydroilqr.control.playback import PlaybackSettings
+    from hydroilqr.model.derivatives import Linearizer, batch_step, linearize
 
     task = Task.load("cartpole-wall", ["num_steps=5", "solver.derivatives=forward"])
     dyn = task.dynamics
@@ -1055,7 +1057,7 @@ def test_sibling_defaults_agree():
 
 def test_debug_variable_shows_tracebacks_for_config_errors(monkeypatch):
     from hydroilqr.cli import main
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     monkeypatch.setenv("HYDROILQR_DEBUG", "1")
     with pytest.raises(ConfigError):
@@ -1099,7 +1101,7 @@ def test_ctrl_c_while_results_are_written_waits_for_them():
     import os
     import signal
 
-    from hydroilqr.report import deferred_interrupt
+    from hydroilqr.output.report import deferred_interrupt
 
     done = []
     with pytest.raises(KeyboardInterrupt, match="written first"):
@@ -1113,8 +1115,8 @@ def test_ctrl_c_while_results_are_written_waits_for_them():
 def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_path):
     import json
 
-    from hydroilqr import report
-    from hydroilqr.config import ConfigError
+    from hydroilqr.output import report
+    from hydroilqr.problem.config import ConfigError
 
     run = tmp_path / "run"
     run.mkdir()
@@ -1128,7 +1130,7 @@ def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_
 
     holder = subprocess.Popen(
         [sys.executable, "-c",
-         "import sys, time; from pathlib import Path; from hydroilqr import report; "
+         "import sys, time; from pathlib import Path; from hydroilqr.output import report; "
          f"report.read_lock(Path({str(run)!r})); print('held', flush=True); time.sleep(60)"],
         stdout=subprocess.PIPE, text=True,
     )  # fmt: skip
@@ -1145,7 +1147,7 @@ def test_an_ignored_sigint_stays_ignored_and_a_read_lock_upgrades(tmp_path):
     import os
     import signal
 
-    from hydroilqr import report
+    from hydroilqr.output import report
 
     old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # e.g. a background job
     try:
@@ -1163,7 +1165,7 @@ def test_an_ignored_sigint_stays_ignored_and_a_read_lock_upgrades(tmp_path):
 
 def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length_wins(tmp_path):
     from hydroilqr import Task
-    from hydroilqr.config import TASKS_DIR, ConfigError
+    from hydroilqr.problem.config import TASKS_DIR, ConfigError
 
     (tmp_path / "orphan.yaml").write_text("extends: nope.yaml\n")
     with pytest.raises(ConfigError, match="orphan.yaml: extends: no such file"):
@@ -1178,7 +1180,7 @@ def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length
 
 def test_set_with_both_horizon_and_num_steps_is_refused_like_a_task_file():
     from hydroilqr import Task
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     with pytest.raises(ConfigError, match="horizon or num_steps, not both"):
         Task.load("cartpole-wall", ["horizon=0.3", "num_steps=7"])
@@ -1196,7 +1198,7 @@ def test_set_smoke_keys_change_what_smoke_applies():
 
 
 def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkeypatch):
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     monkeypatch.chdir(tmp_path)  # it became str(cwd): "cannot read <cwd>/solution.npz"
     cfg = load_task("cartpole-wall", ['cost.reference=""', 'mpc.warm_start_plan=""'])
@@ -1204,7 +1206,7 @@ def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkey
 
 
 def test_set_smoke_length_or_whole_section_changes_what_smoke_applies():
-    from hydroilqr.config import ConfigError, load_task
+    from hydroilqr.problem.config import ConfigError, load_task
 
     # kinova's smoke section gives num_steps: 10; a --set smoke.horizon was silently ignored
     cfg = load_task("kinova-forward", ["smoke.horizon=0.05"], smoke=True)
@@ -1219,7 +1221,7 @@ def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypat
 
     import numpy as np
 
-    from hydroilqr import files
+    from hydroilqr.output import files
 
     p = files.atomic_write(tmp_path / "a.json", '{"old": 1}')
     files.atomic_savez(tmp_path / "a.npz", X=np.arange(3.0))
@@ -1239,10 +1241,10 @@ def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypat
 def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
     import numpy as np
 
-    from hydroilqr.config import ConfigError, load_task
-    from hydroilqr.mpc import MPCSettings
-    from hydroilqr.solution import Solution
-    from hydroilqr.task import Task
+    from hydroilqr.control.mpc import MPCSettings
+    from hydroilqr.problem.config import ConfigError, load_task
+    from hydroilqr.problem.task import Task
+    from hydroilqr.solver.solution import Solution
 
     for bad in (["horizon=2e6"], ["num_steps=20000000"]):
         with pytest.raises(ConfigError, match="at most 1000000"):
@@ -1252,7 +1254,7 @@ def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
     task = Task.load("cartpole-wall", smoke=True)
     with pytest.raises(ConfigError, match="mpc horizon 1e\\+06 s: more than"):
         MPCSettings(horizon=1e6).check(task)
-    from hydroilqr.api import solve
+    from hydroilqr.solver.api import solve
 
     sol = solve(task.with_overrides({"solver.max_iterations": 1}))
     sol.U[3, 0] = np.nan

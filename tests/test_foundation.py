@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from hydroilqr import DerivativeMethod, Task, linearize, solve
-from hydroilqr.config import ConfigError, SolverConfig
-from hydroilqr.cost import Quadratization
-from hydroilqr.ilqr import Problem, backward_pass
-from hydroilqr.ilqr import solve as ilqr_solve
-from hydroilqr.state import StateLayout
+from hydroilqr.model.cost import Quadratization
+from hydroilqr.model.state import StateLayout
+from hydroilqr.problem.config import ConfigError, SolverConfig
+from hydroilqr.solver.ilqr import Problem, backward_pass
+from hydroilqr.solver.ilqr import solve as ilqr_solve
 
 
 def riccati_gains(A, B, Q, R, Qf, N):
@@ -68,8 +68,8 @@ class LinearDynamics:
 
 def test_ilqr_solves_lqr_in_one_step():
     """On a linear system with quadratic cost, the first full iLQR step is optimal."""
-    from hydroilqr.cost import QuadraticCost
-    from hydroilqr.state import Block
+    from hydroilqr.model.cost import QuadraticCost
+    from hydroilqr.model.state import Block
 
     rng = np.random.default_rng(1)
     nx, nu, N = 2, 1, 30
@@ -161,7 +161,7 @@ def test_forward_differences_close_to_autodiff(cartpole):
 
 def test_falling_body_falls(tmp_path):
     """A discrete plant's step must really advance (drake-notes: sampled-output-port trap)."""
-    from hydroilqr.config import TASKS_DIR
+    from hydroilqr.problem.config import TASKS_DIR
 
     task = Task.from_dict(
         {
@@ -182,7 +182,7 @@ def test_falling_body_falls(tmp_path):
 
 
 def test_quaternion_difference_jacobian():
-    from hydroilqr.state import Block
+    from hydroilqr.model.state import Block
 
     layout = StateLayout(
         7,
@@ -231,8 +231,8 @@ def _reference_quadratization(cost, X, U, t0):
 def test_quadratize_equals_the_dense_reference(quaternion):
     """Both paths of QuadraticCost.quadratize (the coordinate permutation when there are no
     quaternions, the Jacobian einsum otherwise) against the dense formulas."""
-    from hydroilqr.cost import QuadraticCost
-    from hydroilqr.state import Block
+    from hydroilqr.model.cost import QuadraticCost
+    from hydroilqr.model.state import Block
 
     if quaternion:
         blocks = [
@@ -341,7 +341,7 @@ def test_cli_solve_writes_outputs(tmp_path):
 
 
 def test_autodiff_in_worker_processes_equals_serial():
-    from hydroilqr import workers
+    from hydroilqr.model import workers
 
     task = Task.load("cartpole-wall")
     dyn = task.dynamics
@@ -359,7 +359,7 @@ def test_solve_uses_the_worker_counts_of_its_settings_not_the_tasks():
     (the task's own solver section says 1 here) and gives the serial iterates."""
     import dataclasses
 
-    from hydroilqr import workers
+    from hydroilqr.model import workers
 
     task = Task.load("cartpole-wall", ["solver.max_iterations=2"], smoke=True)
     assert task.config.solver.autodiff_workers == task.config.solver.line_search_workers == 1
@@ -381,7 +381,7 @@ def test_line_search_in_worker_processes_equals_serial():
     """Trials side by side in two processes give bitwise the serial iterates. (Three smoke
     iterations take steps of 1/4 to 1/32: rounds past the first. A trial blowing up in a worker:
     test_edges::test_a_trial_that_blows_up_in_a_worker_keeps_the_pool.)"""
-    from hydroilqr import workers
+    from hydroilqr.model import workers
 
     sols = []
     for w in (2, 1):
@@ -404,7 +404,7 @@ def test_line_search_in_worker_processes_equals_serial():
 
 def test_blown_up_step_is_a_simulation_error(cartpole):
     """A state that explodes is reported (and rejected by a line search), never returned."""
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
 
     dyn = cartpole.dynamics
     x = np.zeros(dyn.nx)
@@ -414,7 +414,7 @@ def test_blown_up_step_is_a_simulation_error(cartpole):
 
 
 def test_cost_reference_tracks_a_solved_run(tmp_path):
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
     sol = solve(task)
@@ -447,7 +447,7 @@ def test_cost_reference_tracks_a_solved_run(tmp_path):
 
 
 def test_cost_reference_quaternions_are_renormalized():
-    from hydroilqr.cost import QuadraticCost
+    from hydroilqr.model.cost import QuadraticCost
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     layout = task.dynamics.layout
@@ -467,7 +467,7 @@ def test_short_accepted_steps_raise_mu_and_full_steps_lower_it(monkeypatch):
     this iteration's cap fail (as a contact solve that does not converge), so iterations 1-2
     accept a short step (1/32 < short_step) and 3-4 a full one. (It used to read whichever
     steps a kinova contact solve happened to take: they move with the BLAS kernels.)"""
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=4"])
     dyn, s = task.dynamics, task.config.solver
@@ -495,8 +495,8 @@ def test_short_accepted_steps_raise_mu_and_full_steps_lower_it(monkeypatch):
 
 
 def test_nominal_time_horizon_end_aims_every_step_at_the_horizon_end():
-    from hydroilqr.cost import QuadraticCost
-    from hydroilqr.state import Block
+    from hydroilqr.model.cost import QuadraticCost
+    from hydroilqr.model.state import Block
 
     layout = StateLayout(1, 1, [Block("p", (0,), (0,)), Block("p.v", (1,), (1,))], ["f"])
     args = (layout, [1.0, 0.1], [50.0, 5.0], [0.01], np.zeros(2), np.array([2.0, 0.0]), 0.1)
@@ -515,7 +515,7 @@ def test_nominal_time_horizon_end_aims_every_step_at_the_horizon_end():
 
 
 def test_a_solve_whose_steps_all_fail_is_not_called_converged(monkeypatch):
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.model.plant import SimulationError
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
     ref = solve(task, settings={"max_iterations": 1})  # gains of a normal first iteration
@@ -559,8 +559,8 @@ def test_cost_terms_add_up_to_the_cost_when_blocks_overlap():
 
 
 def test_returned_gains_are_those_around_the_final_trajectory():
-    from hydroilqr.derivatives import linearize
-    from hydroilqr.ilqr import backward_pass
+    from hydroilqr.model.derivatives import linearize
+    from hydroilqr.solver.ilqr import backward_pass
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=4"])
     sol = solve(task)
@@ -574,7 +574,7 @@ def test_returned_gains_are_those_around_the_final_trajectory():
 
 
 def test_ctrl_c_during_the_final_gains_keeps_the_solution_unconverged():
-    from hydroilqr.derivatives import Linearizer
+    from hydroilqr.model.derivatives import Linearizer
 
     task = Task.load("cartpole-wall", ["num_steps=20"])
     s = SolverConfig(max_iterations=2, derivatives="forward")
@@ -623,9 +623,9 @@ def test_package_data_ships_every_task_and_model_file():
 def test_line_search_kernel_accepts_a_descent_step_and_respects_the_deadline():
     import time as _time
 
-    from hydroilqr.config import SolverConfig
-    from hydroilqr.derivatives import linearize
-    from hydroilqr.ilqr import backward_pass, line_search
+    from hydroilqr.model.derivatives import linearize
+    from hydroilqr.problem.config import SolverConfig
+    from hydroilqr.solver.ilqr import backward_pass, line_search
 
     task = Task.load("cartpole-wall", ["num_steps=30"])
     prob = task.problem()

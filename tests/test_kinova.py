@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.ilqr import solve as ilqr_solve
 from hydroilqr.metrics import compute
+from hydroilqr.solver.ilqr import solve as ilqr_solve
 
 TASKS = ["kinova-forward", "kinova-left", "kinova-up"]
 
@@ -66,7 +66,7 @@ def test_paper_cost_and_targets():
 
 def test_up_start_touches_ball_with_several_links():
     """The lifting start posture puts base, forearm and both wrist links within 1.5 mm."""
-    from hydroilqr.plant import collision_geometries
+    from hydroilqr.model.plant import collision_geometries
 
     up = Task.load("kinova-up")
     dyn = up.dynamics

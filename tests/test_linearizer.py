@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.derivatives import Linearizer, linearize
-from hydroilqr.ilqr import solve
-from hydroilqr.mpc import MPCSettings, run_mpc
+from hydroilqr.control.mpc import MPCSettings, run_mpc
+from hydroilqr.model.derivatives import Linearizer, linearize
+from hydroilqr.solver.ilqr import solve
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +97,7 @@ def test_mpc_shrinking_horizon_on_prediction():
 def test_mpc_warm_start_tail_from_guess():
     """A shifted receding-horizon plan takes its missing last controls from the task's guess
     (the cheetah's standing torques), not from its own end-of-horizon controls."""
-    from hydroilqr.mpc import Controller
+    from hydroilqr.control.mpc import Controller
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
     settings = MPCSettings.from_task(task, horizon=0.05, iterations_per_update=1)
@@ -113,7 +113,7 @@ def test_mpc_warm_start_tail_from_guess():
 
 def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
     """A guess file is a time series: the steps a shifted plan appends get their own rows."""
-    from hydroilqr.mpc import Controller
+    from hydroilqr.control.mpc import Controller
 
     base = Task.load("cheetah-trot-1.0", smoke=True)
     rows = base.initial_guess(1)[0] + 0.01 * np.arange(30)[:, None]  # row k differs from k+1
@@ -131,7 +131,7 @@ def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
 
 
 def test_shrinking_horizon_longer_than_task_is_a_config_error():
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="shrinking horizon"):
@@ -139,7 +139,7 @@ def test_shrinking_horizon_longer_than_task_is_a_config_error():
 
 
 def test_interval_interpolates_linearly_between_keypoints():
-    from hydroilqr.derivatives import keypoints, linearize
+    from hydroilqr.model.derivatives import keypoints, linearize
 
     task = Task.load("cartpole-wall", ["horizon=0.6"])
     dyn = task.dynamics

@@ -7,8 +7,8 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.cli import main
-from hydroilqr.config import ConfigError
-from hydroilqr.mpc import MPCSettings, Push, run_mpc
+from hydroilqr.control.mpc import MPCSettings, Push, run_mpc
+from hydroilqr.problem.config import ConfigError
 
 
 def test_mpc_lockstep_brings_pole_up_and_reports_timing():
@@ -117,8 +117,8 @@ def test_feedback_warm_start_without_gains_is_the_open_loop_one():
 
 
 def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
-    from hydroilqr.mpc import Controller
-    from hydroilqr.solution import Solution
+    from hydroilqr.control.mpc import Controller
+    from hydroilqr.solver.solution import Solution
 
     task = Task.load("cartpole-wall")
     M, N = 30, 10
@@ -177,7 +177,7 @@ def test_mpc_settings_that_cannot_run_are_refused(settings, needle):
 def test_warm_start_plan_of_another_task_is_refused(tmp_path):
     (tmp_path / "summary.json").write_text(json.dumps({"task": "kinova-forward"}))
     task = Task.load("cartpole-wall", smoke=True)
-    from hydroilqr.api import solve
+    from hydroilqr.solver.api import solve
 
     solve(task).save(tmp_path / "solution.npz")
     with pytest.raises(ConfigError, match="run of task 'kinova-forward'"):
@@ -205,7 +205,7 @@ def test_push_on_a_body_welded_to_the_world_is_refused():
 def test_a_passed_deadline_cuts_the_line_search_short():
     import time
 
-    from hydroilqr.ilqr import solve as ilqr_solve
+    from hydroilqr.solver.ilqr import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", ["num_steps=30"])
     sol = ilqr_solve(
@@ -237,7 +237,7 @@ def test_continuation_seeds_the_first_plan():
 
 
 def test_pushes_last_whole_steps_add_up_and_leave_the_task_alone():
-    from hydroilqr.mpc import Truth
+    from hydroilqr.control.mpc import Truth
 
     task = Task.load("cartpole-wall")
     solver_before = task.config.solver
@@ -263,7 +263,7 @@ def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
 
 
 def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
-    from hydroilqr.mpc import MPCSettings, run_mpc
+    from hydroilqr.control.mpc import MPCSettings, run_mpc
 
     # Tilted away from the wall: a smooth, contact-free run. (Tilted into the wall, which of
     # the two ends nearer upright flipped between gravities -12 and -14: contact luck.)
@@ -281,7 +281,7 @@ def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
 
 
 def test_realtime_latency_is_felt():
-    from hydroilqr.mpc import MPCSettings, run_mpc
+    from hydroilqr.control.mpc import MPCSettings, run_mpc
 
     task = Task.load("cartpole-wall")
     kw = dict(duration=0.3, rate=50.0, horizon=0.2)
@@ -291,8 +291,8 @@ def test_realtime_latency_is_felt():
 
 
 def test_mpc_applies_the_plan_policy(monkeypatch):
-    from hydroilqr import mpc
-    from hydroilqr.mpc import MPCSettings, run_mpc
+    from hydroilqr.control import mpc
+    from hydroilqr.control.mpc import MPCSettings, run_mpc
 
     plans = []
     real = mpc.Controller.update
@@ -317,7 +317,7 @@ def test_mpc_applies_the_plan_policy(monkeypatch):
 
 
 def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
-    from hydroilqr.mpc import Truth
+    from hydroilqr.control.mpc import Truth
 
     task = Task.load("kinova-forward", smoke=True)
     truth = Truth(task)
@@ -328,8 +328,8 @@ def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
 
 
 def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
-    from hydroilqr import mpc
-    from hydroilqr.plant import SimulationError
+    from hydroilqr.control import mpc
+    from hydroilqr.model.plant import SimulationError
 
     real, calls = mpc.ilqr_solve, []
 
@@ -395,7 +395,7 @@ def test_horizon_on_a_shrinking_horizon_task_is_refused_not_ignored(tmp_path, ca
 
 
 def test_mpc_plot_shows_position_blocks_not_velocity_groups_with_units():
-    from hydroilqr.mpc import plotted_blocks
+    from hydroilqr.control.mpc import plotted_blocks
 
     cartpole = [("cart_position", "m"), ("pole_angle", "rad")]
     assert plotted_blocks(Task.load("cartpole-wall")) == cartpole

@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
-from hydroilqr import report
-from hydroilqr.api import solve
-from hydroilqr.config import ConfigError
-from hydroilqr.playback import PlaybackSettings, advisories, load_run, playback
-from hydroilqr.task import Task
+from hydroilqr.control.playback import PlaybackSettings, advisories, load_run, playback
+from hydroilqr.output import report
+from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.task import Task
+from hydroilqr.solver.api import solve
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +147,7 @@ def test_pd_loop_runs_at_the_rate_it_reports_and_the_api_checks_settings(run_dir
 
 
 def test_ilqr_playback_applies_feedback(run_dir):
-    from hydroilqr.playback import PlaybackSettings, load_run, playback
+    from hydroilqr.control.playback import PlaybackSettings, load_run, playback
 
     task, sol, _ = load_run(run_dir)
     r = playback(task, sol, PlaybackSettings(policy="ilqr", speed=1.0, truth_time_step=0.002))
@@ -157,7 +157,7 @@ def test_ilqr_playback_applies_feedback(run_dir):
 
 
 def test_pd_law_uses_kp_and_kd(run_dir):
-    from hydroilqr.playback import PlaybackSettings, load_run, playback
+    from hydroilqr.control.playback import PlaybackSettings, load_run, playback
 
     task, sol, _ = load_run(run_dir)
     st = PlaybackSettings(speed=1.0, truth_time_step=0.002)
@@ -169,7 +169,7 @@ def test_pd_law_uses_kp_and_kd(run_dir):
 
 
 def test_replay_frames_use_the_solved_inputs_and_the_nearest_state(monkeypatch, tmp_path):
-    from hydroilqr import replay
+    from hydroilqr.output import replay
 
     real_build = replay.build_diagram
     fixed = []
@@ -211,7 +211,7 @@ def test_replay_frames_use_the_solved_inputs_and_the_nearest_state(monkeypatch, 
 def test_reference_lists_the_torques_that_acted_in_the_plan():
     """A planned command beyond an effort limit acted at the limit in the plan: the exported
     feed-forward (and the PD+ law's ū) hold the limit, not the command."""
-    from hydroilqr.solution import PHASES, Solution
+    from hydroilqr.solver.solution import PHASES, Solution
 
     task = Task.load("kinova-forward", ["solver.autodiff_workers=1"], smoke=True)
     dyn = task.dynamics
@@ -235,7 +235,7 @@ def test_the_object_is_the_unactuated_joint_the_plan_moves_most():
 
     from pydrake.multibody.tree import JointIndex
 
-    from hydroilqr.playback import choose_object
+    from hydroilqr.control.playback import choose_object
 
     example = Path(__file__).parent.parent / "examples" / "gripper-brick.yaml"
     task = Task.from_yaml(example, smoke=True)
@@ -264,7 +264,7 @@ def test_ilqr_policy_refuses_a_plan_saved_without_gains(run_dir):
 
 
 def test_naming_the_floating_body_position_is_the_default_choice():
-    from hydroilqr.playback import choose_object
+    from hydroilqr.control.playback import choose_object
 
     dyn = Task.load("kinova-forward", smoke=True).dynamics
     named, default = choose_object(dyn, "ball.position"), choose_object(dyn)

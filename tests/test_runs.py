@@ -72,7 +72,7 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     env = summary["environment"]
     assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
     assert env["command"] == f"hydroilqr solve {task} --out {out} --no-replay"
-    from hydroilqr import report
+    from hydroilqr.output import report
 
     assert report.COMMAND is None  # not carried into later Python calls
 
@@ -89,7 +89,7 @@ def test_a_failed_resolve_keeps_the_earlier_results(tmp_path, monkeypatch, capsy
     def fail(*args, **kwargs):
         raise RuntimeError("the simulation diverged")
 
-    monkeypatch.setattr("hydroilqr.api.solve", fail)
+    monkeypatch.setattr("hydroilqr.solver.api.solve", fail)
     assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) != 0
     assert (out / "solution.npz").read_bytes() == before
     assert (out / "summary.json").exists() and (out / "playback-pd" / "playback.json").exists()
@@ -102,9 +102,9 @@ def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):
 
 def test_interrupted_ilqr_statistics_are_consistent():
     """stop_on_interrupt: every per-iteration list has one entry per recorded iteration."""
-    from hydroilqr.config import SolverConfig
-    from hydroilqr.ilqr import solve as ilqr_solve
-    from hydroilqr.task import Task
+    from hydroilqr.problem.config import SolverConfig
+    from hydroilqr.problem.task import Task
+    from hydroilqr.solver.ilqr import solve as ilqr_solve
 
     calls = []
 
@@ -153,15 +153,15 @@ def test_one_run_per_output_directory_at_a_time(tmp_path):
     import sys
     import time
 
-    from hydroilqr.config import ConfigError
-    from hydroilqr.report import output_dir
+    from hydroilqr.output.report import output_dir
+    from hydroilqr.problem.config import ConfigError
 
     out = tmp_path / "shared"
     holder = subprocess.Popen(
         [
             sys.executable,
             "-c",
-            "import sys, time; from hydroilqr.report import output_dir; "
+            "import sys, time; from hydroilqr.output.report import output_dir; "
             f"output_dir({str(out)!r}, 'cartpole-wall'); print('locked', flush=True); "
             "time.sleep(60)",
         ],

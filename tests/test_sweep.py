@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from hydroilqr.cli import main
-from hydroilqr.config import ConfigError
-from hydroilqr.sweep import POINT_COLUMNS, grid, parse_values, point_id, run_sweep
+from hydroilqr.problem.config import ConfigError
+from hydroilqr.studies.sweep import POINT_COLUMNS, grid, parse_values, point_id, run_sweep
 
 # Tiny cart-pole-wall solves: 30 steps, 3 iterations (contact happens within 0.3 s).
 SMALL = ["num_steps=30", "solver.max_iterations=3"]
@@ -143,7 +143,7 @@ def test_negative_values_after_values_flag():
 def test_sweep_plot_legend_names_markers_of_any_series(tmp_path, monkeypatch):
     import matplotlib.figure
 
-    from hydroilqr.sweep import plot_sweep
+    from hydroilqr.studies.sweep import plot_sweep
 
     legends = []
     real = matplotlib.figure.Figure.savefig
@@ -170,7 +170,7 @@ def test_sweep_plot_legend_names_markers_of_any_series(tmp_path, monkeypatch):
 
 
 def test_an_older_sweeps_point_files_are_kept_under_the_current_id(tmp_path):
-    from hydroilqr.sweep import _adopt_older_point
+    from hydroilqr.studies.sweep import _adopt_older_point
 
     old = point_id({KEY: 1000000}, {KEY: repr(1000000)})  # hashed as typed, before 2026-11-23
     assert old != point_id({KEY: 1e6})
@@ -190,8 +190,8 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
 
     import distributed
 
-    from hydroilqr import sweep as sweep_mod
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies import sweep as sweep_mod
 
     class Lost:
         def result(self):
@@ -236,7 +236,7 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
 def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monkeypatch):
     """Older sweep_spec.json files kept a relative path in --set as given; this version records
     it absolute, and still recognises the older sweep as the same one."""
-    from hydroilqr import sweep as sweep_mod
+    from hydroilqr.studies import sweep as sweep_mod
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "pm").mkdir()
@@ -264,7 +264,7 @@ def test_a_key_that_is_not_numeric_is_refused_before_any_work(tmp_path):
             run_sweep("cartpole-wall", [(key, vals)], tmp_path / "s", smoke=True)
     assert not (tmp_path / "s").exists()
     # a shorthand that creates the geometry entry it sets is numeric all the same
-    from hydroilqr.sweep import check_numeric_params
+    from hydroilqr.studies.sweep import check_numeric_params
 
     check_numeric_params("kinova-forward", {}, None, True, [("ball.friction", [0.3])])
 

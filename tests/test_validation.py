@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from hydroilqr import cli
-from hydroilqr.config import ConfigError
+from hydroilqr.problem.config import ConfigError
 
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 PENDULUM = "package://drake/examples/pendulum/Pendulum.urdf"
@@ -321,7 +321,7 @@ def test_smoke_typo_is_named_as_smoke(tmp_path, capsys):
 
 def test_extends_across_directories_keeps_base_paths(tmp_path):
     """A base in another directory keeps resolving its own relative model and guess paths."""
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     base_dir, child_dir = tmp_path / "shared", tmp_path / "mine"
     base_dir.mkdir()
@@ -340,7 +340,7 @@ def test_extends_across_directories_keeps_base_paths(tmp_path):
 
 
 def test_scalar_weight_still_applies_to_a_whole_block():
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     path_spec = edit(initial_state={"angles": 0.05})
     import tempfile
@@ -357,13 +357,13 @@ def test_short_initial_guess_file_is_an_error(tmp_path, capsys):
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "has 2 rows; the task needs 5")
     (tmp_path / "U.csv").write_text("0.1\n")  # one row: a constant control
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     np.testing.assert_allclose(Task.load(str(path)).initial_guess(5), np.full((5, 1), 0.1))
 
 
 def test_command_line_guess_path_is_relative_to_the_working_directory(tmp_path, monkeypatch):
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     task_dir, work = tmp_path / "tasks", tmp_path / "work"
     task_dir.mkdir()
@@ -384,7 +384,7 @@ def test_check_validates_the_smoke_section(tmp_path, capsys):
 
 def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
     """Velocity blocks (`shoulder.v`) and floating-body blocks (`ball.position`) by --set."""
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     path = write_case(tmp_path, BASE)
     task = Task.load(
@@ -397,7 +397,7 @@ def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
 
 
 def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     path = write_case(tmp_path, BASE)  # num_steps: 5
     assert Task.load(str(path), ["horizon=0.2"]).config.steps == 10
@@ -406,12 +406,12 @@ def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
 def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
     """A collision name matches every geometry of that name, a body name all of the body's;
     a body name that is also another body's collision name is ambiguous; BODY/NAME picks one."""
-    from hydroilqr.plant import geometry_hits
+    from hydroilqr.model.plant import geometry_hits
 
     geoms = {1: ("Sphere", "arm"), 2: ("Sphere", "base"), 3: ("arm", "base"), 4: ("Box", "arm")}
     assert geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
     assert geometry_hits("base/Sphere", geoms) == [2]
-    from hydroilqr.config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     with pytest.raises(ConfigError, match="ambiguous"):
         geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
@@ -507,8 +507,8 @@ def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
 
 
 def test_run_files_that_disagree_are_refused(tmp_path):
-    from hydroilqr.config import ConfigError
-    from hydroilqr.solution import Solution, load_run_solution
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.solver.solution import Solution, load_run_solution
 
     def make(n_u):  # a solution of N = 4 steps whose U has n_u rows
         N, nx, nu = 4, 2, 1
@@ -530,8 +530,8 @@ def test_run_files_that_disagree_are_refused(tmp_path):
 
 
 def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):
-    from hydroilqr.config import ConfigError
-    from hydroilqr.report import output_dir
+    from hydroilqr.output.report import output_dir
+    from hydroilqr.problem.config import ConfigError
 
     (tmp_path / "summary.json").write_text("{torn")
     with pytest.raises(ConfigError, match="summary.json is unreadable"):
@@ -539,7 +539,7 @@ def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):
 
 
 def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkeypatch):
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "cartpole-wall").mkdir()  # e.g. `solve cartpole-wall --out cartpole-wall`
@@ -550,7 +550,7 @@ def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkey
 
 
 def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
-    from hydroilqr.config import load_task
+    from hydroilqr.problem.config import load_task
 
     path = write_case(tmp_path, BASE)  # num_steps: 5 at dt 0.02
     extra = tmp_path / "extra.yaml"
@@ -563,7 +563,7 @@ def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
 
 
 def test_continuation_stages_keep_the_grid_and_read_paths_from_the_task_file(tmp_path):
-    from hydroilqr.task import Task
+    from hydroilqr.problem.task import Task
 
     path = write_case(tmp_path, edit(continuation=[{"plant": {"time_step": 0.04}}]))
     with pytest.raises(ConfigError, match="time grid"):

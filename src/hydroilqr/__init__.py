@@ -17,14 +17,14 @@ if not _sys.flags.utf8_mode and _locale.getpreferredencoding(False).lower() in (
         "set PYTHONUTF8=1 or a UTF-8 locale (LC_ALL=C.UTF-8)"
     )
 
-from .api import solve  # noqa: E402
-from .config import ConfigError, SolverConfig, TaskConfig  # noqa: E402
-from .derivatives import DerivativeMethod, linearize  # noqa: E402
-from .ilqr import IterationInfo  # noqa: E402
-from .plant import Dynamics, SimulationError  # noqa: E402
-from .progress import IterationTable  # noqa: E402
-from .solution import Solution  # noqa: E402
-from .task import Task  # noqa: E402
+from hydroilqr.model.derivatives import DerivativeMethod, linearize  # noqa: E402
+from hydroilqr.model.plant import Dynamics, SimulationError  # noqa: E402
+from hydroilqr.output.progress import IterationTable  # noqa: E402
+from hydroilqr.problem.config import ConfigError, SolverConfig, TaskConfig  # noqa: E402
+from hydroilqr.problem.task import Task  # noqa: E402
+from hydroilqr.solver.api import solve  # noqa: E402
+from hydroilqr.solver.ilqr import IterationInfo  # noqa: E402
+from hydroilqr.solver.solution import Solution  # noqa: E402
 
 __all__ = [
     "ConfigError",

@@ -34,8 +34,8 @@ from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
 from pydrake.systems.framework import DiagramBuilder
 
-from .config import ConfigError, ContactProperties, SceneObject, TaskConfig
-from .state import StateLayout
+from hydroilqr.model.state import StateLayout
+from hydroilqr.problem.config import ConfigError, ContactProperties, SceneObject, TaskConfig
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6

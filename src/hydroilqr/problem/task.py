@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, TaskConfig, build_task, load_task, with_overrides
-from .cost import QuadraticCost
-from .ilqr import Problem, check_finite
-from .plant import Dynamics, SimulationError
+from hydroilqr.model.cost import QuadraticCost
+from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.problem.config import ConfigError, TaskConfig, build_task, load_task, with_overrides
+from hydroilqr.solver.ilqr import Problem, check_finite
 
 
 class Task:
@@ -134,7 +134,7 @@ class Task:
                 raise ConfigError(f"continuation[{i}]: {e}") from None
             if stage.dynamics.nx != self.dynamics.nx or stage.dynamics.nu != self.dynamics.nu:
                 raise ConfigError(f"continuation[{i}]: changes the state or input size")
-        from . import metrics as metrics_mod
+        from hydroilqr import metrics as metrics_mod
 
         metrics_mod.load_plugins()
         for name in self.config.metrics:

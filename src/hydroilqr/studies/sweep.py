@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from .cli import add_task_args, console, register, task_name_from_args
-from .config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
-from .files import atomic_savez, atomic_write
+from hydroilqr.cli import add_task_args, console, register, task_name_from_args
+from hydroilqr.output.files import atomic_savez, atomic_write
+from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
 
 POINT_COLUMNS = (
     "final_cost",
@@ -146,7 +146,7 @@ def check_numeric_params(
     """ConfigError if a swept key sets anything but numbers in the task (``name`` or
     ``description`` take a number as text: the sweep would solve one task over and over).
     What a key sets: the leaves in which the task differs between two of its values."""
-    from .config import load_task
+    from hydroilqr.problem.config import load_task
 
     for key, vals in params:
         a, b = vals[0], vals[-1] if len(vals) > 1 else vals[0] + 1
@@ -236,7 +236,7 @@ def _scalar(v) -> bool:
 def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     """Per-step world positions of the tip, its pin and the cart, the tip radius, and the
     per-step signed distance of the contact pair (what plot_snapshots draws)."""
-    from .metrics import geometry_ids, signed_distance
+    from hydroilqr.metrics import geometry_ids, signed_distance
 
     dyn = task.dynamics
     plant = dyn.plant
@@ -289,7 +289,7 @@ def solve_point(
     t0 = time.perf_counter()
     row: dict[str, Any] = {"id": pid, **{f"param:{k}": v for k, v in values.items()}}
     try:
-        from .report import code_version
+        from hydroilqr.output.report import code_version
 
         row["code"] = code_version()  # the worker's: a remote one may run other code
     except Exception:  # noqa: BLE001 - recorded by the client then
@@ -304,9 +304,9 @@ def solve_point(
         row["worker"] = f"pid{os.getpid()}"
     arrays: dict[str, np.ndarray] = {}
     try:
-        from . import api
-        from . import metrics as metrics_mod
-        from .task import Task
+        from hydroilqr import metrics as metrics_mod
+        from hydroilqr.problem.task import Task
+        from hydroilqr.solver import api
 
         task = Task.load(task_name, {**overrides, **values}, config_file, smoke)
         task.validate()
@@ -341,7 +341,7 @@ def solve_point(
             raise
         row.update(status="failed", error=_error_text(e))
     row["wall_seconds"] = time.perf_counter() - t0
-    from .report import json_safe
+    from hydroilqr.output.report import json_safe
 
     return {"row": json_safe(row), "arrays": arrays}
 
@@ -397,7 +397,7 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
 def write_tables(
     out: Path, spec: dict, param_keys: list[str], rows: list[dict], pending: int
 ) -> None:
-    from .report import json_safe
+    from hydroilqr.output.report import json_safe
 
     # Sorted by the swept values (points of earlier runs and of an extended grid interleave).
     trs = sorted(
@@ -753,7 +753,7 @@ def _open_client(scheduler: str | None, workers: int | None):
         return client, None
     import signal
 
-    from .workers import cores
+    from hydroilqr.model.workers import cores
 
     n = workers or cores()
     # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
@@ -792,7 +792,7 @@ def run_sweep(
     plots: bool = True,
 ) -> dict:
     """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}."""
-    from .task import Task
+    from hydroilqr.problem.task import Task
 
     if not params:
         raise ConfigError("give at least one --param KEY --values ...")
@@ -829,7 +829,7 @@ def run_sweep(
 
     out = Path(out)
     points_dir = out / "points"
-    from .report import environment, output_dir
+    from hydroilqr.output.report import environment, output_dir
 
     output_dir(out, task_cfg.name)
     points_dir.mkdir(parents=True, exist_ok=True)
@@ -880,7 +880,7 @@ def run_sweep(
     computed = 0
     lost = 0  # points whose futures the scheduler cancelled or lost
     log = out / "computed.log"
-    from .report import code_version
+    from hydroilqr.output.report import code_version
 
     code = code_version()
     if todo:
@@ -1026,7 +1026,7 @@ def cmd_sweep(args) -> int:
     if args.out:
         out = args.out
     else:  # runs/NAME-sweep, NAME the task's name (as solve and mpc use)
-        from .config import load_task
+        from hydroilqr.problem.config import load_task
 
         name = load_task(task, args.set, args.config, args.smoke).name
         out = f"runs/{name}{'-smoke' if args.smoke else ''}-sweep"

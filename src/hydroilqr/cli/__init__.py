@@ -16,8 +16,8 @@ from pathlib import Path
 
 from rich.console import Console
 
-from .config import DERIVATIVES, ConfigError
-from .progress import IterationTable
+from hydroilqr.output.progress import IterationTable
+from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
@@ -60,7 +60,7 @@ def task_name_from_args(args) -> str | None:
 
 
 def load_task_from_args(args, extra_overrides: list[str] | None = None):
-    from .task import Task
+    from hydroilqr.problem.task import Task
 
     name = task_name_from_args(args)
     if not name:
@@ -77,7 +77,7 @@ def load_task_from_args(args, extra_overrides: list[str] | None = None):
 
 
 def cmd_tasks(args) -> int:
-    from .config import TASKS_DIR, list_tasks, load_raw
+    from hydroilqr.problem.config import TASKS_DIR, list_tasks, load_raw
 
     for name in list_tasks():
         desc = load_raw(TASKS_DIR / f"{name}.yaml").get("description", "")
@@ -86,8 +86,9 @@ def cmd_tasks(args) -> int:
 
 
 def cmd_solve(args) -> int:
-    from . import api, receding, report
-    from . import metrics as metrics_mod
+    from hydroilqr import metrics as metrics_mod
+    from hydroilqr.output import report
+    from hydroilqr.solver import api, receding
 
     extra = []
     if args.derivatives:
@@ -143,14 +144,14 @@ def cmd_solve(args) -> int:
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
         )
-    from .check import start_warning
+    from hydroilqr.problem.check import start_warning
 
     warning = "" if resume_dir else start_warning(task)  # a resumed run starts elsewhere
     if warning:
         warn(f"{warning} (see `hydroilqr check`)")
     t0 = time.perf_counter()
     if cfg.receding_horizon is not None:
-        from .progress import ResolveProgress
+        from hydroilqr.output.progress import ResolveProgress
 
         rh = cfg.receding_horizon
         console.print(
@@ -187,7 +188,7 @@ def cmd_solve(args) -> int:
             "previous window blew the simulation up when rolled out (extra.resolves)"
         )
     if args.view:
-        from .replay import meshcat_instance
+        from hydroilqr.output.replay import meshcat_instance
 
         console.print(f"live view: {meshcat_instance().web_url()}")
     # An earlier solve's results are replaced only now that this one has a trajectory: a
@@ -229,7 +230,7 @@ def cmd_solve(args) -> int:
         return 130
     if args.view:
         if args.no_replay:  # the replay (published to the live page as it is written) is due
-            from .replay import write_replay
+            from hydroilqr.output.replay import write_replay
 
             write_replay(task, sol.X, sol.t, out / "replay.html", inputs=sol.U)
         console.print("serving the replay on the live page above; press Ctrl+C to stop")
@@ -245,7 +246,7 @@ def _clear_previous(out: Path, keep: tuple[str, ...] = ()) -> None:
     """Removes what an earlier solve wrote into ``out`` (plots, replay, checkpoint, playbacks of
     its solution), so the directory never mixes two runs. Other files, and the names in
     ``keep`` (this run's own checkpoint), are left alone."""
-    from . import report
+    from hydroilqr.output import report
 
     stale = [p for p in report.solve_outputs(out) if p.name not in keep]
     if stale:
@@ -258,11 +259,11 @@ def _clear_previous(out: Path, keep: tuple[str, ...] = ()) -> None:
 
 
 def cmd_check(args) -> int:
-    from .check import check_task
+    from hydroilqr.problem.check import check_task
 
     task = load_task_from_args(args)
     if not args.smoke:  # the task's `smoke:` section must work too (tests rely on it)
-        from .task import Task
+        from hydroilqr.problem.task import Task
 
         Task.load(task_name_from_args(args), list(args.set or []), args.config, True).validate()
     check_task(task, console)
@@ -280,8 +281,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version_line() -> str:
-    from . import __version__
-    from .report import environment
+    from hydroilqr import __version__
+    from hydroilqr.output.report import environment
 
     e = environment()
     return (
@@ -366,7 +367,7 @@ def register(name: str, helptext: str):
 def _load_plugins() -> None:
     import importlib
 
-    for mod in ("sweep", "playback", "bench", "mpc"):
+    for mod in ("studies.sweep", "control.playback", "studies.bench", "control.mpc"):
         try:
             importlib.import_module(f"hydroilqr.{mod}")
         except ModuleNotFoundError as e:
@@ -415,7 +416,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("drake").setLevel(logging.WARNING)
     try:
         _load_plugins()  # imports Drake: Ctrl+C here is an interruption like any other
-        from .plant import SimulationError
+        from hydroilqr.model.plant import SimulationError
     except KeyboardInterrupt:
         print("hydroilqr: interrupted", file=sys.stderr)
         return 130
@@ -424,10 +425,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     import shlex
 
-    from . import report
+    from hydroilqr.output import report
 
     report.COMMAND = shlex.join(["hydroilqr", *argv])
-    from .report import discard_empty_outputs
+    from hydroilqr.output.report import discard_empty_outputs
 
     try:
         try:

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import GUESS_KEYWORDS, ConfigError
-from .files import atomic_savez
-from .ilqr import IterationInfo, Problem, solve
-from .plant import SimulationError
-from .solution import PHASES, Solution
+from hydroilqr.model.plant import SimulationError
+from hydroilqr.output.files import atomic_savez
+from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError
+from hydroilqr.solver.ilqr import IterationInfo, Problem, solve
+from hydroilqr.solver.solution import PHASES, Solution
 
 CHECKPOINT = "checkpoint.npz"
 
@@ -270,7 +270,7 @@ def fingerprint(cfg) -> str:
 
 def numeric_environment() -> dict:
     """What decides a run's last bits: code, package versions, BLAS kernels, vector units."""
-    from .report import environment
+    from hydroilqr.output.report import environment
 
     env = environment()
     keys = ("code", "drake", "numpy", "scipy", "blas_core", "cpu_features")

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .config import ConfigError
+from hydroilqr.problem.config import ConfigError
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import atomic_savez
+from hydroilqr.output.files import atomic_savez
 
 PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
 
@@ -28,7 +28,7 @@ def solution_file(path: str | Path) -> Path:
 def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
     """The Solution of a solved run given as its directory or its solution.npz, and the file's
     path; ConfigError naming ``key`` (the option that pointed there) if it cannot be read."""
-    from .config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     path = solution_file(path)
     try:

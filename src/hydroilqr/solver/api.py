@@ -14,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import SolverConfig, validate_solver
-from .ilqr import IterationInfo, callback_list
-from .ilqr import solve as ilqr_solve
-from .plant import SimulationError
-from .receding import solve_receding
-from .solution import PHASES, Solution
-from .task import Task
+from hydroilqr.model.plant import SimulationError
+from hydroilqr.problem.config import SolverConfig, validate_solver
+from hydroilqr.problem.task import Task
+from hydroilqr.solver.ilqr import IterationInfo, callback_list
+from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.receding import solve_receding
+from hydroilqr.solver.solution import PHASES, Solution
 
 
 def solve(
@@ -138,7 +138,7 @@ def solve(
 def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
     """``settings`` if it is a SolverConfig, else ``solver`` with the dict's fields changed."""
     if isinstance(settings, dict):
-        from .config import _build_dataclass
+        from hydroilqr.problem.config import _build_dataclass
 
         settings = _build_dataclass(
             SolverConfig, {**dataclasses.asdict(solver), **settings}, "settings"

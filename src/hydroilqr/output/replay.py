@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import atomic_write
-from .plant import build_diagram
+from hydroilqr.model.plant import build_diagram
+from hydroilqr.output.files import atomic_write
 
 _MESHCAT = None
 

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report
-from .config import ConfigError
-from .metrics import contact_pairs, metric
+from hydroilqr.metrics import contact_pairs, metric
+from hydroilqr.output import report
+from hydroilqr.problem.config import ConfigError
 
 
 def _ball_block(task):

@@ -35,12 +35,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import workers
-from .config import ConfigError, SolverConfig, validate_solver
-from .cost import QuadraticCost, Quadratization
-from .derivatives import DerivativeMethod, Linearizer
-from .plant import Dynamics, SimulationError
-from .solution import PHASES, Solution
+from hydroilqr.model import workers
+from hydroilqr.model.cost import QuadraticCost, Quadratization
+from hydroilqr.model.derivatives import DerivativeMethod, Linearizer
+from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.problem.config import ConfigError, SolverConfig, validate_solver
+from hydroilqr.solver.solution import PHASES, Solution
 
 # Iterations over which small progress from shortened steps counts as convergence.
 STALL_WINDOW = 5

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, CostConfig
-from .state import StateLayout
+from hydroilqr.model.state import StateLayout
+from hydroilqr.problem.config import ConfigError, CostConfig
 
 
 @dataclass
@@ -239,7 +239,7 @@ class QuadraticCost:
 def _load_reference(
     layout: StateLayout, cfg: CostConfig, resolve, models=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    from .solution import load_run_solution
+    from hydroilqr.solver.solution import load_run_solution
 
     sol, path = load_run_solution(
         resolve(cfg.reference) if resolve else cfg.reference, "cost.reference"

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import workers
-from .cli import console, register
-from .config import ConfigError, DerivativeMethod
-from .files import atomic_write
-from .plant import hydroelastic_kind
-from .solution import PHASES
+from hydroilqr.cli import console, register
+from hydroilqr.model import workers
+from hydroilqr.model.plant import hydroelastic_kind
+from hydroilqr.output.files import atomic_write
+from hydroilqr.problem.config import ConfigError, DerivativeMethod
+from hydroilqr.solver.solution import PHASES
 
 PAPER = [
     "plant.contact_approximation=tamsi",
@@ -94,7 +94,7 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
     nominal controls U: [N, nu] that iteration started from (U0, then (b)'s iterates) and the μ
     it started with, outside (b)'s timed iterations (``same_iterates``): one call per
     iteration (b) ran, also when (b) stops early."""
-    from .ilqr import solve
+    from hydroilqr.solver.ilqr import solve
 
     baton = _Baton()
     results: list = [None, None]
@@ -158,8 +158,8 @@ class SameIterates:
         self.errors: list[str] = []
 
     def __call__(self, U: np.ndarray, mu: float) -> None:
-        from .ilqr import solve
-        from .plant import SimulationError
+        from hydroilqr.model.plant import SimulationError
+        from hydroilqr.solver.ilqr import solve
 
         self.settings.regularization_init = float(mu)
         try:
@@ -256,7 +256,7 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
     """Relative error of forward/central/interval-k derivatives against AutoDiff along (X, U),
     max and median over the steps of each contact class (error at step k:
     max|J − J_AD| / max|J_AD|, J = [A B])."""
-    from .derivatives import linearize
+    from hydroilqr.model.derivatives import linearize
 
     dyn = task.dynamics
     s = task.config.solver
@@ -307,7 +307,7 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
 def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
     """Seconds of the batched FD derivative phase with 1 and ``threads`` threads (alternated,
     median of ``repeats``)."""
-    from .derivatives import linearize, num_threads
+    from hydroilqr.model.derivatives import linearize, num_threads
 
     dyn = task.dynamics
     s = task.config.solver
@@ -333,7 +333,7 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
     """Times AutoDiff and batched forward differences on ``steps`` states spread evenly over
     the initial rollout (so contact and free steps both count; alternating, best of
     ``repeats``). Returns seconds per step and the faster method."""
-    from .derivatives import linearize
+    from hydroilqr.model.derivatives import linearize
 
     dyn = task.dynamics
     X = dyn.rollout(task.x0, U0)
@@ -381,7 +381,7 @@ def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict,
     """The configurations ({"paper": [...], "fast": [...]}) and the two validated Tasks of
     one benchmark; ConfigError if ``fast`` changes the problem being timed (its length or
     time step: both runs share one initial guess and are compared per iteration)."""
-    from .task import Task
+    from hydroilqr.problem.task import Task
 
     sets = list(sets or [])
     th = [f"solver.threads={threads}"]
@@ -632,8 +632,8 @@ def run_bench(
     accuracy: bool = True,
     same_iterates: bool = True,
 ) -> dict:
-    from .config import load_task
-    from .report import output_dir
+    from hydroilqr.output.report import output_dir
+    from hydroilqr.problem.config import load_task
 
     seen: dict[str, str] = {}
     for name in names:
@@ -656,8 +656,8 @@ def run_bench(
 
 
 def _write(out: Path, rows, iterations, threads) -> dict:
-    from .derivatives import num_threads
-    from .report import environment
+    from hydroilqr.model.derivatives import num_threads
+    from hydroilqr.output.report import environment
 
     doc = {
         "task": BENCH_MARK,  # marks the directory as a bench's (report.RESULT_MARKERS)

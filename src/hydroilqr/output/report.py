@@ -22,8 +22,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from . import metrics as metrics_mod  # noqa: E402
-from .files import atomic_write
+from hydroilqr import metrics as metrics_mod  # noqa: E402
+from hydroilqr.output.files import atomic_write
 
 PLOTS: dict[str, Callable] = {}
 PLOT_FILES: set[str] = set()  # every file name a registered plot writes
@@ -148,7 +148,7 @@ def write_outputs(
         if name in PLOTS:
             PLOTS[name](task, sol, out)
     if replay:
-        from .replay import write_replay
+        from hydroilqr.output.replay import write_replay
 
         write_replay(task, sol.X, sol.t, out / "replay.html", inputs=sol.U)
     return summary
@@ -182,7 +182,7 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
     another task's results (results are never mixed or overwritten across tasks), or (unless
     ``playback``) if it is a ``playback-*`` directory of a solved run, which the next solve
     of that run clears."""
-    from .config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -257,7 +257,7 @@ def _lock(out: Path) -> None:
     import fcntl
     import os
 
-    from .config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     key = str(Path(out).resolve())
     if key in _LOCKS:
@@ -299,7 +299,7 @@ def _probe_writable(out: Path) -> None:
     import os
     import tempfile
 
-    from .config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     try:
         fd, probe = tempfile.mkstemp(prefix=".hydroilqr-probe-", dir=out)
@@ -316,7 +316,7 @@ def read_lock(run_dir: Path) -> None:
     import fcntl
     import os
 
-    from .config import ConfigError
+    from hydroilqr.problem.config import ConfigError
 
     key = str(Path(run_dir).resolve())
     if key in _LOCKS or key in _READ_LOCKS:
@@ -356,7 +356,7 @@ def code_version() -> str:
     a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
     import subprocess
 
-    here = Path(__file__).parent
+    here = Path(__file__).parent.parent
     try:
         head = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
@@ -384,7 +384,7 @@ def environment() -> dict:
     import importlib.metadata as md
     import platform
 
-    from .workers import cores
+    from hydroilqr.model.workers import cores
 
     def version(pkg: str) -> str | None:
         try:

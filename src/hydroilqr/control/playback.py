@@ -6,7 +6,7 @@ updated every 20 ms, with no feedback on the ball. Here the robot is a second si
 the same task: a finer time step (1 ms by default) and a different discrete contact
 approximation from the planner's, started from the plan's initial state.
 
-    from hydroilqr.playback import PlaybackSettings, load_run, playback, write_outputs
+    from hydroilqr.control.playback import PlaybackSettings, load_run, playback, write_outputs
     task, sol, _ = load_run("runs/kinova-forward")
     result = playback(task, sol, PlaybackSettings(speed=0.5))
     write_outputs(task, result, "runs/kinova-forward/playback-pd")
@@ -40,8 +40,11 @@ from typing import Any, NamedTuple
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
-from . import cli
-from .config import (
+from hydroilqr import cli
+from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
+from hydroilqr.model.state import quat_conj, quat_mul
+from hydroilqr.output.files import atomic_savez
+from hydroilqr.problem.config import (
     APPROXIMATIONS,
     MAX_STEPS,
     TASKS_DIR,
@@ -51,10 +54,7 @@ from .config import (
     task_from_dict,
     with_overrides,
 )
-from .files import atomic_savez
-from .plant import Dynamics, SimulationError, position_unit
-from .solution import Solution, load_run_solution
-from .state import quat_conj, quat_mul
+from hydroilqr.solver.solution import Solution, load_run_solution
 
 #: Default "real" contact approximation for each planner approximation (always a different one).
 TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "sap"}
@@ -210,7 +210,7 @@ class SolvedRun(NamedTuple):
 
 def load_run(run_dir: str | Path) -> SolvedRun:
     """The task, Solution and summary.json of a ``hydroilqr solve`` output directory."""
-    from .task import Task
+    from hydroilqr.problem.task import Task
 
     run_dir = Path(run_dir)
     summary_path, sol_path = run_dir / "summary.json", run_dir / "solution.npz"
@@ -749,7 +749,7 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
 def write_replay(task, r: PlaybackResult, path: Path) -> None:
     """Meshcat HTML: the actual motion first, then (after a short pause) the plan at the same
     playback speed."""
-    from . import replay
+    from hydroilqr.output import replay
 
     replay.write_replay(task, [r.X, r.X_plan], r.t, path, inputs=[r.U, r.U_plan])
 
@@ -759,11 +759,11 @@ def write_outputs(
 ) -> dict:
     """playback.json, playback.png, reference.csv, playback.npz and (optionally)
     playback.html in ``out``. Returns the JSON dict."""
-    from .report import write_json
+    from hydroilqr.output.report import write_json
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from .report import environment
+    from hydroilqr.output.report import environment
 
     data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
     data["environment"] = environment()
@@ -794,7 +794,7 @@ def write_outputs(
 
 
 def cmd_playback(args) -> int:
-    from .report import read_lock
+    from hydroilqr.output.report import read_lock
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
     pd_loop = {k: getattr(args, k) for k in ("kp", "kd", "rate") if getattr(args, k) is not None}
@@ -818,7 +818,7 @@ def cmd_playback(args) -> int:
     )
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
-    from .report import output_dir
+    from hydroilqr.output.report import output_dir
 
     out = output_dir(
         args.out or Path(args.dir) / f"playback-{args.policy}", task.name, playback=True
@@ -835,7 +835,7 @@ def cmd_playback(args) -> int:
     for w in early:
         cli.warn(w)
     r = playback(task, sol, settings)
-    from .report import deferred_interrupt
+    from hydroilqr.output.report import deferred_interrupt
 
     with deferred_interrupt():  # Ctrl+C here: after the set is complete
         data = write_outputs(task, r, out, replay=not args.no_replay, run_dir=args.dir)

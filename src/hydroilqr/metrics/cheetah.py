@@ -45,9 +45,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report
-from .config import ConfigError
-from .metrics import contact_pairs, metric
+from hydroilqr.metrics import contact_pairs, metric
+from hydroilqr.output import report
+from hydroilqr.problem.config import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
 DIAGONAL = ((0, 3), (1, 2))  # FL+HR, FR+HL

@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from .config import DerivativeMethod
-from .plant import SimulationError, hydroelastic_kind
+from hydroilqr.model.plant import SimulationError, hydroelastic_kind
+from hydroilqr.problem.config import DerivativeMethod
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
@@ -291,7 +291,7 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             "Hunt-Crossley dissipation applies under tamsi, similar or lagged only"
         )
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
-    from .plant import geometry_hits
+    from hydroilqr.model.plant import geometry_hits
 
     names = dyn.geometry_names()
     out["geometry_overrides"] = {}

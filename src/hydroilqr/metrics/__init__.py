@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .config import ConfigError
+from hydroilqr.problem.config import ConfigError
 
 METRICS: dict[str, Callable] = {}
 
@@ -25,7 +25,7 @@ def metric(name: str):
 
 
 # Modules that register task-specific metrics and plots (``metrics_<name>.py``).
-PLUGINS = ("metrics_kinova", "metrics_cheetah")
+PLUGINS = ("metrics.kinova", "metrics.cheetah")
 
 
 def load_plugins() -> None:

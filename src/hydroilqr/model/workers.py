@@ -32,7 +32,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from .plant import Dynamics, SimulationError
+from hydroilqr.model.plant import Dynamics, SimulationError
 
 _DYN: Dynamics | None = None  # the plant of this worker process
 
@@ -152,7 +152,7 @@ def _submit(dyn: Dynamics, fn, *args):
 # ------------------------------------------------------------------------------ in workers
 def _init(config: dict, base_dir: str) -> None:
     global _DYN
-    from .config import task_from_dict
+    from hydroilqr.problem.config import task_from_dict
 
     _exit_with_parent(os.getppid())
     _DYN = Dynamics(task_from_dict(config, base_dir))
@@ -177,7 +177,7 @@ def _ready() -> bool:
 
 
 def _autodiff(X: np.ndarray, U: np.ndarray):
-    from .derivatives import autodiff_serial
+    from hydroilqr.model.derivatives import autodiff_serial
 
     return autodiff_serial(_DYN, X, U)
 
@@ -196,7 +196,7 @@ def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     here), so that steps in contact, which cost several times more, spread evenly. (Contiguous
     chunks left one process idle while the other finished a stance phase: a 22-step cheetah
     call took 76-148 ms instead of 67-133 ms, measured 2026-11-24.) Raises Unavailable."""
-    from .derivatives import autodiff_serial
+    from hydroilqr.model.derivatives import autodiff_serial
 
     pool(dyn, workers)
     N = U.shape[0]

@@ -35,7 +35,10 @@ from typing import NamedTuple
 import numpy as np
 from pydrake.multibody.tree import BodyIndex
 
-from .config import (
+from hydroilqr.model.derivatives import Linearizer
+from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
+from hydroilqr.output.files import atomic_savez
+from hydroilqr.problem.config import (
     DERIVATIVES,
     MAX_STEPS,
     ConfigError,
@@ -44,12 +47,9 @@ from .config import (
     validate_mpc,
     with_overrides,
 )
-from .derivatives import Linearizer
-from .files import atomic_savez
-from .ilqr import Problem
-from .ilqr import solve as ilqr_solve
-from .plant import Dynamics, SimulationError, position_unit
-from .solution import PHASES, Solution, load_run_solution
+from hydroilqr.solver.ilqr import Problem
+from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
 
 @dataclass
@@ -185,7 +185,7 @@ class MPCSettings:
             )
         if not np.all(np.isfinite(U)):
             raise ConfigError(f"mpc.warm_start_plan: {path} holds NaN or infinite controls")
-        from .report import previous_task
+        from hydroilqr.output.report import previous_task
 
         other = previous_task(path.parent)  # another task with as many actuators is wrong too
         if other is not None and other != task.name:
@@ -764,7 +764,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
 
 
 def _setup(p):
-    from .cli import add_task_args
+    from hydroilqr.cli import add_task_args
 
     add_task_args(p)
     p.add_argument(
@@ -824,8 +824,9 @@ def _setup(p):
 
 
 def cmd_mpc(args) -> int:
-    from . import metrics, report
-    from .cli import console, load_task_from_args
+    from hydroilqr import metrics
+    from hydroilqr.cli import console, load_task_from_args
+    from hydroilqr.output import report
 
     if args.push_duration is not None and not args.push:
         raise ConfigError("--push-duration: given without --push")
@@ -901,7 +902,7 @@ def cmd_mpc(args) -> int:
         )
         plot_mpc(task, res, out / "mpc.png")
         if not args.no_replay:
-            from .replay import write_replay
+            from hydroilqr.output.replay import write_replay
 
             write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
         report.write_json(out / "mpc.json", data)
@@ -936,7 +937,7 @@ def cmd_mpc(args) -> int:
 
 
 def _register():
-    from .cli import register
+    from hydroilqr.cli import register
 
     register("mpc", "closed-loop MPC over hydroelastic contact")(_setup)
 

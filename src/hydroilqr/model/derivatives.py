@@ -31,11 +31,11 @@ from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
 from pydrake.common import Parallelism
 from pydrake.systems.analysis import BatchEvalUniquePeriodicDiscreteUpdate
 
-from .config import DerivativeMethod
-from .plant import Dynamics, SimulationError
-from .workers import Unavailable as WorkersUnavailable
-from .workers import autodiff as parallel_autodiff
-from .workers import resolve as resolve_workers
+from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.model.workers import Unavailable as WorkersUnavailable
+from hydroilqr.model.workers import autodiff as parallel_autodiff
+from hydroilqr.model.workers import resolve as resolve_workers
+from hydroilqr.problem.config import DerivativeMethod
 
 
 def num_threads(requested: int = 0) -> int:

@@ -71,7 +71,7 @@ from typing import Any
 
 import yaml
 
-TASKS_DIR = Path(__file__).parent / "tasks"
+TASKS_DIR = Path(__file__).parent.parent / "tasks"
 
 
 SHAPES = ("box", "sphere", "cylinder", "halfspace")
@@ -891,7 +891,7 @@ MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2
 
 
 def validate_mpc(m: Any) -> None:
-    """Checks the ``mpc:`` settings that need no plant (an MPCConfig, or hydroilqr.mpc's
+    """Checks the ``mpc:`` settings that need no plant (an MPCConfig, or hydroilqr.control.mpc's
     MPCSettings, which has the same fields); ConfigError naming the key."""
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
