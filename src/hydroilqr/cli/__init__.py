@@ -351,6 +351,12 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (helptext, setup) in COMMANDS.items():
         p = sub.add_parser(name, help=helptext)
         setup(p)
+
+    from hydroilqr.cli import results
+
+    p = sub.add_parser("results", help=results.HELP)
+    results.setup(p)
+    p.set_defaults(func=results.run)
     return parser
 
 

@@ -1,0 +1,259 @@
+"""The results page: solve built-in tasks and write ``docs/results.md`` + ``docs/results.json``.
+
+Every number the documentation quotes comes from this page, which records the command that
+produced it and the environment it ran in (contact-rich solves move with last-bit
+floating-point differences, so numbers are comparable only within one environment).
+
+The page is a list of sections. A section is a function ``f(results, context) -> Section |
+None`` in ``SECTIONS``; the default one is the table of solves, whose columns are the entries
+of ``COLUMNS`` (a header and a function of one ``TaskResult``). Other studies add a section
+(e.g. a bench table) with ``SECTIONS.append(fn)`` or a column (e.g. a playback gap) with
+``COLUMNS.append(Column(...))`` before calling :func:`generate`.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from hydroilqr.output.files import atomic_write
+from hydroilqr.output.report import environment, json_safe
+
+DEFAULT_TASKS = (
+    "cartpole-wall",
+    "kinova-forward",
+    "kinova-left",
+    "kinova-up",
+    "cheetah-trot-1.0",
+    "cheetah-trot-0.5",
+)
+
+
+@dataclass
+class TaskResult:
+    """One solved task: the task, its solution, its metrics and the wall time of ``solve``."""
+
+    name: str
+    task: object
+    sol: object
+    metrics: dict
+    solve_seconds: float
+
+
+@dataclass
+class Section:
+    """A part of the page: a heading, its Markdown body, and the data it adds to the JSON."""
+
+    key: str
+    title: str
+    markdown: str
+    data: object = None
+
+
+@dataclass
+class Column:
+    """A column of the solve table: ``value(result)`` is a short string ('' if none)."""
+
+    header: str
+    value: Callable[[TaskResult], str]
+
+
+@dataclass
+class Context:
+    command: str
+    smoke: bool
+    overrides: list[str] = field(default_factory=list)
+
+
+# ------------------------------------------------------------------------------ the columns
+
+
+def _num(m: dict, key: str, fmt: str, scale: float = 1.0) -> str | None:
+    v = m.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    return format(v * scale if scale != 1.0 else v, fmt)
+
+
+def headline(m: dict) -> str:
+    """The task-specific numbers that say whether a solve did its job, short: whichever of
+    the cart-pole, Kinova and cheetah metrics the task computes."""
+    parts: list[str] = []
+
+    def add(label: str, key: str, fmt: str, scale: float = 1.0) -> None:
+        s = _num(m, key, fmt, scale)
+        if s is not None:
+            parts.append(f"{label} {s}")
+
+    add("angle err rad", "final_angle_error_rad", ".3f")
+    add("wall steps", "wall_contact_steps", "d")
+    add("ball err cm", "target_error_m", ".1f", 100.0)
+    add("lift cm", "max_ball_height_gain_m", ".1f", 100.0)
+    add("v m/s", "mean_forward_velocity_mps", ".2f")
+    add("body contact steps", "body_ground_contact_steps", "d")
+    diag, lat = (
+        _num(m, "diagonal_pair_overlap", ".3f"),
+        _num(m, "lateral_pair_overlap", ".3f"),
+    )
+    if diag is not None and lat is not None:
+        parts.append(f"diag/lat overlap {diag}/{lat}")
+    return ", ".join(parts)
+
+
+COLUMNS: list[Column] = [
+    Column("task", lambda r: f"`{r.name}`"),
+    Column("iterations", lambda r: str(r.sol.iterations)),
+    Column("final cost", lambda r: f"{r.sol.final_cost:.4g}"),
+    Column("converged", lambda r: "yes" if r.sol.converged else f"no ({r.sol.reason})"),
+    Column("solve s", lambda r: f"{r.solve_seconds:.1f}"),
+    Column("headline metrics", lambda r: headline(r.metrics)),
+]
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def solve_table(results: Sequence[TaskResult], context: Context) -> Section:
+    """The default section: one row per task."""
+    head = "| " + " | ".join(c.header for c in COLUMNS) + " |"
+    rule = "|" + "---|" * len(COLUMNS)
+    rows = ["| " + " | ".join(_cell(c.value(r)) for c in COLUMNS) + " |" for r in results]
+    note = (
+        "`final cost` is the last window's for receding-horizon tasks; `solve s` is the wall "
+        "time of `solve()`. Every metric is in `results.json`."
+    )
+    data = [
+        {
+            "task": r.name,
+            "converged": bool(r.sol.converged),
+            "reason": r.sol.reason,
+            "iterations": int(r.sol.iterations),
+            "final_cost": float(r.sol.final_cost),
+            "solve_seconds": float(r.solve_seconds),
+            "metrics": json_safe(r.metrics),
+        }
+        for r in results
+    ]
+    return Section("solves", "Solves", "\n".join([head, rule, *rows, "", note]), data)
+
+
+SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [solve_table]
+
+
+# ------------------------------------------------------------------------------ the page
+
+
+def command_line(
+    tasks: Sequence[str], out: str | Path, smoke: bool, overrides: Sequence[str]
+) -> str:
+    """The ``hydroilqr results ...`` command that regenerates a page with these arguments."""
+    argv = ["hydroilqr", "results", *tasks]
+    if smoke:
+        argv.append("--smoke")
+    for o in overrides:
+        argv += ["--set", o]
+    argv += ["--out", str(out)]
+    return shlex.join(argv)
+
+
+def solve_tasks(
+    tasks: Sequence[str],
+    overrides: Sequence[str] = (),
+    smoke: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> list[TaskResult]:
+    """Loads, solves and measures each task through the public API."""
+    from hydroilqr import Task, metrics, solve
+
+    results = []
+    for name in tasks:
+        task = Task.load(name, list(overrides), smoke=smoke)
+        task.validate()
+        if progress:
+            progress(f"solving {name}{' (smoke)' if smoke else ''}")
+        t0 = time.perf_counter()
+        sol = solve(task)
+        seconds = time.perf_counter() - t0
+        results.append(TaskResult(name, task, sol, metrics.compute(task, sol), seconds))
+        if progress:
+            progress(
+                f"{name}: {sol.iterations} iterations, cost {sol.final_cost:.4g}, {seconds:.1f} s"
+            )
+    return results
+
+
+def render(
+    results: Sequence[TaskResult],
+    context: Context,
+    env: dict,
+    sections: Sequence[Callable] | None = None,
+) -> tuple[str, dict]:
+    """The page as Markdown and as a JSON-able dict."""
+    made = [s for s in (f(results, context) for f in (sections or SECTIONS)) if s is not None]
+    env_line = ", ".join(
+        f"{k} {v}"
+        for k, v in env.items()
+        if k != "command" and v not in (None, "", []) and not isinstance(v, (list, dict))
+    )
+    feats = env.get("cpu_features") or []
+    lines = [
+        "# Results",
+        "",
+        "Generated; do not edit. Regenerate with:",
+        "",
+        "```bash",
+        context.command,
+        "```",
+        "",
+        f"Environment: {env_line}" + (f", cpu_features {' '.join(feats)}" if feats else "") + ".",
+        "Numbers of contact-rich solves are comparable only within one environment "
+        "(code, package versions, BLAS kernels).",
+    ]
+    if context.smoke:
+        lines += ["", "**Smoke-sized tasks** (`--smoke`): not the real problems."]
+    for s in made:
+        lines += ["", f"## {s.title}", "", s.markdown]
+    page = {
+        "command": context.command,
+        "smoke": context.smoke,
+        "overrides": list(context.overrides),
+        "environment": json_safe(env),
+        "sections": {s.key: json_safe(s.data) for s in made},
+    }
+    return "\n".join(lines) + "\n", page
+
+
+def generate(
+    tasks: Sequence[str] = DEFAULT_TASKS,
+    out: str | Path = "docs",
+    smoke: bool = False,
+    overrides: Sequence[str] = (),
+    command: str | None = None,
+    sections: Sequence[Callable] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Path]:
+    """Solves ``tasks`` and writes ``OUT/results.md`` and ``OUT/results.json`` (each
+    atomically). ``command``: the line recorded at the top (default: the equivalent
+    ``hydroilqr results ...`` command). Returns the paths written, by format."""
+    tasks = list(tasks)
+    out = Path(out)
+    context = Context(
+        command=command or command_line(tasks, out, smoke, overrides),
+        smoke=smoke,
+        overrides=list(overrides),
+    )
+    results = solve_tasks(tasks, overrides, smoke, progress)
+    env = dict(environment())
+    env["command"] = context.command
+    md, page = render(results, context, env, sections)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
+        "md": atomic_write(out / "results.md", md),
+    }
+    return paths
