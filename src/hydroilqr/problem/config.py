@@ -97,6 +97,9 @@ class WeldConfig:
 @dataclass
 class ModelConfig:
     file: str = ""
+    # The model instance's name (default: the one in the file). Needed to load one file twice,
+    # or two files whose models share a name; duplicate joint names then read NAME::joint.
+    name: str = ""
     weld: WeldConfig | None = None
     welds: list[WeldConfig] = field(default_factory=list)  # more welds (e.g. several bases)
 
