@@ -282,6 +282,29 @@ def _exclude_scene_contacts(task: TaskConfig, plant, scene_graph, scene_ids: lis
 # ------------------------------------------------------------------------------------------
 
 
+def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> list:
+    """Parses one ``models`` entry; with ``name``, its model instance gets that name (a parser
+    of its own scopes the file's names under it first, so a second copy does not clash)."""
+    if m.name:
+        if plant.HasModelInstanceNamed(m.name):
+            raise ConfigError(f"{key}.name: a model instance named {m.name!r} exists already")
+        own = Parser(plant, scene_graph, model_name_prefix=m.name)
+        for pkg, path in task.package_map.items():  # (checked by the caller)
+            own.package_map().Add(pkg, str(task.resolve_path(path)))
+        parser = own
+    try:
+        if m.file.startswith("package://"):
+            instances = parser.AddModels(url=m.file)
+        else:
+            instances = parser.AddModels(str(task.resolve_path(m.file)))
+    except Exception as e:
+        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"{key}.file: could not parse {m.file}: {msg}") from None
+    if m.name and len(instances) == 1:
+        plant.RenameModelInstance(instances[0], m.name)
+    return instances
+
+
 def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = True) -> Scene:
     """Builds the task's diagram. With ``meshcat``, adds MeshcatVisualizer + ContactVisualizer."""
     builder = DiagramBuilder()
@@ -303,14 +326,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
             raise ConfigError(f"package_map.{name}: {where} is not a directory")
         parser.package_map().Add(name, str(where))
     for i, m in enumerate(task.models):
-        try:
-            if m.file.startswith("package://"):
-                instances = parser.AddModels(url=m.file)
-            else:
-                instances = parser.AddModels(str(task.resolve_path(m.file)))
-        except Exception as e:
-            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-            raise ConfigError(f"models[{i}].file: could not parse {m.file}: {msg}") from None
+        instances = _add_model(task, plant, scene_graph, parser, m, f"models[{i}]")
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
         for wkey, w in welds:

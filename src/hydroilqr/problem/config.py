@@ -97,6 +97,9 @@ class WeldConfig:
 @dataclass
 class ModelConfig:
     file: str = ""
+    # The model instance's name (default: the one in the file). Needed to load one file twice,
+    # or two files whose models share a name; duplicate joint names then read NAME::joint.
+    name: str = ""
     weld: WeldConfig | None = None
     welds: list[WeldConfig] = field(default_factory=list)  # more welds (e.g. several bases)
 
@@ -277,6 +280,31 @@ class MPCConfig:
     deadline: float = 0.0
 
 
+BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
+
+
+@dataclass
+class GoalCheck:
+    """Bounds on one metric (all given bounds must hold)."""
+
+    min: float | None = None
+    max: float | None = None
+    above: str | None = None  # the name of another metric that this one must exceed
+    below: str | None = None  # the name of another metric that this one must stay under
+
+    def describe(self) -> str:
+        parts = []
+        if self.min is not None:
+            parts.append(f">= {self.min:g}")
+        if self.max is not None:
+            parts.append(f"<= {self.max:g}")
+        if self.above is not None:
+            parts.append(f"> {self.above}")
+        if self.below is not None:
+            parts.append(f"< {self.below}")
+        return " and ".join(parts)
+
+
 @dataclass
 class TaskConfig:
     name: str = ""
@@ -297,6 +325,9 @@ class TaskConfig:
     mpc: MPCConfig = field(default_factory=MPCConfig)
     metrics: list[str] = field(default_factory=lambda: ["default"])
     metric_params: dict[str, Any] = field(default_factory=dict)
+    # What success means in the physical world: bounds on the run's metrics (see
+    # hydroilqr.metrics.goals), e.g. {target_error_m: {max: 0.03}}.
+    goal: dict[str, GoalCheck] = field(default_factory=dict)
     # Continuation (homotopy) for single solves: first solve the task with each stage's dotted
     # overrides (e.g. a softer contact), each stage warm-starting the next with its controls,
     # then the task as written. Softer contact has smoother gradients (paper §IV-C).
@@ -466,6 +497,8 @@ def _group_free_keys(parts: list[str]) -> list[str]:
             return [*prefix, ".".join(parts[n:])]
     if parts[0] == "geometry" and len(parts) > 3:
         return ["geometry", ".".join(parts[1:-1]), parts[-1]]
+    if parts[0] == "goal" and len(parts) > 3:  # a goal on a nested metric (duty_factor.FL)
+        return ["goal", ".".join(parts[1:-1]), parts[-1]]
     return parts
 
 
@@ -1009,6 +1042,9 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
     validate_solver(cfg.solver)
     validate_mpc(cfg.mpc)
+    from hydroilqr.metrics.goals import validate_goal
+
+    validate_goal(cfg.goal)
     if cfg.num_steps < 0:
         raise ConfigError(f"num_steps: must be positive (or 0: use horizon), got {cfg.num_steps}")
     steps = cfg.horizon / cfg.plant.time_step

@@ -1,0 +1,109 @@
+"""Task goals: PASS/FAIL checks on a run's metrics.
+
+A task file may declare what success means in the physical world, as bounds on the metrics
+its run reports (``summary.json``'s ``metrics``, ``mpc.json``, ``playback.json``)::
+
+    goal:
+      target_error_m: {max: 0.03}              # the ball ends within 3 cm of its target
+      max_ball_height_gain_m: {min: 0.10}
+      diagonal_pair_overlap: {above: lateral_pair_overlap}   # compared with another metric
+      duty_factor.FL: {min: 0.2}               # a dotted name reaches into a nested metric
+
+Each check holds when every bound it gives holds: ``min`` (value ≥ min), ``max`` (value ≤ max),
+``above`` (value > the named metric), ``below`` (value < the named metric). A metric the run
+did not report, or that is not a finite number, fails its check (with the reason). The goal
+is met when every check holds; a task without checks has no goal (``met`` is ``None``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from hydroilqr.problem.config import BOUNDS, ConfigError, GoalCheck
+
+
+def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
+    """Raises ConfigError for a check with no bound or with inverted bounds."""
+    for name, check in goal.items():
+        key = f"{where}.{name}"
+        if not name:
+            raise ConfigError(f"{where}: a check needs a metric name")
+        if all(getattr(check, b) is None for b in BOUNDS):
+            raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
+        if check.min is not None and check.max is not None and check.min > check.max:
+            raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
+
+
+def lookup(metrics: dict, name: str) -> Any:
+    """The metric at a dotted ``name`` (``duty_factor.FL``), or None when absent. A key that
+    itself contains dots is found before descending."""
+    if name in metrics:
+        return metrics[name]
+    head, _, rest = name.partition(".")
+    while rest:
+        if head in metrics and isinstance(metrics[head], dict):
+            found = lookup(metrics[head], rest)
+            if found is not None:
+                return found
+        more, _, rest = rest.partition(".")
+        head = f"{head}.{more}"
+    return None
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool):
+        return float(value)
+    if isinstance(value, (int, float)) and math.isfinite(float(value)):
+        return float(value)
+    return None
+
+
+def evaluate_check(name: str, check: GoalCheck, metrics: dict) -> dict:
+    """One check's record: metric, bounds, value, passed, and why it failed."""
+    value = _number(lookup(metrics, name))
+    record: dict[str, Any] = {"metric": name, "require": check.describe(), "value": value}
+    if value is None:
+        raw = lookup(metrics, name)
+        why = "not reported by this run" if raw is None else f"not a finite number ({raw!r})"
+        return {**record, "passed": False, "why": why}
+    failures = []
+    if check.min is not None and not value >= check.min:
+        failures.append(f"{value:.4g} < {check.min:g}")
+    if check.max is not None and not value <= check.max:
+        failures.append(f"{value:.4g} > {check.max:g}")
+    for other, sign in ((check.above, 1.0), (check.below, -1.0)):
+        if other is None:
+            continue
+        ref = _number(lookup(metrics, other))
+        if ref is None:
+            failures.append(f"{other} not reported")
+            continue
+        record[other] = ref
+        if not sign * (value - ref) > 0.0:
+            failures.append(f"{value:.4g} {'<=' if sign > 0 else '>='} {other} {ref:.4g}")
+    record["passed"] = not failures
+    if failures:
+        record["why"] = "; ".join(failures)
+    return record
+
+
+def evaluate(goal: dict[str, GoalCheck], metrics: dict) -> dict:
+    """``{"met": bool | None, "checks": [...]}`` for a run's metrics (``met`` None: no goal)."""
+    checks = [evaluate_check(name, check, metrics) for name, check in goal.items()]
+    met = all(c["passed"] for c in checks) if checks else None
+    return {"met": met, "checks": checks}
+
+
+def verdict_line(result: dict) -> str:
+    """``goal: PASS (2/2 checks)`` or ``goal: FAIL (1/2): target_error_m 0.067 > 0.03``."""
+    checks = result.get("checks") or []
+    if result.get("met") is None:
+        return "goal: none declared"
+    passed = sum(c["passed"] for c in checks)
+    if result["met"]:
+        return f"goal: PASS ({passed}/{len(checks)} checks)"
+    failed = "; ".join(
+        f"{c['metric']} {c.get('why', '')}".strip() for c in checks if not c["passed"]
+    )
+    return f"goal: FAIL ({passed}/{len(checks)} checks): {failed}"
