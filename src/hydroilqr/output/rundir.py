@@ -1,0 +1,152 @@
+"""Result sets that replace each other whole: staged, then committed through a journal.
+
+A command writes its results into ``out/.partial/`` (the stage). Only when every file is
+there does ``commit`` replace the earlier set, in three steps recorded by a journal
+``out/.commit`` (written atomically before the first step):
+
+1. retire: the earlier set's entries (``retire``: files, plots, ``playback-*`` directories
+   derived from the earlier plan) are renamed into ``out/.previous/``;
+2. install: the staged entries are renamed into ``out/``;
+3. the journal is removed, then ``.previous`` and the stage are deleted.
+
+Renames within one directory are atomic and need no free space. A process killed at any
+instant leaves either no journal (the earlier set is complete in ``out/``; the stage is
+discarded on the next run) or a journal with a complete stage and ``.previous``, which
+``recover`` (run by every command before it reads or writes ``out``) rolls forward. So a
+reader that recovers first sees the earlier complete set or the new complete one, never a
+mix and never nothing. Deletion never follows symbolic links (``_remove``), and entries that
+are not results (a user's notes, a symlink) are left where they are.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+
+from hydroilqr.output.files import atomic_write
+
+STAGE = ".partial"
+PREVIOUS = ".previous"
+JOURNAL = ".commit"
+KILL_ENV = "HYDROILQR_KILL_AT"  # fault injection for tests: a step name below
+
+
+def _fault(step: str) -> None:
+    """Test hook: SIGKILL this process at ``step`` when HYDROILQR_KILL_AT names it."""
+    if os.environ.get(KILL_ENV) == step:
+        import signal
+
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _remove(path: Path) -> None:
+    """Deletes a file, a symlink (the link, never its target) or a directory tree (without
+    following the symlinks inside it)."""
+    if path.is_symlink() or path.is_file():
+        path.unlink(missing_ok=True)
+    elif path.is_dir():
+        shutil.rmtree(path, ignore_errors=True)
+
+
+def _exists(path: Path) -> bool:
+    return path.exists() or path.is_symlink()
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def stage(out: Path) -> Path:
+    """A fresh, empty stage in ``out`` (after recovering an interrupted commit)."""
+    out = Path(out)
+    recover(out)
+    st = out / STAGE
+    _remove(st)
+    st.mkdir(parents=True)
+    return st
+
+
+def commit(out: Path, retire: list[str]) -> list[str]:
+    """Replaces the entries ``retire`` of ``out`` (those that exist) with the staged set;
+    returns the installed names. The stage must be complete."""
+    out = Path(out)
+    st = out / STAGE
+    new = sorted(p.name for p in st.iterdir())
+    old = sorted({n for n in [*retire, *new] if n not in (STAGE, PREVIOUS, JOURNAL)})
+    _fsync_dir(st)
+    _fault("staged")
+    atomic_write(out / JOURNAL, json.dumps({"retire": old, "install": new}))
+    _fault("journal")
+    _roll_forward(out)
+    return new
+
+
+def _roll_forward(out: Path) -> None:
+    """Completes the commit its journal describes (idempotent: safe to repeat after a kill)."""
+    plan = json.loads((out / JOURNAL).read_text())
+    prev, st = out / PREVIOUS, out / STAGE
+    prev.mkdir(exist_ok=True)
+    for i, name in enumerate(plan["retire"]):
+        # (on a repeat, a name already installed is the new entry: it stays)
+        installed = name in plan["install"] and not _exists(st / name)
+        if _exists(out / name) and not installed:
+            _remove(prev / name)
+            os.rename(out / name, prev / name)
+        _fault(f"retire:{i}")
+    for i, name in enumerate(plan["install"]):
+        if _exists(st / name):
+            os.rename(st / name, out / name)
+        _fault(f"install:{i}")
+    _fsync_dir(out)
+    (out / JOURNAL).unlink()
+    _fault("installed")
+    _remove(prev)
+    _remove(st)
+
+
+def recover(out: Path) -> bool:
+    """Finishes an interrupted commit in ``out`` (True if there was one) and removes what a
+    finished one left behind. A stage without a journal is kept for its owner (a
+    receding-horizon run's checkpoint lives there) until the next ``stage``."""
+    out = Path(out)
+    if (out / JOURNAL).is_file():
+        try:
+            _roll_forward(out)
+        except (OSError, ValueError, KeyError):
+            return False
+        return True
+    if (out / PREVIOUS).exists():
+        _remove(out / PREVIOUS)
+    return False
+
+
+def discard(out: Path) -> None:
+    """Removes the stage (a failed run's partial results); the earlier set is untouched."""
+    _remove(Path(out) / STAGE)
+
+
+@contextmanager
+def result_set(out: Path, retire: list[str], keep_stage_on_error: bool = False):
+    """``with result_set(out, retire) as st:`` write the new set into ``st``; on normal exit
+    it replaces ``retire`` in ``out``, on an exception the earlier set stays as it was (the
+    stage is discarded unless ``keep_stage_on_error``)."""
+    st = stage(out)
+    try:
+        yield st
+    except BaseException:
+        if not keep_stage_on_error:
+            discard(out)
+        raise
+    commit(out, retire)
