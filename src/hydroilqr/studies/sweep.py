@@ -683,17 +683,12 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
             )
 
 
-def _open_client(scheduler: str | None, workers: int | None, monitor: SweepMonitor):
+def _open_client(scheduler: str | None, workers: int | None):
     import logging
 
     from distributed import Client, LocalCluster
 
     if scheduler:
-        if workers:
-            monitor.message(
-                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
-                "cluster's own workers run the points)"
-            )
         # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         try:
@@ -840,7 +835,12 @@ def run_sweep(
 
     code = code_version()
     if todo:
-        client, cluster = _open_client(scheduler, workers, monitor)
+        if scheduler and workers:
+            monitor.message(
+                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
+                "cluster's own workers run the points)"
+            )
+        client, cluster = _open_client(scheduler, workers)
         try:
             nthreads = sum(client.nthreads().values())
             where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
