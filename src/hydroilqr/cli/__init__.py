@@ -131,7 +131,6 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger("drake").setLevel(logging.WARNING)
     try:
         commands()  # imports Drake: Ctrl+C here is an interruption like any other
-        from hydroilqr.model.plant import SimulationError
     except KeyboardInterrupt:
         print("hydroilqr: interrupted", file=sys.stderr)
         return 130
@@ -142,44 +141,54 @@ def main(argv: list[str] | None = None) -> int:
 
     # recorded in the results as environment.command
     args.command_line = shlex.join(["hydroilqr", *argv])
+    try:
+        return _run(args)
+    except BaseException as e:  # noqa: BLE001 - the promise is one line, never a traceback
+        code = _exit_code(e)
+        if code is None:
+            raise
+        return code
+
+
+def _run(args) -> int:
+    """Runs the command; a failed one leaves no empty results directory."""
     from hydroilqr.output.report import discard_empty_outputs
 
     try:
-        try:
-            return int(args.func(args) or 0)
-        except BaseException:
-            discard_empty_outputs()  # a failed command leaves no empty results directory
-            raise
-    except ConfigError as e:
-        if os.environ.get("HYDROILQR_DEBUG"):
-            raise
-        print(f"hydroilqr: error: {e}", file=sys.stderr)
-        return 2
-    except SimulationError as e:
-        if os.environ.get("HYDROILQR_DEBUG"):
-            raise
-        print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
-        return 3
-    except KeyboardInterrupt as e:
+        return int(args.func(args) or 0)
+    except BaseException:
+        discard_empty_outputs()
+        raise
+
+
+def _exit_code(e: BaseException) -> int | None:
+    """Prints the one line that reports ``e`` on stderr and returns the exit code; None for
+    what is raised on (SystemExit, and any error under HYDROILQR_DEBUG=1)."""
+    from hydroilqr.model.plant import SimulationError
+
+    if isinstance(e, KeyboardInterrupt):
         detail = f": {e}" if str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
-    except OSError as e:  # e.g. a full disk or a directory made read-only during the run
-        if os.environ.get("HYDROILQR_DEBUG"):
-            raise
+    if not isinstance(e, Exception) or os.environ.get("HYDROILQR_DEBUG"):
+        return None
+    if isinstance(e, ConfigError):
+        print(f"hydroilqr: error: {e}", file=sys.stderr)
+        return 2
+    if isinstance(e, SimulationError):
+        print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
+        return 3
+    if isinstance(e, OSError):  # e.g. a full disk or a directory made read-only during the run
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"hydroilqr: error: {where}{e.strerror or e}", file=sys.stderr)
         return 1
-    except Exception as e:  # noqa: BLE001 - the promise is one line, never a traceback
-        if os.environ.get("HYDROILQR_DEBUG"):
-            raise
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        print(
-            f"hydroilqr: internal error: {type(e).__name__}: {msg} "
-            "(set HYDROILQR_DEBUG=1 for a traceback)",
-            file=sys.stderr,
-        )
-        return 1
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    print(
+        f"hydroilqr: internal error: {type(e).__name__}: {msg} "
+        "(set HYDROILQR_DEBUG=1 for a traceback)",
+        file=sys.stderr,
+    )
+    return 1
 
 
 if __name__ == "__main__":

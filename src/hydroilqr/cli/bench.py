@@ -90,6 +90,14 @@ class _NoTamsiNotice(logging.Filter):
 
 
 def print_table(rows: list[dict]) -> None:
+    """bench's report: the table of iteration times, then notes per task."""
+    _print_times(rows)
+    _print_short_runs(rows)
+    _print_same_iterates(rows)
+    _print_accuracy(rows)
+
+
+def _print_times(rows: list[dict]) -> None:
     head = (
         f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
         f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
@@ -115,6 +123,9 @@ def print_table(rows: list[dict]) -> None:
             f"{r['cost_rel_diff']:>+7.2%} {fa:>9}",
             soft_wrap=True,
         )
+
+
+def _print_short_runs(rows: list[dict]) -> None:
     for r in rows:
         a, b = r.get("paper", {}), r.get("fast", {})
         short = [
@@ -127,6 +138,9 @@ def print_table(rows: list[dict]) -> None:
                 f"{r['task']}: {', '.join(short)}: its cost is compared after fewer iterations",
                 soft_wrap=True,
             )
+
+
+def _print_same_iterates(rows: list[dict]) -> None:
     for r in rows:
         si = r.get("same_iterates")
         if si and "speedup_median" in si:
@@ -142,6 +156,9 @@ def print_table(rows: list[dict]) -> None:
             console.print(
                 f"{r['task']}: (a) at (b)'s iterates failed: {si['errors'][0]}", soft_wrap=True
             )
+
+
+def _print_accuracy(rows: list[dict]) -> None:
     for r in rows:
         acc = r.get("accuracy")
         if acc:
