@@ -163,31 +163,13 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         if on_section is not None:
             on_section(section, out)
 
-    out["model"] = {
-        "name": task.name,
-        "files": [m.file for m in cfg.models],
-        "nq": dyn.nq,
-        "nv": dyn.nv,
-        "nx": dyn.nx,
-        "nu": dyn.nu,
-        "dt": dyn.dt,
-        "steps": task.steps,
-        "contact_approximation": cfg.plant.contact_approximation,
-        "contact_model": cfg.plant.contact_model,
-        "contact_surface_representation": cfg.plant.contact_surface_representation,
-        "derivatives": cfg.solver.derivatives,
-        "initial_guess": cfg.initial_guess,
-    }
+    out["model"] = _model(task)
     if cfg.solver.derivatives in ("forward", "central"):
-        plain, forces = dyn.nx + dyn.nu, dyn.nq + dyn.nv
-        qualifies = dyn.force_path() is not None
-        out["fd_steps_per_time_step"] = forces if cfg.solver.fd_forces and qualifies else plain
-        out["fd"] = {
-            "plain": plain,
-            "forces": forces,
-            "fd_forces": bool(cfg.solver.fd_forces),
-            "qualifies": qualifies,
-        }
+        out["fd"] = _fd(dyn, cfg.solver.fd_forces)
+        fd = out["fd"]
+        out["fd_steps_per_time_step"] = (
+            fd["forces"] if fd["fd_forces"] and fd["qualifies"] else fd["plain"]
+        )
     done("model")
 
     if cfg.continuation:
@@ -203,23 +185,12 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     out["blocks"] = _blocks(dyn.layout, x0)
     done("blocks")
 
-    actuators = []
-    for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
-        a = dyn.plant.get_joint_actuator(i)
-        lim = float(dyn.effort_limits[k])
-        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
-    out["actuators"] = actuators
+    out["actuators"] = _actuators(dyn)
     done("actuators")
 
     geoms = geometry_table(dyn)
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
-    from hydroilqr.model.plant import geometry_hits
-
-    names = dyn.geometry_names()
-    out["geometry_overrides"] = {}
-    for key in task.config.geometry:
-        hits = [f"{names[g][1]}/{names[g][0]}" for g in geometry_hits(key, names)]
-        out["geometry_overrides"][key] = hits
+    out["geometry_overrides"] = _geometry_overrides(dyn, task.config.geometry)
     done("geometries")
     if not geoms:
         warn("no collision geometry: the task has no contact at all")
@@ -277,6 +248,55 @@ SECTIONS = (
     "simulation",
     "warnings",
 )
+
+
+def _model(task) -> dict:
+    cfg, dyn = task.config, task.dynamics
+    return {
+        "name": task.name,
+        "files": [m.file for m in cfg.models],
+        "nq": dyn.nq,
+        "nv": dyn.nv,
+        "nx": dyn.nx,
+        "nu": dyn.nu,
+        "dt": dyn.dt,
+        "steps": task.steps,
+        "contact_approximation": cfg.plant.contact_approximation,
+        "contact_model": cfg.plant.contact_model,
+        "contact_surface_representation": cfg.plant.contact_surface_representation,
+        "derivatives": cfg.solver.derivatives,
+        "initial_guess": cfg.initial_guess,
+    }
+
+
+def _fd(dyn, fd_forces: bool) -> dict:
+    """Perturbed steps per time step of plain differences and of differences over
+    generalized forces, and whether the model qualifies for the latter."""
+    return {
+        "plain": dyn.nx + dyn.nu,
+        "forces": dyn.nq + dyn.nv,
+        "fd_forces": bool(fd_forces),
+        "qualifies": dyn.force_path() is not None,
+    }
+
+
+def _actuators(dyn) -> list[dict]:
+    actuators = []
+    for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
+        a = dyn.plant.get_joint_actuator(i)
+        lim = float(dyn.effort_limits[k])
+        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
+    return actuators
+
+
+def _geometry_overrides(dyn, geometry: dict) -> dict[str, list[str]]:
+    """Each ``geometry:`` key of the task -> the BODY/GEOMETRY names it applies to."""
+    from hydroilqr.model.plant import geometry_hits
+
+    names = dyn.geometry_names()
+    return {
+        key: [f"{names[g][1]}/{names[g][0]}" for g in geometry_hits(key, names)] for key in geometry
+    }
 
 
 def _blocks(layout, x0: np.ndarray) -> list[dict]:
