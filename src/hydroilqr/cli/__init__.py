@@ -11,7 +11,7 @@ import argparse
 import os
 import sys
 
-from hydroilqr.cli.common import (  # noqa: F401 - the names commands and tests share
+from hydroilqr.cli.common import (  # noqa: F401 - also importable from here, as before
     add_task_args,
     console,
     err_console,
