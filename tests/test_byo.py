@@ -4,13 +4,11 @@ and the guide's own commands and Python snippets, run in document order in a tem
 
 from __future__ import annotations
 
-import io
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
-from rich.console import Console
 
 from hydroilqr import Task, cli, solve
 from hydroilqr.problem.check import check_task
@@ -20,14 +18,10 @@ EXAMPLES = ROOT / "examples"
 GUIDE = ROOT / "docs" / "guide.md"
 
 
-def quiet_console() -> Console:
-    return Console(file=io.StringIO(), width=200)
-
-
 def test_acrobot_from_yaml_check():
     task = Task.from_yaml(EXAMPLES / "acrobot-swingup.yaml")
     task.validate()
-    facts = check_task(task, quiet_console())
+    facts = check_task(task)
     names = [b["name"] for b in facts["blocks"]]
     assert names[:2] == ["angles", "rates"]  # task groups first
     assert {"shoulder", "elbow", "shoulder.v", "elbow.v"} <= set(names)
@@ -39,7 +33,7 @@ def test_acrobot_from_yaml_check():
 
 def test_gripper_brick_from_yaml_check_and_smoke_solve():
     task = Task.from_yaml(EXAMPLES / "gripper-brick.yaml", smoke=True)
-    facts = check_task(task, quiet_console(), rollout_steps=10)
+    facts = check_task(task, rollout_steps=10)
     assert len(facts["actuators"]) == 6
     assert all(a["effort_limit"] == 75 for a in facts["actuators"])
     kinds = {(g["name"], g["body"]): g["kind"] for g in facts["geometries"]}

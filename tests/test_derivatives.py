@@ -108,15 +108,12 @@ def test_rollout_next_states_serve_as_the_unperturbed_steps():
 
 
 def test_check_reports_the_steps_per_time_step():
-    from rich.console import Console
-
     from hydroilqr.problem.check import check_task
 
-    quiet = Console(quiet=True)
-    grip = check_task(Task.load(GRIPPER, overrides=["num_steps=10"]), quiet, rollout_steps=3)
+    grip = check_task(Task.load(GRIPPER, overrides=["num_steps=10"]), rollout_steps=3)
     assert grip["fd_steps_per_time_step"] == 18  # nq + nv = 9 + 9, not nx + nu = 24
     lagged = Task.load(
         "cartpole-wall",
         overrides=["num_steps=10", "solver.fd_forces=true", "plant.contact_approximation=lagged"],
     )
-    assert check_task(lagged, quiet, rollout_steps=3)["fd_steps_per_time_step"] == 5
+    assert check_task(lagged, rollout_steps=3)["fd_steps_per_time_step"] == 5

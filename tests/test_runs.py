@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from hydroilqr import Solution, Task, cli, solve
+from hydroilqr import IterationTable, Solution, Task, cli, solve
 
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 TASK = {
@@ -37,7 +37,7 @@ def test_ctrl_c_during_a_solve_writes_the_best_so_far(tmp_path, monkeypatch, cap
         if info.iteration == 3:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(cli.IterationTable, "__call__", interrupt_at_third)
+    monkeypatch.setattr(IterationTable, "__call__", interrupt_at_third)
     out = tmp_path / "out"
     rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
     assert rc == 130
@@ -74,7 +74,8 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     assert env["command"] == f"hydroilqr solve {task} --out {out} --no-replay"
     from hydroilqr.output import report
 
-    assert report.COMMAND is None  # not carried into later Python calls
+    assert not hasattr(report, "COMMAND")  # no global: nothing carried into later Python calls
+    assert report.environment()["command"] is None
 
 
 def test_a_failed_resolve_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):

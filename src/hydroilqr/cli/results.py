@@ -26,8 +26,7 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.cli import console
-    from hydroilqr.output import report
+    from hydroilqr.cli.common import console
     from hydroilqr.studies.results import DEFAULT_TASKS, generate
 
     paths = generate(
@@ -35,7 +34,7 @@ def run(args) -> int:
         out=args.out,
         smoke=args.smoke,
         overrides=args.set,
-        command=report.COMMAND,
+        command=args.command_line,
         progress=console.print,
     )
     console.print(f"wrote {paths['md']}, {paths['json']}")

@@ -121,10 +121,16 @@ class deferred_interrupt:
 
 
 def write_outputs(
-    task, sol, out: str | Path, replay: bool = True, wall_seconds: float | None = None
+    task,
+    sol,
+    out: str | Path,
+    replay: bool = True,
+    wall_seconds: float | None = None,
+    command: str | None = None,
 ) -> dict:
     """Writes the standard outputs; returns the summary dict. ``wall_seconds``: the solve's
-    wall time as the caller measured it (setup included), recorded last in summary.json."""
+    wall time as the caller measured it (setup included), recorded last in summary.json;
+    ``command``: the command line that ran the solve (``environment.command``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sol.save(out / "solution.npz")
@@ -138,7 +144,7 @@ def write_outputs(
         # Directory the config's relative paths resolve against (rebuild with
         # config.task_from_dict(summary["config"], summary["base_dir"])).
         "base_dir": task.config.base_dir,
-        "environment": environment(),
+        "environment": environment(command),
     }
     if wall_seconds is not None:
         summary["wall_seconds"] = wall_seconds
@@ -377,10 +383,11 @@ def code_version() -> str:
     return head + ("-dirty" if head and dirty else "")
 
 
-def environment() -> dict:
+def environment(command: str | None = None) -> dict:
     """What produced a result: code commit, package versions, CPU. Contact-rich solves are
     sensitive to last-bit floating-point differences, so a number is only comparable with
-    numbers from the same environment."""
+    numbers from the same environment. ``command``: the command line that produced it (the
+    CLI passes its own; None from Python)."""
     import importlib.metadata as md
     import platform
 
@@ -417,11 +424,8 @@ def environment() -> dict:
         "blas_core": blas_core(),
         "cores": cores(),
         # the command line that produced the result (None from Python)
-        "command": COMMAND,
+        "command": command,
     }
-
-
-COMMAND: str | None = None  # set by the command-line entry point
 
 
 def blas_core() -> str | None:

@@ -1,6 +1,6 @@
 """``hydroilqr check TASK``: what a task file builds into, before anything is solved.
 
-``check_task(task, console)`` prints
+``check_task(task)`` reports (``hydroilqr check`` prints it)
 
 * the model: positions, velocities, actuators, time step, horizon, contact settings;
 * the state layout: every named block (task groups first) with its size and kind, which are
@@ -14,9 +14,8 @@
 * a simulation sanity check: one time step from the initial state with the first input of the
   initial guess, then a short open-loop rollout of the initial guess, both timed.
 
-It returns a dict of the same facts (for tests and scripts) and raises ``SimulationError`` if
-the simulation check fails; warnings (no collision pairs, velocities blowing up, ...) are
-printed and listed under ``"warnings"``.
+It returns a dict of these facts and raises ``SimulationError`` if the simulation check fails;
+warnings (no collision pairs, velocities blowing up, ...) are listed under ``"warnings"``.
 """
 
 from __future__ import annotations
@@ -34,10 +33,6 @@ DEEP_OVERLAP = 0.005  # m: an initial overlap this deep is reported with a faile
 LAUNCH_SPEED = 5.0  # or with a rollout that flings something faster than this
 VERY_DEEP_OVERLAP = 0.02  # m: reported in any case (a resting foot or ball sinks a few mm)
 BLOWUP_SPEED = 100.0
-
-
-def _fmt_limit(e: float) -> str:
-    return f"{e:g}" if np.isfinite(e) else "none (unbounded)"
 
 
 def _pair_model(ka: str, kb: str, contact_model: str) -> str:
@@ -153,156 +148,50 @@ def start_warning(task, rollout_steps: int = ROLLOUT_STEPS) -> str:
     return _start_warning(pairs, speed)
 
 
-def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
-    """Prints the report described in the module docstring; returns its facts as a dict."""
-    from rich.table import Table
-
+def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dict:
+    """The report described in the module docstring, as a dict of facts. ``on_section(name,
+    report)`` is called as each section is complete (``SECTIONS``, in that order; the report
+    so far), so a caller can show it while the rest is computed, and before an error."""
     cfg = task.config
     dyn = task.dynamics
-    layout = dyn.layout
     x0 = task.x0
     _ = task.cost  # validates the cost's names and sizes
     out: dict = {"warnings": []}
     warn = out["warnings"].append
 
-    console.print(
-        f"[bold]{task.name}[/bold]: {', '.join(m.file for m in cfg.models)}\n"
-        f"  nq={dyn.nq} nv={dyn.nv} nx={dyn.nx} nu={dyn.nu}  dt={dyn.dt} s  "
-        f"steps={task.steps}  contact={cfg.plant.contact_approximation} "
-        f"({cfg.plant.contact_model}, {cfg.plant.contact_surface_representation})  "
-        f"derivatives={cfg.solver.derivatives}"
-    )
+    def done(section: str) -> None:
+        if on_section is not None:
+            on_section(section, out)
 
+    out["model"] = _model(task)
     if cfg.solver.derivatives in ("forward", "central"):
-        plain, forces = dyn.nx + dyn.nu, dyn.nq + dyn.nv
-        qualifies = dyn.force_path() is not None
-        out["fd_steps_per_time_step"] = forces if cfg.solver.fd_forces and qualifies else plain
-        if cfg.solver.fd_forces and qualifies:
-            console.print(
-                f"  differences over generalized forces (solver.fd_forces): {forces} perturbed "
-                f"steps per time step instead of {plain}"
-            )
-        elif cfg.solver.fd_forces:
-            console.print(
-                "  solver.fd_forces: this model does not qualify (it needs SAP, or TAMSI without "
-                "joint damping, and no PD actuators): plain differences, "
-                f"{plain} steps per time step"
-            )
-        elif qualifies and forces < plain - 1:
-            console.print(
-                f"  (solver.fd_forces: true would take {forces} perturbed steps per time step "
-                f"instead of {plain}; docs/performance.md)"
-            )
+        out["fd"] = _fd(dyn, cfg.solver.fd_forces)
+        fd = out["fd"]
+        out["fd_steps_per_time_step"] = (
+            fd["forces"] if fd["fd_forces"] and fd["qualifies"] else fd["plain"]
+        )
+    done("model")
 
     if cfg.continuation:
         task.validate()  # builds every stage: bad keys or sizes are named here
-        for i, stage in enumerate(cfg.continuation):
-            keys = ", ".join(f"{k}={v}" for k, v in stage.items())
-            console.print(f"  continuation[{i}] (solved first): {keys}")
         out["continuation"] = [dict(s) for s in cfg.continuation]
+    done("continuation")
 
     plant = dyn.plant
     free = [plant.get_body(i).name() for i in plant.GetFloatingBaseBodies()]
     out["floating_bodies"] = sorted(free)
-    if free:
-        console.print(
-            f"  floating bodies (6-DoF; a robot base meant to be fixed needs `weld:`): "
-            f"{', '.join(sorted(free))}"
-        )
+    done("floating_bodies")
 
-    # ---------------------------------------------------------------- state layout
-    t = Table(title="state blocks (names for blocks / initial_state / cost)", title_justify="left")
-    for col in ("block", "kind", "coords", "tangent", "x indices", "x0"):
-        t.add_column(col)
-    blocks = []
-    for name, nc, nt, kind in layout.describe():
-        b = layout.block(name)
-        group = name in layout.groups
-        idx = list(b.coords)
-        span = (
-            f"{idx[0]}..{idx[-1]}"
-            if idx == list(range(idx[0], idx[-1] + 1)) and len(idx) > 1
-            else ",".join(map(str, idx))
-        )
-        blocks.append({"name": name, "size": nc, "tangent": nt, "kind": kind, "group": group})
-        vals = np.round(x0[idx], 4).tolist()
-        t.add_row(
-            name,
-            ("group, " if group else "") + kind,
-            str(nc),
-            str(nt),
-            span,
-            str(vals if len(vals) > 1 else vals[0]),
-        )
-    console.print(t)
-    out["blocks"] = blocks
+    out["blocks"] = _blocks(dyn.layout, x0)
+    done("blocks")
 
-    # ---------------------------------------------------------------- actuators
-    t = Table(title="actuators (names for cost.R)", title_justify="left")
-    for col in ("#", "actuator", "joint", "effort limit"):
-        t.add_column(col)
-    actuators = []
-    for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
-        a = dyn.plant.get_joint_actuator(i)
-        lim = float(dyn.effort_limits[k])
-        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
-        t.add_row(str(k), a.name(), a.joint().name(), _fmt_limit(lim))
-    console.print(t)
-    out["actuators"] = actuators
+    out["actuators"] = _actuators(dyn)
+    done("actuators")
 
-    # ---------------------------------------------------------------- geometry
     geoms = geometry_table(dyn)
-    t = Table(title="collision geometries (names for geometry overrides)", title_justify="left")
-    for col in (
-        "geometry",
-        "body",
-        "shape",
-        "hydroelastic",
-        "modulus [Pa]",
-        "hint [m]",
-        "friction",
-        "damping",
-    ):
-        t.add_column(col)
-    sap = cfg.plant.contact_approximation == "sap"
-    for g in geoms:
-        # The damping the contact solver uses: SAP a relaxation time (default 0.1 s per
-        # geometry), the others Hunt-Crossley dissipation.
-        if sap:
-            rt = g["relaxation_time"]
-            damping = f"τ {0.1 if rt is None else rt:g} s" + (" (default)" if rt is None else "")
-        else:
-            d = g["dissipation"]
-            damping = "" if d is None else f"{d:g} s/m"
-        t.add_row(
-            g["name"],
-            g["body"],
-            g["shape"],
-            g["kind"],
-            "" if g["modulus"] is None else f"{g['modulus']:.3g}",
-            "" if g["resolution_hint"] is None else f"{g['resolution_hint']:g}",
-            "" if g["friction"] is None else f"{g['friction']:g}",
-            damping,
-        )
-    console.print(t)
-    if sap:
-        console.print(
-            "damping: sap uses relaxation times (a pair's τ is the sum of its two geometries'); "
-            "Hunt-Crossley dissipation applies under tamsi, similar or lagged only"
-        )
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
-    from hydroilqr.model.plant import geometry_hits
-
-    names = dyn.geometry_names()
-    out["geometry_overrides"] = {}
-    for key in task.config.geometry:
-        hits = [f"{names[g][1]}/{names[g][0]}" for g in geometry_hits(key, names)]
-        out["geometry_overrides"][key] = hits
-        several = len({h.split("/")[0] for h in hits}) > 1
-        console.print(
-            f"geometry.{key} applies to: {', '.join(hits)}"
-            + (f" (BODY/{key} picks one)" if several else "")
-        )
+    out["geometry_overrides"] = _geometry_overrides(dyn, task.config.geometry)
+    done("geometries")
     if not geoms:
         warn("no collision geometry: the task has no contact at all")
     props = [(f"geometry.{k}", p) for k, p in cfg.geometry.items()]
@@ -312,25 +201,13 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             warn(f"{key}: compliance rigid, so its hydroelastic_modulus is not used")
 
     pairs = candidate_pairs(dyn, x0, geoms)
-    t = Table(
-        title=f"candidate collision pairs ({len(pairs)}), closest first", title_justify="left"
-    )
-    for col in ("A", "B", "kinds", "contact model", "distance at x0 [m]"):
-        t.add_column(col)
-    shown = 40
-    for p in pairs[:shown]:
-        d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
-        t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)
-    console.print(t)
-    if len(pairs) > shown:
-        console.print(f"  ... and {len(pairs) - shown} more pairs")
-    for i, o in enumerate(cfg.scene):
-        if o.no_contact_with:
-            console.print(
-                f"  scene[{i}] ({o.name or f'scene_{i}'}) never touches: "
-                f"{', '.join(o.no_contact_with)} (no_contact_with; not listed above)"
-            )
     out["pairs"] = pairs
+    out["no_contact_with"] = [
+        {"index": i, "name": o.name or f"scene_{i}", "geometries": list(o.no_contact_with)}
+        for i, o in enumerate(cfg.scene)
+        if o.no_contact_with
+    ]
+    done("pairs")
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
     if any(p["model"] != "hydroelastic" for p in pairs) and (
@@ -341,7 +218,109 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             "when one shape is a sphere; prefer central differences or set compliance"
         )
 
-    # ---------------------------------------------------------------- contact at x0
+    _contact_at_start(dyn, x0, pairs, out)
+    done("contacts")
+
+    _simulation(task, pairs, rollout_steps, out)
+    done("simulation")
+    w = _start_warning(pairs, out["max_speed"])
+    if w:
+        warn(w)
+    if out["contact_faces"] > 500:
+        warn(
+            f"{out['contact_faces']} contact polygons at x0: consider a coarser "
+            "resolution_hint (the polygon count dominates the cost of derivatives)"
+        )
+    done("warnings")
+    return out
+
+
+#: The sections of ``check_task``'s report, in the order they are complete.
+SECTIONS = (
+    "model",
+    "continuation",
+    "floating_bodies",
+    "blocks",
+    "actuators",
+    "geometries",
+    "pairs",
+    "contacts",
+    "simulation",
+    "warnings",
+)
+
+
+def _model(task) -> dict:
+    cfg, dyn = task.config, task.dynamics
+    return {
+        "name": task.name,
+        "files": [m.file for m in cfg.models],
+        "nq": dyn.nq,
+        "nv": dyn.nv,
+        "nx": dyn.nx,
+        "nu": dyn.nu,
+        "dt": dyn.dt,
+        "steps": task.steps,
+        "contact_approximation": cfg.plant.contact_approximation,
+        "contact_model": cfg.plant.contact_model,
+        "contact_surface_representation": cfg.plant.contact_surface_representation,
+        "derivatives": cfg.solver.derivatives,
+        "initial_guess": cfg.initial_guess,
+    }
+
+
+def _fd(dyn, fd_forces: bool) -> dict:
+    """Perturbed steps per time step of plain differences and of differences over
+    generalized forces, and whether the model qualifies for the latter."""
+    return {
+        "plain": dyn.nx + dyn.nu,
+        "forces": dyn.nq + dyn.nv,
+        "fd_forces": bool(fd_forces),
+        "qualifies": dyn.force_path() is not None,
+    }
+
+
+def _actuators(dyn) -> list[dict]:
+    actuators = []
+    for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
+        a = dyn.plant.get_joint_actuator(i)
+        lim = float(dyn.effort_limits[k])
+        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
+    return actuators
+
+
+def _geometry_overrides(dyn, geometry: dict) -> dict[str, list[str]]:
+    """Each ``geometry:`` key of the task -> the BODY/GEOMETRY names it applies to."""
+    from hydroilqr.model.plant import geometry_hits
+
+    names = dyn.geometry_names()
+    return {
+        key: [f"{names[g][1]}/{names[g][0]}" for g in geometry_hits(key, names)] for key in geometry
+    }
+
+
+def _blocks(layout, x0: np.ndarray) -> list[dict]:
+    """The state blocks (task groups first): name, size, tangent size, kind, whether a group,
+    their indices in x and their values at x0."""
+    blocks = []
+    for name, nc, nt, kind in layout.describe():
+        idx = list(layout.block(name).coords)
+        blocks.append(
+            {
+                "name": name,
+                "size": nc,
+                "tangent": nt,
+                "kind": kind,
+                "group": name in layout.groups,
+                "x_indices": idx,
+                "x0": np.round(x0[idx], 4).tolist(),
+            }
+        )
+    return blocks
+
+
+def _contact_at_start(dyn, x0: np.ndarray, pairs: list[dict], out: dict) -> None:
+    """The pairs touching at x0 with their polygon counts, and how many overlap exactly."""
     try:
         contacts = dyn.contact_surfaces(x0)
     except RuntimeError as e:
@@ -350,25 +329,15 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
         ) from None
     out["contacts"] = [{"a": a, "b": b, "faces": n} for a, b, n in contacts]
     out["contact_faces"] = int(sum(n for _, _, n in contacts))
-    if contacts:
-        console.print(
-            f"[bold]contact at the initial state[/bold]: {len(contacts)} pair(s), "
-            f"{out['contact_faces']} hydroelastic polygons"
-        )
-        for a, b, n in contacts:
-            console.print(f"  {a} / {b}: " + (f"{n} polygons" if n else "point contact"))
-    else:
-        console.print("[bold]contact at the initial state[/bold]: none")
-    n_touch = len(contacts)
-    overlapping = [p for p in pairs if p["distance"] is not None and p["distance"] < 0]
-    if len(overlapping) > n_touch:
-        console.print(
-            f"  ({len(overlapping)} pair(s) overlap in the exact shapes, {n_touch} touch: a "
-            "hydroelastic mesh of a curved shape lies inside the exact surface, by up to a "
-            "fraction of its resolution_hint, so a shallow overlap can have no contact)"
-        )
+    out["overlapping_pairs"] = sum(
+        1 for p in pairs if p["distance"] is not None and p["distance"] < 0
+    )
 
-    # ---------------------------------------------------------------- simulation
+
+def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
+    """One timed step, then a timed rollout of the initial guess (SimulationError with the
+    reason, and a deep initial overlap if there is one)."""
+    dyn, x0 = task.dynamics, task.x0
     N = min(task.steps, rollout_steps)
     U = task.initial_guess(task.steps)[:N]
     tic = time.perf_counter()
@@ -381,7 +350,7 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     except SimulationError as e:
         hint = f" ({overlap})" if overlap else ""
         raise SimulationError(
-            f"rollout of the initial guess ({cfg.initial_guess}): {e}{hint}"
+            f"rollout of the initial guess ({task.config.initial_guess}): {e}{hint}"
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
@@ -394,24 +363,3 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
             "rollout_ms_per_step": rollout_ms,
         }
     )
-    console.print(
-        f"[bold]simulation[/bold]: one step ok ({step_ms:.2f} ms); {N}-step rollout of the "
-        f"initial guess ({cfg.initial_guess}) ok, {rollout_ms:.2f} ms/step, "
-        f"max |v| = {speed:.3g}"
-    )
-    w = _start_warning(pairs, speed)
-    if w:
-        warn(w)
-    if out["contact_faces"] > 500:
-        warn(
-            f"{out['contact_faces']} contact polygons at x0: consider a coarser "
-            "resolution_hint (the polygon count dominates the cost of derivatives)"
-        )
-
-    for w in out["warnings"]:
-        console.print(f"[yellow]warning:[/yellow] {w}")
-    console.print(
-        "[green]check passed[/green]"
-        + (f" with {len(out['warnings'])} warning(s)" if out["warnings"] else "")
-    )
-    return out

@@ -20,15 +20,14 @@ against AutoDiff, FD thread scaling) and ``iterations.png`` (box plots, paper Fi
 from __future__ import annotations
 
 import json
-import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.cli import console, register
 from hydroilqr.model import workers
 from hydroilqr.model.plant import hydroelastic_kind
 from hydroilqr.output.files import atomic_write
@@ -409,7 +408,10 @@ def bench_task(
     block: int = 1,
     accuracy: bool = True,
     same_iterates: bool = True,
+    on_message: Callable[[str], None] | None = None,
 ) -> dict:
+    """Times the two configurations of task ``name``; returns its row of bench.json.
+    ``on_message`` receives a line (rich markup) saying what is timed before it starts."""
     fast = list(fast or [])
     cfgs, tasks = bench_tasks(name, threads, smoke, sets, fast)
     N = tasks[0].steps
@@ -421,7 +423,7 @@ def bench_task(
         tasks[1].config.solver.derivatives = probe["choice"]
         cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
     name = tasks[0].name  # the task's own name, also when given as a file
-    console.print(
+    (on_message or _ignore)(
         f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
         f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
     )
@@ -473,88 +475,6 @@ def bench_task(
 # ------------------------------------------------------------------------------------------
 # Output
 # ------------------------------------------------------------------------------------------
-
-
-def print_table(rows: list[dict]) -> None:
-    head = (
-        f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
-        f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
-        f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9}"
-    )
-    console.print("iLQR iteration time: (a) paper method vs (b) fast configuration")
-    console.print(head, style="bold", soft_wrap=True)
-    for r in rows:
-        a, b = r.get("paper", {}), r.get("fast", {})
-        if "median_s" not in a or "median_s" not in b:
-            console.print(
-                f"{r['task']:<18} {r['steps']:>4} {a.get('error', 'ok')} | {b.get('error', 'ok')}",
-                soft_wrap=True,
-            )
-            continue
-        ra = f"{a['median_s']:.4f} ({a['p10_s']:.4f}-{a['p90_s']:.4f})"
-        rb = f"{b['median_s']:.4f} ({b['p10_s']:.4f}-{b['p90_s']:.4f})"
-        da = f"{a['phase_share']['derivatives']:.0%}/{b['phase_share']['derivatives']:.0%}"
-        fa = f"{a['polygons']['max_faces']}/{b['polygons']['max_faces']}"
-        console.print(
-            f"{r['task']:<18} {r['steps']:>4} {ra:>26} {rb:>26} {r['speedup_median']:>5.1f}x "
-            f"{da:>9} {a['final_cost']:>10.5g} {b['final_cost']:>10.5g} "
-            f"{r['cost_rel_diff']:>+7.2%} {fa:>9}",
-            soft_wrap=True,
-        )
-    for r in rows:
-        a, b = r.get("paper", {}), r.get("fast", {})
-        short = [
-            f"{m} stopped after {x['iterations']} ({x['reason']})"
-            for m, x in (("(a)", a), ("(b)", b))
-            if "iterations" in x and x["iterations"] < r.get("requested_iterations", 0)
-        ]
-        if short:
-            console.print(
-                f"{r['task']}: {', '.join(short)}: its cost is compared after fewer iterations",
-                soft_wrap=True,
-            )
-    for r in rows:
-        si = r.get("same_iterates")
-        if si and "speedup_median" in si:
-            ph = si["paper_phase_median_s"]
-            console.print(
-                f"{r['task']}: at (b)'s own iterates, (a) takes {si['paper_median_s']:.4f} s per "
-                f"iteration (derivatives {ph['derivatives']:.4f} s, line search "
-                f"{ph['line_search']:.4f} s; max faces {max(si['paper_max_faces'])}) against "
-                f"(b)'s {si['fast_median_s']:.4f} s: {si['speedup_median']:.1f}x",
-                soft_wrap=True,
-            )
-        elif si and si.get("errors"):
-            console.print(
-                f"{r['task']}: (a) at (b)'s iterates failed: {si['errors'][0]}", soft_wrap=True
-            )
-    for r in rows:
-        acc = r.get("accuracy")
-        if acc:
-            parts = [
-                f"{k}: "
-                + ", ".join(
-                    f"{c} {v:.1e} (median {acc[k]['median'][c]:.0e})"
-                    for c, v in acc[k]["max"].items()
-                )
-                for k in acc
-                if k not in ("reference", "contact_classes", "seconds")
-            ]
-            console.print(
-                f"{r['task']} derivative error vs AutoDiff ({acc['contact_classes']}"
-                f"): " + "; ".join(parts),
-                soft_wrap=True,
-            )
-        th = r.get("threads")
-        if th:
-            console.print(
-                f"{r['task']} {th['method']} FD derivative phase: "
-                + ", ".join(
-                    f"{n} thread(s) {s:.3f} s ({th['speedup'][n]:.2f}x)"
-                    for n, s in th["seconds"].items()
-                ),
-                soft_wrap=True,
-            )
 
 
 def plot(rows: list[dict], path: Path) -> None:
@@ -615,11 +535,6 @@ def plot(rows: list[dict], path: Path) -> None:
 BENCH_MARK = "bench"  # the "task" of a bench directory: other commands refuse to write there
 
 
-class _NoTamsiNotice(logging.Filter):
-    def filter(self, record: logging.LogRecord) -> bool:
-        return "TAMSI solver is deprecated" not in record.getMessage()
-
-
 def run_bench(
     names: list[str],
     out: str | Path,
@@ -631,7 +546,12 @@ def run_bench(
     block: int = 1,
     accuracy: bool = True,
     same_iterates: bool = True,
+    command: str | None = None,
+    on_message: Callable[[str], None] | None = None,
 ) -> dict:
+    """Benchmarks each task of ``names`` into ``out`` (bench.json rewritten after each);
+    returns bench.json's dict, whose ``"tasks"`` are the rows in order. ``command``: the
+    command line, recorded as ``environment.command``; ``on_message``: see ``bench_task``."""
     from hydroilqr.output.report import output_dir
     from hydroilqr.problem.config import load_task
 
@@ -648,14 +568,28 @@ def run_bench(
     rows = []
     for name in names:
         rows.append(
-            bench_task(name, iterations, threads, smoke, sets, fast, block, accuracy, same_iterates)
+            bench_task(
+                name,
+                iterations,
+                threads,
+                smoke,
+                sets,
+                fast,
+                block,
+                accuracy,
+                same_iterates,
+                on_message=on_message,
+            )
         )
-        _write(out, rows, iterations, threads)
-    print_table(rows)
-    return _write(out, rows, iterations, threads)
+        _write(out, rows, iterations, threads, command)
+    return _write(out, rows, iterations, threads, command)
 
 
-def _write(out: Path, rows, iterations, threads) -> dict:
+def _ignore(text: str) -> None:
+    pass
+
+
+def _write(out: Path, rows, iterations, threads, command: str | None = None) -> dict:
     from hydroilqr.model.derivatives import num_threads
     from hydroilqr.output.report import environment
 
@@ -668,78 +602,8 @@ def _write(out: Path, rows, iterations, threads) -> dict:
         "paper": PAPER,
         "fast": FAST,
         "tasks": {r["task"]: r for r in rows},
-        "environment": environment(),
+        "environment": environment(command),
     }
     atomic_write(out / "bench.json", json.dumps(doc, indent=1))
     plot(rows, out / "iterations.png")
     return doc
-
-
-def cmd_bench(args) -> int:
-    if args.iterations < 1:
-        raise ConfigError("--iterations: must be at least 1")
-    if args.block < 1:
-        raise ConfigError("--block: must be at least 1")
-    args.out = args.out or ("runs/bench-smoke" if args.smoke else "runs/bench")
-    # The paper's method runs on TAMSI on purpose: Drake's deprecation notice for it is in the
-    # docs, not printed on every bench run (a solve with tamsi, or run_bench from Python, shows it).
-    drake_log, quiet = logging.getLogger("drake"), _NoTamsiNotice()
-    drake_log.addFilter(quiet)
-    try:
-        run_bench(
-            args.task,
-            args.out,
-            args.iterations,
-            args.threads,
-            args.smoke,
-            args.set,
-            args.fast,
-            args.block,
-            not args.no_accuracy,
-            not args.no_same_iterates,
-        )
-    finally:
-        drake_log.removeFilter(quiet)
-    console.print(f"wrote {args.out}/bench.json, iterations.png")
-    return 0
-
-
-@register("bench", "iteration times: the paper's method vs the fastest configuration")
-def setup(p) -> None:
-    p.add_argument("task", nargs="+", help="built-in task names or task YAML files")
-    p.add_argument(
-        "--iterations", type=int, default=10, help="iLQR iterations per method (default 10)"
-    )
-    p.add_argument("--threads", type=int, default=0, help="threads for batched FD (0 = all)")
-    p.add_argument(
-        "--block", type=int, default=1, help="iterations per alternation block (default 1)"
-    )
-    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests)")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a task key for both methods (repeatable)",
-    )
-    p.add_argument(
-        "--fast",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a task key of the fast configuration only (repeatable)",
-    )
-    p.add_argument(
-        "--no-accuracy",
-        action="store_true",
-        help="skip the derivative-accuracy and thread-scaling sections",
-    )
-    p.add_argument(
-        "--no-same-iterates",
-        action="store_true",
-        help="skip timing the paper's method at the fast run's iterates",
-    )
-    p.add_argument(
-        "--out", help="output directory (default runs/bench, runs/bench-smoke with --smoke)"
-    )
-    p.set_defaults(func=cmd_bench)

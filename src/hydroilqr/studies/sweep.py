@@ -37,7 +37,6 @@ from typing import Any
 
 import numpy as np
 
-from hydroilqr.cli import add_task_args, console, register, task_name_from_args
 from hydroilqr.output.files import atomic_savez, atomic_write
 from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
 
@@ -617,74 +616,25 @@ def plot_snapshots(
 # ------------------------------------------------------------------------------------------
 
 
-class SweepProgress:
-    """Rich progress bar: done / running / failed (running from worker start events)."""
+class SweepMonitor:
+    """What ``run_sweep`` reports while it runs; this base class ignores all of it (the command
+    line's subclass draws a progress bar)."""
 
-    def __init__(self, total: int, already: int, failed: int):
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-        )
+    def message(self, text: str) -> None:
+        """A line for the user (rich markup): the plan, the cluster, notes, the summary."""
 
-        self.progress = Progress(
-            TextColumn("[bold]points"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("running {task.fields[running]}  failed {task.fields[failed]}"),
-            TimeElapsedColumn(),
-            console=console,
-            transient=False,
-        )
-        self.total, self.done, self.failed = total, already, failed
-        self.running: set[str] = set()
-        self.finished: set[str] = set()
-        self.id = None
-
-    def __enter__(self):
-        self.progress.__enter__()
-        self.id = self.progress.add_task(
-            "points", total=self.total, completed=self.done, running=0, failed=self.failed
-        )
-        return self
-
-    def __exit__(self, *exc):
-        return self.progress.__exit__(*exc)
+    def begin(self, total: int, done: int, failed: int) -> None:
+        """Points are about to be computed: ``done`` of ``total`` are already (``failed`` of
+        them failed)."""
 
     def started(self, pid: str) -> None:
-        if pid not in self.finished:
-            self.running.add(pid)
-            self._refresh()
+        """A worker started point ``pid`` (as far as the cluster reports it)."""
 
-    def finish(self, pid: str, ok: bool) -> None:
-        self.finished.add(pid)
-        self.running.discard(pid)
-        self.done += 1
-        self.failed += 0 if ok else 1
-        self._refresh()
+    def finished(self, pid: str, row: dict, param_keys: list[str]) -> None:
+        """Point ``pid`` finished with table row ``row`` (``row["status"]``: "ok" or not)."""
 
-    def _refresh(self) -> None:
-        self.progress.update(
-            self.id, completed=self.done, running=len(self.running), failed=self.failed
-        )
-
-
-def _describe(row: dict, param_keys: list[str]) -> str:
-    vals = ", ".join(f"{k}={row.get(f'param:{k}'):.4g}" for k in param_keys)
-    if row.get("status") != "ok":
-        return f"{vals}: [red]failed[/red] ({row.get('error')})"
-    extra = ""
-    if row.get("max_overlap_m") is not None:
-        extra = f", overlap {row['max_overlap_m'] * 1000:.2f} mm"
-        if row.get("tunnelled"):
-            extra += " [red]tunnelled[/red]"
-    conv = "converged" if row.get("converged") else f"stopped ({row.get('reason')})"
-    return (
-        f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
-        f"{row['wall_seconds']:.1f} s on {row.get('worker')}"
-    )
+    def end(self) -> None:
+        """No more points are computed in this run (also after an error or Ctrl+C)."""
 
 
 def _absolute_set(entry: str) -> str:
@@ -739,11 +689,6 @@ def _open_client(scheduler: str | None, workers: int | None):
     from distributed import Client, LocalCluster
 
     if scheduler:
-        if workers:
-            console.print(
-                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
-                "cluster's own workers run the points)"
-            )
         # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         try:
@@ -790,9 +735,15 @@ def run_sweep(
     workers: int | None = None,
     retry_failed: bool = False,
     plots: bool = True,
+    command: str | None = None,
+    monitor: SweepMonitor | None = None,
 ) -> dict:
-    """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}."""
+    """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}.
+    ``command``: the command line, recorded in sweep_spec.json; ``monitor``: receives the
+    progress (by default nothing is shown)."""
     from hydroilqr.problem.task import Task
+
+    monitor = monitor or SweepMonitor()
 
     if not params:
         raise ConfigError("give at least one --param KEY --values ...")
@@ -840,7 +791,7 @@ def run_sweep(
         "smoke": bool(smoke),
         "set": user_set,  # as given (solver.threads=1 is added unless set)
         "params": [{"key": k, "values": v} for k, v in params],
-        "environment": environment(),  # of this process (points: see their code column)
+        "environment": environment(command),  # of this process (points: see their code column)
     }
     _check_same_sweep(out, spec)
     atomic_write(out / "sweep_spec.json", json.dumps(spec, indent=1))
@@ -871,7 +822,7 @@ def run_sweep(
         return [rows[pid] for pid in ids if pid in rows] + earlier_rows
 
     n_failed0 = sum(r.get("status") != "ok" for r in rows.values())
-    console.print(
+    monitor.message(
         f"[bold]sweep[/bold] {task_cfg.name}: "
         + " x ".join(f"{k} ({len(v)})" for k, v in params)
         + f" = {len(points)} points; {len(rows)} already done, {len(todo)} to compute"
@@ -884,19 +835,25 @@ def run_sweep(
 
     code = code_version()
     if todo:
+        if scheduler and workers:
+            monitor.message(
+                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
+                "cluster's own workers run the points)"
+            )
         client, cluster = _open_client(scheduler, workers)
         try:
             nthreads = sum(client.nthreads().values())
             where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
-            console.print(f"dask: {where}, {nthreads} threads")
+            monitor.message(f"dask: {where}, {nthreads} threads")
             from distributed import as_completed
 
-            with SweepProgress(len(points), len(rows), n_failed0) as prog:
+            monitor.begin(len(points), len(rows), n_failed0)
+            try:
 
                 def on_event(event):
                     msg = event[1] if isinstance(event, tuple) else event
                     if isinstance(msg, dict) and msg.get("state") == "running":
-                        prog.started(msg.get("id"))
+                        monitor.started(msg.get("id"))
 
                 try:
                     client.subscribe_topic(EVENT_TOPIC, on_event)
@@ -942,13 +899,14 @@ def run_sweep(
                     computed += 1
                     with open(log, "a") as fh:
                         fh.write(f"{ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
-                    prog.finish(ids[i], row.get("status") == "ok")
-                    prog.progress.console.print(_describe(row, keys))
+                    monitor.finished(ids[i], row, keys)
                     write_tables(out, spec, keys, ordered(), len(points) - len(rows))
                 try:
                     client.unsubscribe_topic(EVENT_TOPIC)
                 except Exception:  # noqa: BLE001
                     pass
+            finally:
+                monitor.end()
         finally:
             client.close()
             if cluster is not None:
@@ -975,11 +933,11 @@ def run_sweep(
     failed = sum(rows[pid].get("status") != "ok" for pid in ids if pid in rows)
     versions = {r.get("code") for r in all_rows if r.get("code")}
     if len(versions) > 1:
-        console.print(
+        monitor.message(
             f"[yellow]note:[/yellow] the points were computed by {len(versions)} code "
             f"versions ({', '.join(sorted(versions))}); see the code column"
         )
-    console.print(
+    monitor.message(
         f"{len(points)} points ({computed} computed now, "
         f"{len(points) - computed} from earlier runs), {failed} failed"
         + (f"; the table also keeps {len(earlier_rows)} points of earlier runs" if earlier else "")
@@ -991,108 +949,3 @@ def run_sweep(
         "skipped": len(points) - computed,
         "failed": failed,
     }
-
-
-# ------------------------------------------------------------------------------------------
-# CLI
-# ------------------------------------------------------------------------------------------
-
-
-def _quiet_cluster_teardown() -> None:
-    """After Ctrl+C, close what is left of an embedded Dask cluster here, quietly: interrupted
-    while it was starting, Dask's own exit hook would print a long traceback."""
-    import atexit
-    import logging
-
-    try:
-        from distributed.deploy import spec
-    except ImportError:
-        return
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)
-    for cluster in list(getattr(spec.SpecCluster, "_instances", ())):
-        try:
-            cluster.close(timeout=5)
-        except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
-            pass
-    hook = getattr(spec, "close_clusters", None)
-    if hook is not None:
-        atexit.unregister(hook)
-
-
-def cmd_sweep(args) -> int:
-    task = task_name_from_args(args)
-    if not task:
-        raise ConfigError("no task given (try `hydroilqr tasks`)")
-    if args.out:
-        out = args.out
-    else:  # runs/NAME-sweep, NAME the task's name (as solve and mpc use)
-        from hydroilqr.problem.config import load_task
-
-        name = load_task(task, args.set, args.config, args.smoke).name
-        out = f"runs/{name}{'-smoke' if args.smoke else ''}-sweep"
-    keys, specs = args.param or [], args.values or []
-    if len(keys) != len(specs):
-        raise ConfigError("give one --values after each --param")
-    params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
-    if args.workers is not None and args.workers < 1:
-        raise ConfigError("--workers: must be at least 1")
-    try:
-        res = run_sweep(
-            task,
-            params,
-            out,
-            sets=args.set,
-            config_file=args.config,
-            smoke=args.smoke,
-            scheduler=args.scheduler,
-            workers=args.workers,
-            retry_failed=args.retry_failed,
-        )
-    except KeyboardInterrupt:
-        _quiet_cluster_teardown()
-        raise KeyboardInterrupt(
-            f"finished points are kept in {out}: the same command continues the sweep"
-        ) from None
-    if res["failed"]:
-        import sys
-
-        print(
-            f"hydroilqr: {res['failed']} of the sweep's points failed (their errors are in the "
-            "error column of sweep.csv; --retry-failed recomputes them)",
-            file=sys.stderr,
-        )
-        return 1
-    return 0
-
-
-@register("sweep", "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)")
-def setup(p) -> None:
-    add_task_args(p)
-    p.add_argument(
-        "--param",
-        action="append",
-        metavar="KEY",
-        help="numeric task key to sweep, e.g. tip.hydroelastic_modulus (twice for a grid)",
-    )
-    p.add_argument(
-        "--values",
-        action="append",
-        metavar="SPEC",
-        help="V1,V2,... or logspace:A:B:N or linspace:A:B:N (one per --param)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local "
-        "cluster, one single-threaded worker process per core)",
-    )
-    p.add_argument("--workers", type=int, help="worker processes of the local cluster")
-    p.add_argument(
-        "--retry-failed",
-        action="store_true",
-        help="on resume, also recompute points recorded as failed",
-    )
-    p.add_argument(
-        "--out", help="output directory, resumable (default runs/TASK-sweep, runs/TASK-smoke-sweep)"
-    )
-    p.set_defaults(func=cmd_sweep)

@@ -1,0 +1,234 @@
+"""``hydroilqr check``: validate a task and report its layout and contacts."""
+
+from __future__ import annotations
+
+import math
+
+from rich.table import Table
+
+from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
+
+HELP = "validate a task and report its layout and contacts"
+
+PAIRS_SHOWN = 40  # rows of the candidate-pair table
+
+
+def setup(p) -> None:
+    add_task_args(p)
+
+
+def run(args) -> int:
+    from hydroilqr.problem.check import check_task
+
+    task = load_task_from_args(args)
+    if not args.smoke:  # the task's `smoke:` section must work too (tests rely on it)
+        from hydroilqr.problem.task import Task
+
+        Task.load(task_name_from_args(args), list(args.set or []), args.config, True).validate()
+    check_task(task, on_section=print_section)
+    return 0
+
+
+def print_section(name: str, report: dict) -> None:
+    """Prints one complete section of check_task's report."""
+    PRINTERS[name](report)
+
+
+def _model(r: dict) -> None:
+    m = r["model"]
+    console.print(
+        f"[bold]{m['name']}[/bold]: {', '.join(m['files'])}\n"
+        f"  nq={m['nq']} nv={m['nv']} nx={m['nx']} nu={m['nu']}  dt={m['dt']} s  "
+        f"steps={m['steps']}  contact={m['contact_approximation']} "
+        f"({m['contact_model']}, {m['contact_surface_representation']})  "
+        f"derivatives={m['derivatives']}"
+    )
+    fd = r.get("fd")
+    if fd is None:
+        return
+    plain, forces = fd["plain"], fd["forces"]
+    if fd["fd_forces"] and fd["qualifies"]:
+        console.print(
+            f"  differences over generalized forces (solver.fd_forces): {forces} perturbed "
+            f"steps per time step instead of {plain}"
+        )
+    elif fd["fd_forces"]:
+        console.print(
+            "  solver.fd_forces: this model does not qualify (it needs SAP, or TAMSI without "
+            "joint damping, and no PD actuators): plain differences, "
+            f"{plain} steps per time step"
+        )
+    elif fd["qualifies"] and forces < plain - 1:
+        console.print(
+            f"  (solver.fd_forces: true would take {forces} perturbed steps per time step "
+            f"instead of {plain}; docs/performance.md)"
+        )
+
+
+def _continuation(r: dict) -> None:
+    for i, stage in enumerate(r.get("continuation", [])):
+        keys = ", ".join(f"{k}={v}" for k, v in stage.items())
+        console.print(f"  continuation[{i}] (solved first): {keys}")
+
+
+def _floating_bodies(r: dict) -> None:
+    if r["floating_bodies"]:
+        console.print(
+            f"  floating bodies (6-DoF; a robot base meant to be fixed needs `weld:`): "
+            f"{', '.join(r['floating_bodies'])}"
+        )
+
+
+def _blocks(r: dict) -> None:
+    t = Table(title="state blocks (names for blocks / initial_state / cost)", title_justify="left")
+    for col in ("block", "kind", "coords", "tangent", "x indices", "x0"):
+        t.add_column(col)
+    for b in r["blocks"]:
+        idx, vals = b["x_indices"], b["x0"]
+        span = (
+            f"{idx[0]}..{idx[-1]}"
+            if idx == list(range(idx[0], idx[-1] + 1)) and len(idx) > 1
+            else ",".join(map(str, idx))
+        )
+        t.add_row(
+            b["name"],
+            ("group, " if b["group"] else "") + b["kind"],
+            str(b["size"]),
+            str(b["tangent"]),
+            span,
+            str(vals if len(vals) > 1 else vals[0]),
+        )
+    console.print(t)
+
+
+def _actuators(r: dict) -> None:
+    t = Table(title="actuators (names for cost.R)", title_justify="left")
+    for col in ("#", "actuator", "joint", "effort limit"):
+        t.add_column(col)
+    for k, a in enumerate(r["actuators"]):
+        lim = a["effort_limit"]
+        t.add_row(
+            str(k), a["name"], a["joint"], f"{lim:g}" if math.isfinite(lim) else "none (unbounded)"
+        )
+    console.print(t)
+
+
+def _geometries(r: dict) -> None:
+    t = Table(title="collision geometries (names for geometry overrides)", title_justify="left")
+    for col in (
+        "geometry",
+        "body",
+        "shape",
+        "hydroelastic",
+        "modulus [Pa]",
+        "hint [m]",
+        "friction",
+        "damping",
+    ):
+        t.add_column(col)
+    sap = r["model"]["contact_approximation"] == "sap"
+    for g in r["geometries"]:
+        t.add_row(
+            g["name"],
+            g["body"],
+            g["shape"],
+            g["kind"],
+            "" if g["modulus"] is None else f"{g['modulus']:.3g}",
+            "" if g["resolution_hint"] is None else f"{g['resolution_hint']:g}",
+            "" if g["friction"] is None else f"{g['friction']:g}",
+            _damping(g, sap),
+        )
+    console.print(t)
+    if sap:
+        console.print(
+            "damping: sap uses relaxation times (a pair's τ is the sum of its two geometries'); "
+            "Hunt-Crossley dissipation applies under tamsi, similar or lagged only"
+        )
+    for key, hits in r["geometry_overrides"].items():
+        several = len({h.split("/")[0] for h in hits}) > 1
+        console.print(
+            f"geometry.{key} applies to: {', '.join(hits)}"
+            + (f" (BODY/{key} picks one)" if several else "")
+        )
+
+
+def _damping(g: dict, sap: bool) -> str:
+    """The damping the contact solver uses: SAP a relaxation time (default 0.1 s per
+    geometry), the others Hunt-Crossley dissipation."""
+    if sap:
+        rt = g["relaxation_time"]
+        return f"τ {0.1 if rt is None else rt:g} s" + (" (default)" if rt is None else "")
+    d = g["dissipation"]
+    return "" if d is None else f"{d:g} s/m"
+
+
+def _pairs(r: dict) -> None:
+    pairs = r["pairs"]
+    t = Table(
+        title=f"candidate collision pairs ({len(pairs)}), closest first", title_justify="left"
+    )
+    for col in ("A", "B", "kinds", "contact model", "distance at x0 [m]"):
+        t.add_column(col)
+    for p in pairs[:PAIRS_SHOWN]:
+        d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
+        t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)
+    console.print(t)
+    if len(pairs) > PAIRS_SHOWN:
+        console.print(f"  ... and {len(pairs) - PAIRS_SHOWN} more pairs")
+    for o in r["no_contact_with"]:
+        console.print(
+            f"  scene[{o['index']}] ({o['name']}) never touches: "
+            f"{', '.join(o['geometries'])} (no_contact_with; not listed above)"
+        )
+
+
+def _contacts(r: dict) -> None:
+    contacts = r["contacts"]
+    if contacts:
+        console.print(
+            f"[bold]contact at the initial state[/bold]: {len(contacts)} pair(s), "
+            f"{r['contact_faces']} hydroelastic polygons"
+        )
+        for c in contacts:
+            n = c["faces"]
+            console.print(f"  {c['a']} / {c['b']}: " + (f"{n} polygons" if n else "point contact"))
+    else:
+        console.print("[bold]contact at the initial state[/bold]: none")
+    n_touch, overlapping = len(contacts), r["overlapping_pairs"]
+    if overlapping > n_touch:
+        console.print(
+            f"  ({overlapping} pair(s) overlap in the exact shapes, {n_touch} touch: a "
+            "hydroelastic mesh of a curved shape lies inside the exact surface, by up to a "
+            "fraction of its resolution_hint, so a shallow overlap can have no contact)"
+        )
+
+
+def _simulation(r: dict) -> None:
+    console.print(
+        f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {r['rollout_steps']}-step "
+        f"rollout of the initial guess ({r['model']['initial_guess']}) ok, "
+        f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
+    )
+
+
+def _warnings(r: dict) -> None:
+    for w in r["warnings"]:
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    console.print(
+        "[green]check passed[/green]"
+        + (f" with {len(r['warnings'])} warning(s)" if r["warnings"] else "")
+    )
+
+
+PRINTERS = {
+    "model": _model,
+    "continuation": _continuation,
+    "floating_bodies": _floating_bodies,
+    "blocks": _blocks,
+    "actuators": _actuators,
+    "geometries": _geometries,
+    "pairs": _pairs,
+    "contacts": _contacts,
+    "simulation": _simulation,
+    "warnings": _warnings,
+}

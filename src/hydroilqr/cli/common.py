@@ -1,0 +1,61 @@
+"""What every command shares: the consoles, warnings, and the task arguments."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rich.console import Console
+
+from hydroilqr.problem.config import ConfigError
+
+# Piped or logged output gets a wide console, so names that users copy into task files
+# (block, joint and geometry names in tables) are not cut to fit 80 columns.
+console = Console(stderr=False, highlight=False, width=None if sys.stdout.isatty() else 160)
+# Warnings go to stderr, so they stay visible when a run's report on stdout is piped or kept.
+err_console = Console(stderr=True, highlight=False, width=None if sys.stderr.isatty() else 160)
+
+
+def warn(message: str) -> None:
+    """Prints ``warning: message`` on stderr (rich markup allowed)."""
+    err_console.print(f"[yellow]warning:[/yellow] {message}")
+
+
+def add_task_args(p: argparse.ArgumentParser, positional: bool = True) -> None:
+    if positional:
+        p.add_argument("task", nargs="?", help="built-in task name or a task YAML file")
+    p.add_argument("--task-file", help="a task YAML file (same as giving its path as TASK)")
+    p.add_argument("--config", help="YAML file merged over the task")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key, e.g. solver.max_iterations=20 (repeatable)",
+    )
+    p.add_argument("--smoke", action="store_true", help="shrink the task (tests, quick tries)")
+
+
+def task_name_from_args(args) -> str | None:
+    """TASK or --task-file (not both: which one was meant would be a guess)."""
+    task, task_file = getattr(args, "task", None), getattr(args, "task_file", None)
+    if task and task_file:
+        raise ConfigError(f"give a task name or --task-file, not both ({task!r}, {task_file!r})")
+    return task_file or task
+
+
+def load_task_from_args(args, extra_overrides: list[str] | None = None):
+    from hydroilqr.problem.task import Task
+
+    name = task_name_from_args(args)
+    if not name:
+        raise ConfigError("no task given (try `hydroilqr tasks`)")
+    overrides = list(args.set or []) + list(extra_overrides or [])
+    task = Task.load(name, overrides, args.config, args.smoke)
+    task.validate()
+    return task
+
+
+def command_line(args) -> str | None:
+    """The command line that is running (recorded as ``environment.command`` in results)."""
+    return getattr(args, "command_line", None)

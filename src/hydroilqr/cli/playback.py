@@ -1,0 +1,169 @@
+"""``hydroilqr playback``: execute a solved trajectory on a finer 'real' simulation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hydroilqr.cli.common import command_line, console, warn
+from hydroilqr.control.playback import POLICIES
+from hydroilqr.problem.config import APPROXIMATIONS, ConfigError
+
+HELP = (
+    "execute a solved trajectory open loop (PD+, paper §V) on a finer "
+    "'real' simulation and compare planned vs actual"
+)
+
+
+def setup(p) -> None:
+    p.add_argument("dir", help="output directory of `hydroilqr solve` (summary.json, solution.npz)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=None,
+        help="playback speed (plan time per playback second); default 0.5 for pd, 1 for ilqr",
+    )
+    p.add_argument("--kp", type=float, help="PD+ stiffness (default 500)")
+    p.add_argument("--kd", type=float, help="PD+ damping (default 5)")
+    p.add_argument("--rate", type=float, help="PD+ control rate, Hz (default 1000)")
+    p.add_argument(
+        "--update-period",
+        type=float,
+        default=0.02,
+        help="seconds between reference updates (default 0.02)",
+    )
+    p.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="pd",
+        help="pd: PD+ on the joints (eq. 11); ilqr: u = ū − K(x − x̄) (eq. 8)",
+    )
+    p.add_argument(
+        "--truth-time-step",
+        type=float,
+        default=0.001,
+        help="time step of the 'real' simulation (default 0.001)",
+    )
+    p.add_argument(
+        "--truth-contact",
+        choices=APPROXIMATIONS,
+        default=None,
+        help="contact approximation of the 'real' simulation (default: one "
+        "different from the planner's: sap->similar, others->sap)",
+    )
+    p.add_argument(
+        "--truth-set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a task key of the 'real' system only, e.g. ball.friction=0.3 (repeatable)",
+    )
+    p.add_argument(
+        "--object",
+        help="state block compared planned vs actual (default: the "
+        "floating body, else the unactuated joint the plan moves most, else the first joint)",
+    )
+    p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
+    p.add_argument(
+        "--no-velocity-scaling",
+        action="store_true",
+        help="use the plan's v̄_J unscaled (default scales it by the speed)",
+    )
+    p.add_argument("--no-replay", action="store_true", help="skip playback.html")
+    p.add_argument("--out", help="output directory (default DIR/playback-POLICY)")
+
+
+def run(args) -> int:
+    from hydroilqr.control.playback import advisories, playback, write_outputs
+    from hydroilqr.output.report import deferred_interrupt, read_lock
+
+    read_lock(Path(args.dir))  # no solve replaces the plan while it plays
+    task, sol, settings = _settings(args)
+    out = _output_dir(task, args)
+    _print_header(task, settings, out)
+    early = advisories(task.dynamics.plant, settings)
+    for w in early:
+        warn(w)
+    r = playback(task, sol, settings)
+    with deferred_interrupt():  # Ctrl+C here: after the set is complete
+        data = write_outputs(
+            task,
+            r,
+            out,
+            replay=not args.no_replay,
+            run_dir=args.dir,
+            command=command_line(args),
+        )
+    _print_result(data, r.wall_seconds)
+    for w in data.get("warnings", []):
+        if w not in early:
+            warn(w)
+    console.print(
+        f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
+        + ("" if args.no_replay else ", playback.html")
+    )
+    return 0
+
+
+def _settings(args):
+    """The solved run's task and solution, and the PlaybackSettings the options ask for."""
+    from hydroilqr.control.playback import PlaybackSettings, load_run
+
+    pd_loop = {k: getattr(args, k) for k in ("kp", "kd", "rate") if getattr(args, k) is not None}
+    if args.policy == "ilqr" and pd_loop:
+        raise ConfigError(
+            f"{', '.join('--' + k for k in pd_loop)}: options of the PD+ loop; --policy ilqr "
+            "applies the plan's own gains K once per plan step"
+        )
+    task, sol, _ = load_run(args.dir)
+    settings = PlaybackSettings(
+        speed=args.speed,
+        **pd_loop,  # the rest: PlaybackSettings' defaults
+        update_period=args.update_period,
+        policy=args.policy,
+        truth_time_step=args.truth_time_step,
+        truth_contact=args.truth_contact,
+        truth_overrides=list(args.truth_set or []),
+        clip_torques=not args.no_clip,
+        scale_velocity_reference=not args.no_velocity_scaling,
+        object=args.object,
+    )
+    settings.validate()
+    settings.check_against(task, float(sol.t[-1] - sol.t[0]))
+    return task, sol, settings
+
+
+def _output_dir(task, args) -> Path:
+    from hydroilqr.output.report import output_dir
+
+    return output_dir(
+        args.out or Path(args.dir) / f"playback-{args.policy}", task.name, playback=True
+    )
+
+
+def _print_header(task, settings, out: Path) -> None:
+    truth_contact = settings.truth_contact_for(task)
+    console.print(
+        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}, "
+        f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
+        f"(plan dt={task.config.plant.time_step:g} "
+        f"contact={task.config.plant.contact_approximation}) -> {out}"
+    )
+
+
+def _print_result(data: dict, wall_seconds: float) -> None:
+    ob = data["object"]
+    unit = f" {ob['unit']}" if ob["unit"] else ""
+    console.print(
+        f"{data['truth_steps']} truth steps in {wall_seconds:.2f} s; object "
+        f"{ob['name']}: final gap {ob['final_gap']:.4g}{unit}, max deviation "
+        f"{ob['max_deviation']:.4g}{unit}, progress ratio "
+        f"{_fmt(ob['progress_ratio'])}"
+    )
+    console.print(
+        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
+        f"saturated commands {100 * data['saturated_fraction']:.1f}%"
+    )
+
+
+def _fmt(v) -> str:
+    return "n/a" if v is None else f"{v:.3g}"
