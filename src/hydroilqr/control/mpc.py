@@ -364,6 +364,7 @@ class Controller:
             settings.derivative_reuse_tolerance,
             settings.derivative_steps_per_update,
             autodiff_workers=s.autodiff_workers,
+            fd_forces=s.fd_forces,
         )
         self.derivative_steps: list[float] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one

@@ -321,7 +321,7 @@ def solve(
     ad = getattr(lin, "autodiff_workers", 1)  # (a Linearizer stand-in: none)
     ad = ad if getattr(lin, "method", None) is DerivativeMethod.AUTODIFF else 1
     size = max(workers.resolve(ad), workers.resolve(s.line_search_workers))
-    if size > 1 and hasattr(dyn, "task"):  # (duck-typed test dynamics: serial)
+    if size > 1 and hasattr(dyn, "spec"):  # (duck-typed test dynamics: serial)
         workers.pool(dyn, size)
     derivative_steps: list[int] = []
 
