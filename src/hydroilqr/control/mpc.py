@@ -48,7 +48,7 @@ from hydroilqr.problem.config import (
     with_overrides,
 )
 from hydroilqr.solver.ilqr import Problem
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
 
