@@ -180,6 +180,7 @@ def cmd_solve(args) -> int:
         f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
         f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s"
     )
+    console.print(f"status {sol.status}: {api.explain(sol, task)}", soft_wrap=True)
     cold = [i for i, r in enumerate(sol.extra.get("resolves", [])) if r.get("cold_start")]
     if cold:
         console.print(

@@ -950,6 +950,22 @@ def validate_solver(sv: SolverConfig) -> None:
             raise ConfigError(f"solver.{name}: must be {rule}, got {getattr(sv, name)}")
 
 
+def _has_cost_terms(cost: CostConfig) -> bool:
+    """Some weight of Q, Qf or R is positive (a malformed R counts: its own check says why)."""
+
+    def positive(w: Any) -> bool:
+        if isinstance(w, dict):
+            return any(positive(v) for v in w.values())
+        if isinstance(w, (list, tuple)):
+            return any(positive(v) for v in w)
+        try:
+            return float(w) > 0
+        except (TypeError, ValueError):
+            return True
+
+    return any(positive(w) for w in (cost.Q, cost.Qf, cost.R))
+
+
 def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
     for i, stage in enumerate(cfg.continuation):
@@ -1055,6 +1071,11 @@ def validate(cfg: TaskConfig) -> None:
                     raise ConfigError(f"cost.{section}.{k}: expected {what}, got {v!r}")
                 if section != "nominal_rate" and x < 0:
                     raise ConfigError(f"cost.{section}.{k}: weights must be non-negative, got {x}")
+    if not _has_cost_terms(cfg.cost):
+        raise ConfigError(
+            "cost: no terms (every weight in Q, Qf and R is zero or missing): there is nothing "
+            "to optimize; give the cost some positive weights"
+        )
     rh = cfg.receding_horizon
     if rh is not None and (rh.window_steps < 1 or rh.shift_steps < 1 or rh.resolves < 1):
         raise ConfigError("receding_horizon: window_steps, shift_steps, resolves must be >= 1")

@@ -18,6 +18,7 @@ from hydroilqr.model.plant import SimulationError
 from hydroilqr.problem.config import SolverConfig, validate_solver
 from hydroilqr.problem.task import Task
 from hydroilqr.solver import stopping
+from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
 from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import callback_list
 from hydroilqr.solver.loop import solve as ilqr_solve

@@ -100,7 +100,9 @@ def solve_receding(
     ``solver``: the solver settings of every window (default: the task's ``solver``
     section); they are part of the checkpoint's fingerprint. The status of the stitched
     Solution is that of its worst window (see ``stopping.worst``): a run is only as good as
-    its least successful window."""
+    its least successful window. A window warm-started from the previous one that did not
+    improve on its start is judged by its stop test alone (its start was already a local
+    minimum); the first window, and one started cold, must improve on the task's guess."""
     solver = solver or task.config.solver
     R = task.config.receding_horizon.resolves
     st = _start(task, checkpoint_dir, solver)
@@ -189,14 +191,19 @@ def _keep(task, st: Checkpoint, sol: Solution, cold: bool, wall: float, t_roll: 
         sol.phase_seconds["rollout"][0] += t_roll
     for p in PHASES:
         st.phase_seconds[p] += sol.phase_seconds[p]
+    status, converged = sol.status, sol.converged
+    if r > 0 and not cold and status == "no_progress":
+        # A warm start that is already a local minimum is the window's answer, not a failure.
+        status = stopping.status(sol.reason, sol.costs, require_improvement=False)
+        converged = stopping.is_converged(status)
     st.resolves.append(
         {
             "iterations": sol.iterations,
             "seconds": wall,
             "cost": sol.final_cost,
-            "converged": sol.converged,
+            "converged": converged,
             "reason": sol.reason,
-            "status": sol.status,
+            "status": status,
             **({"cold_start": True} if cold else {}),
         }
     )

@@ -106,12 +106,14 @@ def improved(costs) -> bool:
     return bool(np.isfinite(J0) and (J0 - J) >= MIN_IMPROVEMENT * max(abs(J0), 1e-12))
 
 
-def status(reason: str, costs) -> str:
+def status(reason: str, costs, require_improvement: bool = True) -> str:
     """The status (see the module docstring) of a single solve that stopped for ``reason``
-    with per-iteration ``costs`` (the initial guess's first)."""
+    with per-iteration ``costs`` (the initial guess's first). ``require_improvement=False``
+    judges the stop test alone (a warm start that is already a local minimum, e.g. a
+    receding-horizon window after the first)."""
     if reason in ("interrupted", "callback", "deadline"):
         return reason
-    if not improved(costs):
+    if require_improvement and not improved(costs):
         return "no_progress"
     if reason in ("expected_decrease", "relative_cost_change"):
         return "converged"
