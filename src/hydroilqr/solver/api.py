@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import SolverConfig, validate_solver
+from hydroilqr.problem.config import SolverConfig, validate_for_solve, validate_solver
 from hydroilqr.problem.task import Task
 from hydroilqr.solver import stopping
 from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
@@ -53,6 +53,7 @@ def solve(
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
     checkpoint (continue with ``--resume``)."""
     task = _as_task(task)
+    validate_for_solve(task.config)
     callbacks = callback_list(callbacks)
     if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(
