@@ -220,7 +220,7 @@ def line_search_width(dyn: Dynamics, requested: int) -> int:
     """How many line-search trials one round evaluates side by side (1 = serial), for the
     solver setting ``line_search_workers`` = requested (0 = one per core)."""
     w = resolve(requested)
-    if w < 2 or not hasattr(dyn, "task") or pool(dyn, w) is None:  # (test dynamics: serial)
+    if w < 2 or not hasattr(dyn, "spec") or pool(dyn, w) is None:  # (test dynamics: serial)
         return 1
     return min(w, pool_size(dyn))
 
