@@ -373,36 +373,59 @@ class Controller:
         """A new plan from the measured state x: [nx] at time t (s). ``full``: no reuse and no
         cap on the partials (the first, converged plan). ``deadline``: a ``time.perf_counter()``
         value after which no line-search trial starts."""
-        dt = self.dyn.dt
-        X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
-        on_prediction = False
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
-        if self.plan is not None:
-            shift = int(round((t - self.t_plan) / dt))
-            shift = min(max(shift, 0), self.U.shape[0])
-            pad = None
-            if self.shrinking:  # drop what has passed, append nothing
-                shift = min(shift, self.U.shape[0] - 1)
-                if shift:
-                    self.U = self.U[shift:]
-            elif shift:
-                k_new = int(round(t / dt)) + self.U.shape[0] - shift  # first appended step
-                pad = self._new_controls(k_new, shift, x)
-                self.U = np.vstack([self.U[shift:], pad])
-            self.linearizer.shift(shift)
-            Xp = self.plan.X[shift:]
-            on_prediction = bool(np.array_equal(Xp[0], x))
-            if on_prediction:  # the plant went exactly where the plan said
-                try:
-                    tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
-                    X0 = np.vstack([Xp, tail])
-                except SimulationError:
-                    X0, on_prediction = None, False
-            elif self.warm_feedback:
-                X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
+        X0, on_prediction = self._warm_start(x, t) if self.plan is not None else (None, False)
         self.reused_prediction.append(on_prediction)
         pre_rollout = time.perf_counter() - t_pre
+        sol = self._solve(x, t, X0, full, deadline)
+        if sol is None:
+            return self._failed(U_before)
+        self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
+        self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
+        self.phases[-1]["rollout"] = self.phases[-1].get("rollout", 0.0) + pre_rollout
+        self.past_deadline += sol.reason == "deadline"
+        if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
+            return self._failed(U_before)
+        self.U = sol.U.copy()
+        self.t_plan = t
+        self.plan = sol
+        return UpdateResult(sol, True)
+
+    def _warm_start(self, x: np.ndarray, t: float):
+        """Shifts the controls (and the partials) by the time since the last plan and returns
+        the initial rollout: the previous plan's prediction if the plant went exactly there,
+        else its policy from x (``warm_start_feedback``), else None; and whether it was the
+        prediction."""
+        dt = self.dyn.dt
+        X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
+        shift = int(round((t - self.t_plan) / dt))
+        shift = min(max(shift, 0), self.U.shape[0])
+        pad = None
+        if self.shrinking:  # drop what has passed, append nothing
+            shift = min(shift, self.U.shape[0] - 1)
+            if shift:
+                self.U = self.U[shift:]
+        elif shift:
+            k_new = int(round(t / dt)) + self.U.shape[0] - shift  # first appended step
+            pad = self._new_controls(k_new, shift, x)
+            self.U = np.vstack([self.U[shift:], pad])
+        self.linearizer.shift(shift)
+        Xp = self.plan.X[shift:]
+        on_prediction = bool(np.array_equal(Xp[0], x))
+        if on_prediction:  # the plant went exactly where the plan said
+            try:
+                tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
+                X0 = np.vstack([Xp, tail])
+            except SimulationError:
+                X0, on_prediction = None, False
+        elif self.warm_feedback:
+            X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
+        return X0, on_prediction
+
+    def _solve(self, x, t, X0, full: bool, deadline: float | None) -> Solution | None:
+        """At most ``iterations`` iLQR iterations from x at time t; None if the solve failed
+        (its per-update statistics then NaN)."""
         lin = self.linearizer
         keep = lin.reuse_tolerance, lin.max_steps
         if full:
@@ -422,19 +445,10 @@ class Controller:
             # Per-update lists stay aligned: a failed update's breakdown is unknown (NaN).
             self.derivative_steps.append(math.nan)
             self.phases.append(dict.fromkeys(PHASES, math.nan))
-            return self._failed(U_before)
+            return None
         finally:
             lin.reuse_tolerance, lin.max_steps = keep
-        self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
-        self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
-        self.phases[-1]["rollout"] = self.phases[-1].get("rollout", 0.0) + pre_rollout
-        self.past_deadline += sol.reason == "deadline"
-        if not all(np.isfinite(a).all() for a in (sol.X, sol.U, sol.K)):
-            return self._failed(U_before)
-        self.U = sol.U.copy()
-        self.t_plan = t
-        self.plan = sol
-        return UpdateResult(sol, True)
+        return sol
 
     def _new_controls(self, k0: int, n: int, x: np.ndarray) -> np.ndarray:
         """Controls for time steps k0 .. k0+n-1 that no plan has yet: the warm-start plan's

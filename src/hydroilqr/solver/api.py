@@ -55,11 +55,6 @@ def solve(
     task = _as_task(task)
     validate_for_solve(task.config)
     callbacks = callback_list(callbacks)
-    if settings is not None and not isinstance(settings, (dict, SolverConfig)):
-        raise TypeError(
-            f"settings: expected a SolverConfig or a dict of its fields, got "
-            f"{type(settings).__name__}"
-        )
     stages = [] if task.config.receding_horizon is not None else task.stages()
     # A dict changes fields of each solve's own solver section (a stage may have its own);
     # a SolverConfig replaces them all. The task itself is not changed.
@@ -150,6 +145,11 @@ def _initial_cost(task: Task, U0, x0) -> float | None:
 
 def _settings_for(solver: SolverConfig, settings: SolverConfig | dict | None) -> SolverConfig:
     """The settings a solve uses: its own section ``solver`` with ``settings`` applied."""
+    if settings is not None and not isinstance(settings, (dict, SolverConfig)):
+        raise TypeError(
+            f"settings: expected a SolverConfig or a dict of its fields, got "
+            f"{type(settings).__name__}"
+        )
     return solver if settings is None else _with_changes(solver, settings)
 
 
