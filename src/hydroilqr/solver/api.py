@@ -51,15 +51,20 @@ def solve(
 
     ``stop_on_interrupt``: Ctrl+C ends a single solve with the best trajectory so far
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
-    checkpoint (continue with ``--resume``)."""
+    checkpoint (continue with ``--resume``).
+
+    The Solution's ``status`` says what the result is worth (``hydroilqr.solver.stopping``;
+    for a continuation, judged from the guess's cost on the task's own model; for a receding
+    horizon, its worst window's), ``explain(solution, task)`` why. A task whose cost has no
+    terms is refused (ConfigError)."""
     task = _as_task(task)
     validate_for_solve(task.config)
     callbacks = callback_list(callbacks)
-    stages = [] if task.config.receding_horizon is not None else task.stages()
     # A dict changes fields of each solve's own solver section (a stage may have its own);
     # a SolverConfig replaces them all. The task itself is not changed.
-    stage_solvers = [_settings_for(st.config.solver, settings) for st in stages]
     solver = _settings_for(task.config.solver, settings)
+    stages = [] if task.config.receding_horizon is not None else task.stages()
+    stage_solvers = [_settings_for(st.config.solver, settings) for st in stages]
     if task.config.receding_horizon is not None:
         if U0 is not None or x0 is not None:
             raise ValueError(
