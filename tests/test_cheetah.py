@@ -126,14 +126,14 @@ def test_standing_partials_autodiff_equal_central_differences(fd_forces):
     task = half_space_ground()
     task.config.solver.fd_forces = fd_forces
     dyn = task.dynamics
-    assert dyn.task.solver.fd_forces is fd_forces and dyn.force_path() is not None
+    assert task.config.solver.fd_forces is fd_forces and dyn.force_path() is not None
     rng = np.random.default_rng(3)
     u = task.initial_guess(1)[0]
     X = dyn.rollout(task.x0, np.tile(u, (6, 1)))
     x = X[-1] + 1e-4 * rng.standard_normal(dyn.nx)  # off the symmetric pose (a mesh kink)
     x[:4] /= np.linalg.norm(x[:4])
     A_ad, B_ad = linearize(dyn, x, u, method="autodiff")
-    A_fd, B_fd = linearize(dyn, x, u, method="central")
+    A_fd, B_fd = linearize(dyn, x, u, method="central", fd_forces=fd_forces)
     J_ad, J_fd = np.hstack([A_ad, B_ad]), np.hstack([A_fd, B_fd])
     assert len([s for s in dyn.contact_surfaces(x) if s[2] > 0]) == 4
     assert np.abs(J_fd - J_ad).max() / np.abs(J_ad).max() < 1e-4

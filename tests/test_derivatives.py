@@ -102,8 +102,9 @@ def test_rollout_next_states_serve_as_the_unperturbed_steps():
     dyn = task.dynamics
     U = 6.0 * np.random.default_rng(4).standard_normal((30, 1))
     X = dyn.rollout(task.x0, U)
-    A1, B1 = linearize(dyn, X, U, "forward", rollout=True)
-    A0, B0 = linearize(dyn, X, U, "forward", rollout=False)
+    forces = task.config.solver.fd_forces  # (passed explicitly: the plant knows no solver)
+    A1, B1 = linearize(dyn, X, U, "forward", rollout=True, fd_forces=forces)
+    A0, B0 = linearize(dyn, X, U, "forward", rollout=False, fd_forces=forces)
     assert np.array_equal(A1, A0) and np.array_equal(B1, B0)
 
 

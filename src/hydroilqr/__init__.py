@@ -23,6 +23,7 @@ from hydroilqr.output.progress import IterationTable  # noqa: E402
 from hydroilqr.problem.config import ConfigError, SolverConfig, TaskConfig  # noqa: E402
 from hydroilqr.problem.task import Task  # noqa: E402
 from hydroilqr.solver.api import solve  # noqa: E402
+from hydroilqr.solver.explain import explain  # noqa: E402
 from hydroilqr.solver.ilqr import IterationInfo  # noqa: E402
 from hydroilqr.solver.solution import Solution  # noqa: E402
 
@@ -37,6 +38,7 @@ __all__ = [
     "SolverConfig",
     "Task",
     "TaskConfig",
+    "explain",
     "linearize",
     "solve",
 ]

@@ -49,7 +49,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     sol = _solve(task, out, restart)
     wall = time.perf_counter() - t0
-    _print_outcome(sol, wall)
+    _print_outcome(sol, task, wall)
     if args.view:
         from hydroilqr.output.replay import meshcat_instance
 
@@ -184,11 +184,14 @@ def _solve_receding(task, out: Path, restart: bool):
             raise
 
 
-def _print_outcome(sol, wall: float) -> None:
+def _print_outcome(sol, task, wall: float) -> None:
     console.print(
         f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
         f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s"
     )
+    from hydroilqr.solver.explain import explain
+
+    console.print(f"status {sol.status}: {explain(sol, task)}", soft_wrap=True)
     cold = [i for i, r in enumerate(sol.extra.get("resolves", [])) if r.get("cold_start")]
     if cold:
         console.print(

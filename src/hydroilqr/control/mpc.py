@@ -24,7 +24,6 @@ for ``push_duration`` seconds to show recovery.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
@@ -41,13 +40,16 @@ from hydroilqr.output.files import atomic_savez
 from hydroilqr.problem.config import (
     MAX_STEPS,
     ConfigError,
+    MPCConfig,
+    SolverConfig,
     check_truth_overrides,
     unknown_key,
+    validate_for_solve,
     validate_mpc,
     with_overrides,
 )
 from hydroilqr.solver.ilqr import Problem
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
 
@@ -73,152 +75,133 @@ class Push:
             raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
 
 
-@dataclass
-class MPCSettings:
-    duration: float = 2.0
-    rate: float = 50.0
-    horizon: float = 0.3
-    iterations_per_update: int = 1
-    realtime: bool = False
-    pushes: list[Push] = field(default_factory=list)
-    threads: int = 1
-    derivatives: str = ""  # empty: the task's own
-    derivative_interval: int = 0  # 0: the task's own
-    feedback_scale: float = 1.0  # scales K in u = ū − K(x − x̄); 0 = feedforward only
-    shrinking_horizon: bool = False  # the horizon ends at the task's end time
-    warm_start_tail: str = "last"  # last | guess: controls appended to a shifted warm start
-    warm_start_feedback: bool = True  # off the prediction: roll out the old policy, not ū
-    # A solved run (DIR or DIR/solution.npz) whose controls, by time, seed the first plan and
-    # every shifted plan's new steps (past its end: warm_start_tail); empty = none.
-    warm_start_plan: str = ""
-    derivative_reuse_tolerance: float = 0.0  # keep partials of steps that moved less
-    derivative_steps_per_update: int = 0  # cap on steps differentiated per iteration (0: none)
-    line_search_steps: int = 3  # step sizes tried per update (1, 1/2, 1/4)
-    line_search_retries: int = 0  # backward pass + line search again with a larger μ
-    # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
-    truth_overrides: list[str] = field(default_factory=list)
-    deadline: float = 0.0  # > 0, --realtime: no line-search trial after this part of the period
+# The settings of a run: one type with the task file's ``mpc:`` section.
+MPCSettings = MPCConfig
 
-    def check(self, task) -> None:
-        """Raises ConfigError for settings that cannot run on ``task``."""
-        if not all(math.isfinite(v) and v > 0 for v in (self.rate, self.horizon, self.duration)):
-            raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
-        if self.threads < 0:
-            raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
-        dt = task.config.plant.time_step
-        for what, seconds in (("horizon", self.horizon), ("duration", self.duration)):
-            if seconds / dt > MAX_STEPS:
-                raise ConfigError(
-                    f"mpc {what} {seconds:g} s: more than {MAX_STEPS} time steps of {dt:g} s"
-                )
-        if self.rate > 1.0 / dt * (1 + 1e-9):
-            raise ConfigError(
-                f"mpc rate {self.rate:g} Hz: at most one update per time step "
-                f"({1.0 / dt:g} Hz with plant.time_step {dt:g} s)"
-            )
-        steps = 1.0 / (self.rate * dt)
-        if abs(steps - round(steps)) > 1e-4 * steps:
-            n = math.floor(steps)
-            near = " or ".join(f"{1.0 / (m * dt):g} Hz" for m in (n, n + 1) if m >= 1)
-            raise ConfigError(
-                f"mpc rate {self.rate:g} Hz: an update period of {steps:g} time steps "
-                f"(plant.time_step {dt:g} s); the period must be whole steps, e.g. {near}"
-            )
-        if not self.shrinking_horizon and self.horizon < 2 * dt * (1 - 1e-9):
-            raise ConfigError(
-                f"mpc horizon {self.horizon:g} s: at least two time steps ({2 * dt:g} s)"
-            )
-        if int(round(self.duration / dt)) < 1:
-            raise ConfigError(
-                f"mpc duration {self.duration:g} s: shorter than one time step ({dt:g} s)"
-            )
-        if self.iterations_per_update < 1:
-            raise ConfigError("mpc iterations per update: at least 1")
-        if not (math.isfinite(self.feedback_scale) and self.feedback_scale >= 0):
-            raise ConfigError(f"--feedback-scale {self.feedback_scale:g}: must be finite and >= 0")
-        if self.line_search_steps < 1 or self.line_search_retries < 0:
-            raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
-        validate_mpc(self)  # the checks shared with a task file's mpc: section
-        if self.warm_start_plan:
-            self.plan_controls(task)
-        plant = task.dynamics.plant
-        welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
-        for p in self.pushes:
-            if not plant.HasBodyNamed(p.body) or p.body in welded:
-                names = [plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())]
-                movable = sorted(set(names) - welded)
-                raise ConfigError(
-                    f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
-                )
-            if not p.duration > 0:
-                raise ConfigError(f"--push-duration: must be positive, got {p.duration:g}")
-            if not 0 <= p.time < self.duration:
-                raise ConfigError(
-                    f"--push at {p.time:g} s: outside the run (0 to {self.duration:g} s)"
-                )
-        if self.truth_overrides:
-            check_truth_overrides(self.truth_overrides)
-            truth = with_overrides(task.config, self.truth_overrides)
-            if truth.plant.time_step != dt:
-                raise ConfigError(
-                    "--truth-set: the simulated plant steps with the controller's time step "
-                    f"({dt:g} s); plant.time_step cannot differ"
-                )
-        if self.shrinking_horizon and int(round(self.duration / dt)) > task.steps:
-            raise ConfigError(
-                f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "
-                f"duration {self.duration:g} s is longer"
-            )
 
-    def plan_controls(self, task) -> np.ndarray | None:
-        """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
-        cannot be read or does not fit the task."""
-        if not self.warm_start_plan:
-            return None
-        plan, path = load_run_solution(self.warm_start_plan, "mpc.warm_start_plan")
-        U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
-        nu = task.dynamics.nu
-        if U.ndim != 2 or U.shape[1] != nu:
+def check_settings(settings: MPCSettings, task) -> None:
+    """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``)."""
+    if not all(
+        math.isfinite(v) and v > 0 for v in (settings.rate, settings.horizon, settings.duration)
+    ):
+        raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
+    if settings.threads < 0:
+        raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
+    dt = task.config.plant.time_step
+    for what, seconds in (("horizon", settings.horizon), ("duration", settings.duration)):
+        if seconds / dt > MAX_STEPS:
             raise ConfigError(
-                f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
+                f"mpc {what} {seconds:g} s: more than {MAX_STEPS} time steps of {dt:g} s"
             )
-        if not np.all(np.isfinite(U)):
-            raise ConfigError(f"mpc.warm_start_plan: {path} holds NaN or infinite controls")
-        from hydroilqr.output.report import previous_task
+    if settings.rate > 1.0 / dt * (1 + 1e-9):
+        raise ConfigError(
+            f"mpc rate {settings.rate:g} Hz: at most one update per time step "
+            f"({1.0 / dt:g} Hz with plant.time_step {dt:g} s)"
+        )
+    steps = 1.0 / (settings.rate * dt)
+    if abs(steps - round(steps)) > 1e-4 * steps:
+        n = math.floor(steps)
+        near = " or ".join(f"{1.0 / (m * dt):g} Hz" for m in (n, n + 1) if m >= 1)
+        raise ConfigError(
+            f"mpc rate {settings.rate:g} Hz: an update period of {steps:g} time steps "
+            f"(plant.time_step {dt:g} s); the period must be whole steps, e.g. {near}"
+        )
+    if not settings.shrinking_horizon and settings.horizon < 2 * dt * (1 - 1e-9):
+        raise ConfigError(
+            f"mpc horizon {settings.horizon:g} s: at least two time steps ({2 * dt:g} s)"
+        )
+    if int(round(settings.duration / dt)) < 1:
+        raise ConfigError(
+            f"mpc duration {settings.duration:g} s: shorter than one time step ({dt:g} s)"
+        )
+    if settings.iterations_per_update < 1:
+        raise ConfigError("mpc iterations per update: at least 1")
+    if not (math.isfinite(settings.feedback_scale) and settings.feedback_scale >= 0):
+        raise ConfigError(f"--feedback-scale {settings.feedback_scale:g}: must be finite and >= 0")
+    if settings.line_search_steps < 1 or settings.line_search_retries < 0:
+        raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
+    validate_mpc(settings)  # the checks shared with a task file's mpc: section
+    if settings.warm_start_plan:
+        settings.plan_controls(task)
+    plant = task.dynamics.plant
+    welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
+    for p in settings.pushes:
+        if not plant.HasBodyNamed(p.body) or p.body in welded:
+            names = [plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())]
+            movable = sorted(set(names) - welded)
+            raise ConfigError(
+                f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
+            )
+        if not p.duration > 0:
+            raise ConfigError(f"--push-duration: must be positive, got {p.duration:g}")
+        if not 0 <= p.time < settings.duration:
+            raise ConfigError(
+                f"--push at {p.time:g} s: outside the run (0 to {settings.duration:g} s)"
+            )
+    if settings.truth_overrides:
+        check_truth_overrides(settings.truth_overrides)
+        truth = with_overrides(task.config, settings.truth_overrides)
+        if truth.plant.time_step != dt:
+            raise ConfigError(
+                "--truth-set: the simulated plant steps with the controller's time step "
+                f"({dt:g} s); plant.time_step cannot differ"
+            )
+    if settings.shrinking_horizon and int(round(settings.duration / dt)) > task.steps:
+        raise ConfigError(
+            f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "
+            f"duration {settings.duration:g} s is longer"
+        )
 
-        other = previous_task(path.parent)  # another task with as many actuators is wrong too
-        if other is not None and other != task.name:
-            raise ConfigError(
-                f"mpc.warm_start_plan: {path.parent} is a run of task {other!r}, not {task.name!r}"
-            )
-        dt = task.config.plant.time_step
-        if t.size > 1 and abs((t[1] - t[0]) - dt) > 1e-9:
-            raise ConfigError(
-                f"mpc.warm_start_plan: {path} has time step {t[1] - t[0]:g} s, the task {dt:g} s"
-            )
-        return U
 
-    @staticmethod
-    def from_task(task, **overrides) -> MPCSettings:
-        """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
-        m = task.config.mpc
-        # every key of the mpc: section is a setting of the same name
-        s = MPCSettings(**{f.name: getattr(m, f.name) for f in dataclasses.fields(m)})
-        if m.warm_start_plan:
-            # a task file's path is relative to that file (a --warm-start-plan: to the cwd)
-            s.warm_start_plan = str(task.config.resolve_path(m.warm_start_plan))
-        if s.shrinking_horizon:
-            # The task's default duration cannot outlast the task itself (e.g. under --smoke,
-            # which shortens the task); an explicit duration that does is refused in check().
-            s.duration = min(s.duration, task.steps * task.config.plant.time_step)
-        fields = [f.name for f in dataclasses.fields(MPCSettings)]
-        for k, v in overrides.items():
-            if k not in fields:  # setattr would add an attribute nothing reads
-                msg = unknown_key(k, fields, f"setting {k!r}")
-                raise TypeError(f"MPCSettings.from_task: {msg}")
-            if v is not None:
-                setattr(s, k, v)
-        return s
+def plan_controls(settings: MPCSettings, task) -> np.ndarray | None:
+    """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
+    cannot be read or does not fit the task (``MPCSettings.plan_controls``)."""
+    if not settings.warm_start_plan:
+        return None
+    plan, path = load_run_solution(settings.warm_start_plan, "mpc.warm_start_plan")
+    U, t = np.asarray(plan.U, float), np.asarray(plan.t, float)
+    nu = task.dynamics.nu
+    if U.ndim != 2 or U.shape[1] != nu:
+        raise ConfigError(
+            f"mpc.warm_start_plan: {path} holds controls of shape {U.shape}, not [M, {nu}]"
+        )
+    if not np.all(np.isfinite(U)):
+        raise ConfigError(f"mpc.warm_start_plan: {path} holds NaN or infinite controls")
+    from hydroilqr.output.report import previous_task
+
+    other = previous_task(path.parent)  # another task with as many actuators is wrong too
+    if other is not None and other != task.name:
+        raise ConfigError(
+            f"mpc.warm_start_plan: {path.parent} is a run of task {other!r}, not {task.name!r}"
+        )
+    dt = task.config.plant.time_step
+    if t.size > 1 and abs((t[1] - t[0]) - dt) > 1e-9:
+        raise ConfigError(
+            f"mpc.warm_start_plan: {path} has time step {t[1] - t[0]:g} s, the task {dt:g} s"
+        )
+    return U
+
+
+def settings_from_task(task, **overrides) -> MPCSettings:
+    """The task's ``mpc:`` section, with keyword overrides (None = keep the task's): a copy
+    (``MPCSettings.from_task``)."""
+    m = task.config.mpc
+    s = dataclasses.replace(m, truth_overrides=list(m.truth_overrides), pushes=list(m.pushes))
+    if m.warm_start_plan:
+        # a task file's path is relative to that file (a --warm-start-plan: to the cwd)
+        s.warm_start_plan = str(task.config.resolve_path(m.warm_start_plan))
+    if s.shrinking_horizon:
+        # The task's default duration cannot outlast the task itself (e.g. under --smoke,
+        # which shortens the task); an explicit duration that does is refused in check().
+        s.duration = min(s.duration, task.steps * task.config.plant.time_step)
+    fields = [f.name for f in dataclasses.fields(MPCSettings)]
+    for k, v in overrides.items():
+        if k not in fields:  # setattr would add an attribute nothing reads
+            msg = unknown_key(k, fields, f"setting {k!r}")
+            raise TypeError(f"MPCSettings.from_task: {msg}")
+        if v is not None:
+            setattr(s, k, v)
+    return s
 
 
 SMOKE_UPDATES = 10  # --smoke without --duration: the loop runs at most this many updates
@@ -336,8 +319,15 @@ class Controller:
     """
 
     def __init__(
-        self, task, horizon_steps: int, iterations: int, settings: MPCSettings | None = None
+        self,
+        task,
+        horizon_steps: int,
+        iterations: int,
+        settings: MPCSettings | None = None,
+        solver: SolverConfig | None = None,
     ):
+        """``solver``: the solver settings of the first, full plan (default: the task's);
+        later updates search fewer step sizes (``settings.line_search_steps``)."""
         settings = settings or MPCSettings()
         self.task = task
         self.dyn = task.dynamics
@@ -352,7 +342,7 @@ class Controller:
         self.U = self._new_controls(0, horizon_steps, task.x0)
         self.t_plan = 0.0
         self.plan: Solution | None = None
-        s = task.config.solver
+        s = self.solver = solver or task.config.solver
         self.linearizer = Linearizer(
             self.dyn,
             s.derivatives,
@@ -363,6 +353,7 @@ class Controller:
             settings.derivative_reuse_tolerance,
             settings.derivative_steps_per_update,
             autodiff_workers=s.autodiff_workers,
+            fd_forces=s.fd_forces,
         )
         self.derivative_steps: list[float] = []  # steps differentiated, per update
         self.reused_prediction: list[bool] = []  # the measured state was the predicted one
@@ -381,58 +372,14 @@ class Controller:
         """A new plan from the measured state x: [nx] at time t (s). ``full``: no reuse and no
         cap on the partials (the first, converged plan). ``deadline``: a ``time.perf_counter()``
         value after which no line-search trial starts."""
-        dt = self.dyn.dt
-        X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
-        on_prediction = False
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
-        if self.plan is not None:
-            shift = int(round((t - self.t_plan) / dt))
-            shift = min(max(shift, 0), self.U.shape[0])
-            pad = None
-            if self.shrinking:  # drop what has passed, append nothing
-                shift = min(shift, self.U.shape[0] - 1)
-                if shift:
-                    self.U = self.U[shift:]
-            elif shift:
-                k_new = int(round(t / dt)) + self.U.shape[0] - shift  # first appended step
-                pad = self._new_controls(k_new, shift, x)
-                self.U = np.vstack([self.U[shift:], pad])
-            self.linearizer.shift(shift)
-            Xp = self.plan.X[shift:]
-            on_prediction = bool(np.array_equal(Xp[0], x))
-            if on_prediction:  # the plant went exactly where the plan said
-                try:
-                    tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
-                    X0 = np.vstack([Xp, tail])
-                except SimulationError:
-                    X0, on_prediction = None, False
-            elif self.warm_feedback:
-                X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
+        X0, on_prediction = self._warm_start(x, t) if self.plan is not None else (None, False)
         self.reused_prediction.append(on_prediction)
         pre_rollout = time.perf_counter() - t_pre
-        lin = self.linearizer
-        keep = lin.reuse_tolerance, lin.max_steps
-        if full:
-            lin.reuse_tolerance, lin.max_steps = 0.0, 0
-        try:
-            sol = ilqr_solve(
-                Problem(self.dyn, self.cost, x, t),
-                self.U,
-                self.task.config.solver if full else self.solver_update,
-                max_iterations=self.iterations,
-                final_gains=False,
-                linearizer=lin,
-                X0=X0,
-                deadline=deadline,
-            )
-        except SimulationError:
-            # Per-update lists stay aligned: a failed update's breakdown is unknown (NaN).
-            self.derivative_steps.append(math.nan)
-            self.phases.append(dict.fromkeys(PHASES, math.nan))
+        sol = self._solve(x, t, X0, full, deadline)
+        if sol is None:
             return self._failed(U_before)
-        finally:
-            lin.reuse_tolerance, lin.max_steps = keep
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
         self.phases.append({p: float(sum(v)) for p, v in sol.phase_seconds.items()})
         self.phases[-1]["rollout"] = self.phases[-1].get("rollout", 0.0) + pre_rollout
@@ -443,6 +390,64 @@ class Controller:
         self.t_plan = t
         self.plan = sol
         return UpdateResult(sol, True)
+
+    def _warm_start(self, x: np.ndarray, t: float):
+        """Shifts the controls (and the partials) by the time since the last plan and returns
+        the initial rollout: the previous plan's prediction if the plant went exactly there,
+        else its policy from x (``warm_start_feedback``), else None; and whether it was the
+        prediction."""
+        dt = self.dyn.dt
+        X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
+        shift = int(round((t - self.t_plan) / dt))
+        shift = min(max(shift, 0), self.U.shape[0])
+        pad = None
+        if self.shrinking:  # drop what has passed, append nothing
+            shift = min(shift, self.U.shape[0] - 1)
+            if shift:
+                self.U = self.U[shift:]
+        elif shift:
+            k_new = int(round(t / dt)) + self.U.shape[0] - shift  # first appended step
+            pad = self._new_controls(k_new, shift, x)
+            self.U = np.vstack([self.U[shift:], pad])
+        self.linearizer.shift(shift)
+        Xp = self.plan.X[shift:]
+        on_prediction = bool(np.array_equal(Xp[0], x))
+        if on_prediction:  # the plant went exactly where the plan said
+            try:
+                tail = self.dyn.rollout(Xp[-1], pad)[1:] if pad is not None else Xp[:0]
+                X0 = np.vstack([Xp, tail])
+            except SimulationError:
+                X0, on_prediction = None, False
+        elif self.warm_feedback:
+            X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
+        return X0, on_prediction
+
+    def _solve(self, x, t, X0, full: bool, deadline: float | None) -> Solution | None:
+        """At most ``iterations`` iLQR iterations from x at time t; None if the solve failed
+        (its per-update statistics then NaN)."""
+        lin = self.linearizer
+        keep = lin.reuse_tolerance, lin.max_steps
+        if full:
+            lin.reuse_tolerance, lin.max_steps = 0.0, 0
+        try:
+            sol = ilqr_solve(
+                Problem(self.dyn, self.cost, x, t),
+                self.U,
+                self.solver if full else self.solver_update,
+                max_iterations=self.iterations,
+                final_gains=False,
+                linearizer=lin,
+                X0=X0,
+                deadline=deadline,
+            )
+        except SimulationError:
+            # Per-update lists stay aligned: a failed update's breakdown is unknown (NaN).
+            self.derivative_steps.append(math.nan)
+            self.phases.append(dict.fromkeys(PHASES, math.nan))
+            return None
+        finally:
+            lin.reuse_tolerance, lin.max_steps = keep
+        return sol
 
     def _new_controls(self, k0: int, n: int, x: np.ndarray) -> np.ndarray:
         """Controls for time steps k0 .. k0+n-1 that no plan has yet: the warm-start plan's
@@ -544,141 +549,171 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
     ``settings``: default ``MPCSettings.from_task(task)``, the task's ``mpc:`` section (as the
     ``mpc`` command uses); a bare ``MPCSettings(...)`` starts from generic defaults instead.
     ``on_update(k, n)``: called with the time steps simulated so far and in all."""
+    validate_for_solve(task.config)
     if settings is None:
         settings = MPCSettings.from_task(task)
-    dyn = task.dynamics
-    dt = dyn.dt
+    dt = task.dynamics.dt
     settings.check(task)
     N = max(2, int(round(settings.horizon / dt)))
-    period_steps = max(1, int(round(1.0 / (settings.rate * dt))))
-    total = int(round(settings.duration / dt))
     if settings.shrinking_horizon:
         N = task.steps
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
-    # The controller's solver settings, on a copy of the task (the caller's is not changed).
-    solver = dataclasses.replace(
-        task.config.solver,
+    solver = controller_solver(task.config.solver, settings)
+    ctrl = Controller(task, N, settings.iterations_per_update, settings, solver)
+    loop = ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides))
+    loop.first_plan()
+    return loop.run(on_update)
+
+
+def controller_solver(solver: SolverConfig, settings: MPCSettings) -> SolverConfig:
+    """The task's solver settings with the controller's threads and derivatives."""
+    return dataclasses.replace(
+        solver,
         threads=settings.threads,
-        derivatives=settings.derivatives or task.config.solver.derivatives,
-        derivative_interval=settings.derivative_interval or task.config.solver.derivative_interval,
+        derivatives=settings.derivatives or solver.derivatives,
+        derivative_interval=settings.derivative_interval or solver.derivative_interval,
     )
-    task = copy.copy(task)  # shares the built plant and cost; only the settings differ
-    task.config = dataclasses.replace(task.config, solver=solver)
-    ctrl = Controller(task, N, settings.iterations_per_update, settings)
-    truth = Truth(task, settings.truth_overrides)  # push bodies checked by settings.check
 
-    x = task.x0.copy()
-    X, U = [x], []
-    upd_t, solve_s, iters = [], [], []
-    failures = 0
-    # The first plan is solved to convergence before the clock starts (as a robot plans before
-    # it moves); later updates run at most K iterations each.
-    ctrl.iterations = task.config.solver.max_iterations
-    # The task's continuation, if any, seeds the first plan (not over a given warm-start plan),
-    # with the derivative settings this run uses.
-    stages = task.stages() if ctrl.U_ref is None else []
-    for stage in stages:
-        s_stage = dataclasses.replace(
-            stage.config.solver,
-            threads=task.config.solver.threads,
-            derivatives=task.config.solver.derivatives,
-            derivative_interval=task.config.solver.derivative_interval,
-        )
-        try:
-            problem = Problem(stage.dynamics, stage.cost, x, 0.0)
-            ctrl.U = ilqr_solve(problem, ctrl.U, s_stage, final_gains=False).U
-        except SimulationError:
-            break  # plan from the controls so far
-    plan, ok = ctrl.update(x, 0.0, full=True)
-    ctrl.iterations = settings.iterations_per_update
-    if plan is None:
-        raise SimulationError("mpc: the first plan failed")
-    k = 0
-    wall0 = time.perf_counter()
 
-    def advance(n, plan, t_plan):
-        nonlocal x, k
+class ClosedLoop:
+    """The simulated plant under the controller's plans: states X, applied inputs U, and per
+    update its time, solve seconds and iterations."""
+
+    def __init__(self, task, settings: MPCSettings, ctrl: Controller, truth: Truth):
+        self.task, self.settings, self.ctrl, self.truth = task, settings, ctrl, truth
+        self.dt = task.dynamics.dt
+        self.total = int(round(settings.duration / self.dt))
+        self.period_steps = max(1, int(round(1.0 / (settings.rate * self.dt))))
+        self.x = task.x0.copy()
+        self.X, self.U = [self.x], []
+        self.upd_t, self.solve_s, self.iters = [], [], []
+        self.failures, self.k = 0, 0
+        self.plan, self.t_plan = None, 0.0
+        self.failure, self.interrupted = "", False
+
+    def first_plan(self) -> None:
+        """The first plan, solved to convergence before the clock starts (as a robot plans
+        before it moves), seeded by the task's continuation if any (not over a given
+        warm-start plan), with the derivative settings this run uses."""
+        ctrl, solver, x = self.ctrl, self.ctrl.solver, self.x
+        ctrl.iterations = solver.max_iterations
+        stages = self.task.stages() if ctrl.U_ref is None else []
+        for stage in stages:
+            s_stage = dataclasses.replace(
+                stage.config.solver,
+                threads=solver.threads,
+                derivatives=solver.derivatives,
+                derivative_interval=solver.derivative_interval,
+            )
+            try:
+                problem = Problem(stage.dynamics, stage.cost, x, 0.0)
+                ctrl.U = ilqr_solve(problem, ctrl.U, s_stage, final_gains=False).U
+            except SimulationError:
+                break  # plan from the controls so far
+        self.plan, ok = ctrl.update(x, 0.0, full=True)
+        ctrl.iterations = self.settings.iterations_per_update  # later updates: at most K
+        if self.plan is None:
+            raise SimulationError("mpc: the first plan failed")
+
+    def advance(self, n: int, plan: Solution, t_plan: float) -> None:
+        """Simulates up to n steps under ``plan``'s policy (measured at ``t_plan``)."""
+        dt, fb = self.dt, self.settings.feedback_scale
         for _ in range(n):
-            if k >= total:
+            if self.k >= self.total:
                 return
             # Index into the plan by the time elapsed since its state was measured.
-            i = min(max(k - int(round(t_plan / dt)), 0), plan.U.shape[0] - 1)
-            u = plan.U[i] - settings.feedback_scale * (plan.K[i] @ (x - plan.X[i]))
+            i = min(max(self.k - int(round(t_plan / dt)), 0), plan.U.shape[0] - 1)
+            u = plan.U[i] - fb * (plan.K[i] @ (self.x - plan.X[i]))
             if not np.all(np.isfinite(u)):
                 raise SimulationError("the controller produced a non-finite input")
-            x, u = truth.step(x, u, k, settings.pushes)
-            X.append(x)
-            U.append(u)
-            k += 1
+            self.x, u = self.truth.step(self.x, u, self.k, self.settings.pushes)
+            self.X.append(self.x)
+            self.U.append(u)
+            self.k += 1
 
-    t_plan = 0.0
-    first = True
-    failure = ""
-    interrupted = False
-    try:
-        while k < total:
-            t_now = k * dt
-            if not first:
-                t0 = time.perf_counter()
-                # Only where latency is felt: lock-step runs stay reproducible.
-                on = settings.deadline and settings.realtime
-                deadline = t0 + settings.deadline / settings.rate if on else None
-                new_plan, ok = ctrl.update(x, t_now, deadline=deadline)
-                w = time.perf_counter() - t0
-                failures += 0 if ok else 1
-                solve_s.append(w)
-                iters.append(new_plan.iterations if (ok and new_plan) else 0)
-                upd_t.append(t_now)
-                if settings.realtime:
-                    # The old policy keeps running while the controller thinks.
-                    try:
-                        advance(int(math.ceil(w / dt)), plan, t_plan)
-                    except SimulationError as e:
-                        failure = f"t = {k * dt:.3f} s: {e}"
+    def run(self, on_update=None) -> MPCResult:
+        """Updates and simulates to the end (or a simulation failure, or Ctrl+C)."""
+        wall0 = time.perf_counter()
+        first = True
+        try:
+            while self.k < self.total:
+                t_now = self.k * self.dt
+                if not first:
+                    if not self.update(t_now):
                         break
-                if ok:
-                    plan, t_plan = new_plan, t_now
-            else:
-                solve_s.append(0.0)
-                iters.append(plan.iterations)
-                upd_t.append(0.0)
-                first = False
-            # Run to the next update time (one period after this update began; in real-time
-            # mode the latency already simulated counts towards it).
-            k_update = int(round(t_now / dt))
-            try:
-                advance(max(0, k_update + period_steps - k), plan, t_plan)
-            except SimulationError as e:
-                failure = f"t = {k * dt:.3f} s: {e}"
-                break
-            if on_update is not None:
-                on_update(k, total)
-    except KeyboardInterrupt:  # Ctrl+C: stop here and keep the run so far
-        interrupted = True
-        if not U:
-            raise  # nothing simulated yet: nothing to keep
-        del X[len(U) + 1 :]
-        n = min(len(upd_t), len(solve_s), len(iters))
-        del upd_t[n:], solve_s[n:], iters[n:]
-    wall = time.perf_counter() - wall0
-    # The first (pre-start) solve is reported separately and not counted in the percentiles.
-    return MPCResult(
-        np.array(X),
-        np.array(U),
-        dt * np.arange(len(X)),
-        upd_t[1:],
-        solve_s[1:],
-        iters[1:],
-        failures,
-        wall,
-        settings,
-        failure,
-        ctrl.derivative_steps[1:],
-        ctrl.reused_prediction[1:],
-        ctrl.phases[1:],
-        interrupted,
-        ctrl.past_deadline,
-    )
+                else:
+                    self.solve_s.append(0.0)
+                    self.iters.append(self.plan.iterations)
+                    self.upd_t.append(0.0)
+                    first = False
+                # Run to the next update time (one period after this update began; in
+                # real-time mode the latency already simulated counts towards it).
+                k_update = int(round(t_now / self.dt))
+                if not self.simulate(max(0, k_update + self.period_steps - self.k)):
+                    break
+                if on_update is not None:
+                    on_update(self.k, self.total)
+        except KeyboardInterrupt:  # Ctrl+C: stop here and keep the run so far
+            self.interrupted = True
+            if not self.U:
+                raise  # nothing simulated yet: nothing to keep
+            del self.X[len(self.U) + 1 :]
+            n = min(len(self.upd_t), len(self.solve_s), len(self.iters))
+            del self.upd_t[n:], self.solve_s[n:], self.iters[n:]
+        return self.result(time.perf_counter() - wall0)
+
+    def update(self, t_now: float) -> bool:
+        """A control update at t_now; in real-time mode the old policy runs meanwhile.
+        False if the simulation failed."""
+        s = self.settings
+        t0 = time.perf_counter()
+        # Only where latency is felt: lock-step runs stay reproducible.
+        on = s.deadline and s.realtime
+        deadline = t0 + s.deadline / s.rate if on else None
+        new_plan, ok = self.ctrl.update(self.x, t_now, deadline=deadline)
+        w = time.perf_counter() - t0
+        self.failures += 0 if ok else 1
+        self.solve_s.append(w)
+        self.iters.append(new_plan.iterations if (ok and new_plan) else 0)
+        self.upd_t.append(t_now)
+        # The old policy keeps running while the controller thinks.
+        if s.realtime and not self.simulate(int(math.ceil(w / self.dt))):
+            return False
+        if ok:
+            self.plan, self.t_plan = new_plan, t_now
+        return True
+
+    def simulate(self, n: int) -> bool:
+        """``advance`` under the plan in force; False (and the failure kept) if the
+        simulation failed."""
+        try:
+            self.advance(n, self.plan, self.t_plan)
+        except SimulationError as e:
+            self.failure = f"t = {self.k * self.dt:.3f} s: {e}"
+            return False
+        return True
+
+    def result(self, wall: float) -> MPCResult:
+        """The run so far; the first (pre-start) solve is reported separately and not
+        counted in the percentiles."""
+        ctrl = self.ctrl
+        return MPCResult(
+            np.array(self.X),
+            np.array(self.U),
+            self.dt * np.arange(len(self.X)),
+            self.upd_t[1:],
+            self.solve_s[1:],
+            self.iters[1:],
+            self.failures,
+            wall,
+            self.settings,
+            self.failure,
+            ctrl.derivative_steps[1:],
+            ctrl.reused_prediction[1:],
+            ctrl.phases[1:],
+            self.interrupted,
+            ctrl.past_deadline,
+        )
 
 
 # ------------------------------------------------------------------------------------------

@@ -491,7 +491,7 @@ def playback(
     result = PlaybackResult(
         settings=settings,
         planner_contact=task.config.plant.contact_approximation,
-        truth_contact=truth.task.plant.contact_approximation,
+        truth_contact=truth.spec.plant.contact_approximation,
         planner_time_step=task.config.plant.time_step,
         t=t,
         X=X,

@@ -55,6 +55,7 @@ def linearize(
     rollout: bool = False,
     adaptive: bool = False,
     autodiff_workers: int = 1,
+    fd_forces: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Partials along a trajectory. X: [N+1, nx] (only X[:N] used), U: [N, nu].
     At one point: x: [nx] and u: [nu] (a number for one actuator) give A: [nx, nx] and
@@ -70,6 +71,9 @@ def linearize(
     ``autodiff_workers``: AutoDiff in that many processes (each with its own plant; 0 = one per
     core; the default 1 is serial, whatever the task's ``solver.autodiff_workers`` says).
 
+    ``fd_forces``: finite differences over generalized forces where the model qualifies
+    (``Dynamics.force_path``), as ``solver.fd_forces``; the default differences (x, u).
+
     Returns A: [N, nx, nx], B: [N, nx, nu]. Raises SimulationError if a step fails (or x or u
     holds NaN), ValueError for wrong shapes.
     """
@@ -80,7 +84,9 @@ def linearize(
         raise ValueError(f"derivative method {method!r}: expected one of {valid}") from None
     if np.ndim(X) == 1 and np.ndim(U) <= 1:  # one state and input
         x, u = dyn.check_arguments(X, np.atleast_1d(U))
-        A, B = _fd_or_ad(dyn, x[None], u[None], method, eps, threads, None, autodiff_workers)
+        A, B = _fd_or_ad(
+            dyn, x[None], u[None], method, eps, threads, None, autodiff_workers, fd_forces
+        )
         return A[0], B[0]
     X, U = dyn.check_arguments(X, U, x_rows=True, u_rows=True)  # NaN -> SimulationError
     N = U.shape[0]
@@ -90,10 +96,12 @@ def linearize(
     if interval > 1 and N > 2:
         keys = keypoints(dyn, X, N, interval, adaptive)
         nxt = X[np.asarray(keys) + 1] if rollout else None
-        Ak, Bk = _fd_or_ad(dyn, X[keys], U[keys], method, eps, threads, nxt, autodiff_workers)
+        Ak, Bk = _fd_or_ad(
+            dyn, X[keys], U[keys], method, eps, threads, nxt, autodiff_workers, fd_forces
+        )
         return _interpolate(keys, Ak, Bk, N)
     nxt = X[1 : N + 1] if rollout else None
-    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, nxt, autodiff_workers)
+    return _fd_or_ad(dyn, X[:N], U, method, eps, threads, nxt, autodiff_workers, fd_forces)
 
 
 def keypoints(dyn: Dynamics, X: np.ndarray, N: int, interval: int, adaptive: bool) -> list[int]:
@@ -137,9 +145,11 @@ class Linearizer:
         reuse_tolerance: float = 0.0,
         max_steps: int = 0,
         autodiff_workers: int = 1,
+        fd_forces: bool = False,
     ):
         self.dyn = dyn
         self.autodiff_workers = autodiff_workers
+        self.fd_forces = fd_forces
         self.method = DerivativeMethod(method)
         self.eps, self.threads = eps, threads
         self.interval, self.adaptive = interval, adaptive
@@ -160,6 +170,7 @@ class Linearizer:
             s.derivative_adaptive,
             s.derivative_reuse_tolerance,
             autodiff_workers=s.autodiff_workers,
+            fd_forces=s.fd_forces,
         )
 
     def shift(self, steps: int) -> None:
@@ -215,6 +226,7 @@ class Linearizer:
                 self.threads,
                 nxt,
                 self.autodiff_workers,
+                self.fd_forces,
             )
             self.A[todo], self.B[todo], self.Z[todo] = A, B, Z[todo]
         self.last_computed = int(todo.size)
@@ -228,7 +240,7 @@ class Linearizer:
         return _interpolate(list(keys), self.A[keys], self.B[keys], N)
 
 
-def _fd_or_ad(dyn, X, U, method, eps, threads, next_states, autodiff_workers=1):
+def _fd_or_ad(dyn, X, U, method, eps, threads, next_states, autodiff_workers=1, fd_forces=False):
     N = U.shape[0]
     if method is DerivativeMethod.AUTODIFF:
         workers = resolve_workers(autodiff_workers)
@@ -246,6 +258,7 @@ def _fd_or_ad(dyn, X, U, method, eps, threads, next_states, autodiff_workers=1):
         eps=eps,
         threads=threads,
         next_states=next_states,
+        forces=fd_forces,
     )
 
 
@@ -313,10 +326,8 @@ def _finite_differences(
     eps: float,
     threads: int,
     next_states: np.ndarray | None = None,
-    forces: bool | None = None,
+    forces: bool = False,
 ):
-    if forces is None:
-        forces = dyn.task.solver.fd_forces
     if forces and dyn.force_path() is not None:
         return _force_differences(dyn, X, U, central, eps, threads, next_states)
     N, nx, nu = U.shape[0], dyn.nx, dyn.nu

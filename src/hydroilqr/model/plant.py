@@ -10,8 +10,9 @@ contact approximation is chosen explicitly (``tamsi`` only to reproduce the pape
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
-from typing import NamedTuple
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydrake.geometry import (
@@ -35,7 +36,14 @@ from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, Multibod
 from pydrake.systems.framework import DiagramBuilder
 
 from hydroilqr.model.state import StateLayout
-from hydroilqr.problem.config import ConfigError, ContactProperties, SceneObject, TaskConfig
+from hydroilqr.problem.config import (
+    ConfigError,
+    ContactProperties,
+    ModelConfig,
+    PlantConfig,
+    SceneObject,
+    TaskConfig,
+)
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6
@@ -424,15 +432,50 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
 
 
+@dataclass
+class PlantSpec:
+    """What a plant is built from: the parts of a task that describe the physical system
+    (model files, scene, contact properties, plant settings, state blocks, initial state),
+    and nothing about cost or solver. ``build_diagram`` accepts it as it accepts a TaskConfig."""
+
+    name: str = ""
+    models: list[ModelConfig] = field(default_factory=list)
+    package_map: dict[str, str] = field(default_factory=dict)
+    scene: list[SceneObject] = field(default_factory=list)
+    geometry: dict[str, ContactProperties] = field(default_factory=dict)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    blocks: dict[str, list[str]] = field(default_factory=dict)
+    initial_state: dict[str, Any] = field(default_factory=dict)
+    base_dir: str = ""
+
+    @classmethod
+    def of(cls, task: TaskConfig | PlantSpec) -> PlantSpec:
+        """The plant part of a task (a PlantSpec as it is)."""
+        if isinstance(task, PlantSpec):
+            return task
+        names = [f for f in cls.__dataclass_fields__]
+        return cls(**{k: getattr(task, k) for k in names})
+
+    def resolve_path(self, path: str) -> Path:
+        """As ``TaskConfig.resolve_path``: relative to the task file's directory."""
+        p = Path(path).expanduser()
+        if not p.is_absolute():
+            p = Path(self.base_dir or ".") / p
+        return p
+
+
 class Dynamics:
     """The discrete dynamics f(x, u) of a task's plant, plus its named state layout.
 
+    Built from a ``PlantSpec`` (or a TaskConfig, of which only its plant part is kept, as
+    ``spec``): the dynamics know nothing of the solver.
     Attributes: ``nx = nq + nv``, ``nu`` (actuators), ``dt`` (time step), ``layout``.
     """
 
-    def __init__(self, task: TaskConfig):
-        self.task = task
-        self.scene = build_diagram(task)
+    def __init__(self, spec: PlantSpec | TaskConfig):
+        spec = PlantSpec.of(spec)
+        self.spec = spec
+        self.scene = build_diagram(spec)
         self.diagram = self.scene.diagram
         self.plant = self.scene.plant
         self.scene_graph = self.scene.scene_graph
@@ -442,9 +485,9 @@ class Dynamics:
         self.nv = self.plant.num_velocities()
         self.nx = self.nq + self.nv
         self.nu = self.plant.num_actuated_dofs()
-        self.dt = task.plant.time_step
+        self.dt = spec.plant.time_step
         self.layout = StateLayout.from_plant(self.plant)
-        self.layout.add_groups(task.blocks)
+        self.layout.add_groups(spec.blocks)
         self._input = self.diagram.get_input_port(self.scene.actuation_port)
         self._ad = None
         self.effort_limits = self._effort_limits()
@@ -554,7 +597,7 @@ class Dynamics:
     def initial_state(self) -> np.ndarray:
         """x0 from the model defaults and the task's ``initial_state`` (by block name)."""
         return self.layout.coordinate_vector(
-            self.task.initial_state, "initial_state", self.default_state()
+            self.spec.initial_state, "initial_state", self.default_state()
         )
 
     def gravity_compensation(self, x: np.ndarray) -> np.ndarray:
@@ -595,7 +638,7 @@ class Dynamics:
         up to 33 % there). ``None`` if the model does not qualify. Built once."""
         if not hasattr(self, "_force_path"):
             p = self.plant
-            approximation = self.task.plant.contact_approximation
+            approximation = self.spec.plant.contact_approximation
             ok = (
                 approximation in ("sap", "tamsi")
                 and p.num_force_elements() == 1
@@ -642,10 +685,10 @@ class Dynamics:
         query = self.plant.get_geometry_query_input_port().Eval(self.plant_context)
         rep = (
             Rep.kPolygon
-            if self.task.plant.contact_surface_representation == "polygon"
+            if self.spec.plant.contact_surface_representation == "polygon"
             else Rep.kTriangle
         )
-        model = self.task.plant.contact_model
+        model = self.spec.plant.contact_model
         if model == "hydroelastic":
             return query.ComputeContactSurfaces(rep), []
         if model == "point":  # the plant computes point contact only, whatever the geometry
@@ -672,4 +715,4 @@ class Dynamics:
         return [(ga, gb, n) for ga, _, gb, _, n in self.contact_pairs(x)]
 
 
-__all__ = ["Dynamics", "Scene", "SimulationError", "build_diagram", "SceneGraph"]
+__all__ = ["Dynamics", "PlantSpec", "Scene", "SimulationError", "build_diagram", "SceneGraph"]

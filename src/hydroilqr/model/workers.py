@@ -71,7 +71,7 @@ def pool(dyn: Dynamics, size: int) -> ProcessPoolExecutor | None:
                 max_workers=size - 1,
                 mp_context=_SpawnContext(),
                 initializer=_init,
-                initargs=(dyn.task.to_dict(), dyn.task.base_dir),
+                initargs=(dyn.spec,),
             )
         except Exception:  # no child processes allowed here
             dyn._worker_pool = False
@@ -150,12 +150,10 @@ def _submit(dyn: Dynamics, fn, *args):
 
 
 # ------------------------------------------------------------------------------ in workers
-def _init(config: dict, base_dir: str) -> None:
+def _init(spec) -> None:
     global _DYN
-    from hydroilqr.problem.config import task_from_dict
-
     _exit_with_parent(os.getppid())
-    _DYN = Dynamics(task_from_dict(config, base_dir))
+    _DYN = Dynamics(spec)
 
 
 def _exit_with_parent(parent: int, period: float = 1.0) -> None:
@@ -222,7 +220,7 @@ def line_search_width(dyn: Dynamics, requested: int) -> int:
     """How many line-search trials one round evaluates side by side (1 = serial), for the
     solver setting ``line_search_workers`` = requested (0 = one per core)."""
     w = resolve(requested)
-    if w < 2 or not hasattr(dyn, "task") or pool(dyn, w) is None:  # (test dynamics: serial)
+    if w < 2 or not hasattr(dyn, "spec") or pool(dyn, w) is None:  # (test dynamics: serial)
         return 1
     return min(w, pool_size(dyn))
 

@@ -1,7 +1,7 @@
 """Everything a solve writes into its output directory.
 
 solution.npz    X, U, K, kappa, t (+ statistics)          -> Solution.load
-summary.json    task, converged, iterations, final_cost, iteration_seconds,
+summary.json    task, converged, reason, status, iterations, final_cost, iteration_seconds,
                 phase_seconds, derivatives, metrics, config (the fully resolved task),
                 environment (code commit, package versions, CPU)
 convergence.png cost against iteration (log scale)

@@ -95,7 +95,7 @@ def candidate_pairs(dyn, x: np.ndarray, geoms: list[dict]) -> list[dict]:
                 "a": f"{ga['name']} ({ga['body']})",
                 "b": f"{gb['name']} ({gb['body']})",
                 "kinds": f"{ga['kind']}/{gb['kind']}",
-                "model": _pair_model(ga["kind"], gb["kind"], dyn.task.plant.contact_model),
+                "model": _pair_model(ga["kind"], gb["kind"], dyn.spec.plant.contact_model),
                 "distance": dist,
             }
         )

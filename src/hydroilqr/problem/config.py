@@ -240,7 +240,10 @@ class RecedingHorizonConfig:
 
 @dataclass
 class MPCConfig:
-    """Defaults for ``hydroilqr mpc`` (each can be overridden on the command line)."""
+    """The settings of closed-loop MPC (``hydroilqr mpc``, ``control.mpc.run_mpc``): a task
+    file's ``mpc:`` section, each key overridable on the command line; also built in Python
+    (``control.mpc.MPCSettings`` is this class). ``pushes`` is not a task-file key (Push
+    objects, from ``--push``)."""
 
     rate: float = 50.0  # Hz, control updates
     horizon: float = 0.3  # s
@@ -278,6 +281,34 @@ class MPCConfig:
     # control period (it keeps the warm start, with fresh gains): late updates return in time.
     # 0 = off; lock-step runs ignore it.
     deadline: float = 0.0
+    # The simulation keeps running while the controller computes (its latency is felt).
+    realtime: bool = False
+    # Scales K in u = ū − K(x − x̄); 0 = feedforward only.
+    feedback_scale: float = 1.0
+    # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
+    truth_overrides: list[str] = field(default_factory=list)
+    # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
+    pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
+
+    def check(self, task) -> None:
+        """Raises ConfigError for settings that cannot run on ``task``."""
+        from hydroilqr.control.mpc import check_settings
+
+        check_settings(self, task)
+
+    def plan_controls(self, task):
+        """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
+        cannot be read or does not fit the task."""
+        from hydroilqr.control.mpc import plan_controls
+
+        return plan_controls(self, task)
+
+    @staticmethod
+    def from_task(task, **overrides) -> MPCConfig:
+        """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
+        from hydroilqr.control.mpc import settings_from_task
+
+        return settings_from_task(task, **overrides)
 
 
 BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
@@ -354,6 +385,7 @@ class TaskConfig:
         trajectory length is given once, as num_steps when set, else as horizon)."""
         d = dataclasses.asdict(self)
         d.pop("base_dir", None)
+        d["mpc"].pop("pushes", None)  # not a task-file key
         if d.get("num_steps"):
             d.pop("horizon", None)
         return d
@@ -450,7 +482,7 @@ def unknown_key(name: Any, valid: list[str], what: str) -> str:
 
 def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    names = {f.name for f in dataclasses.fields(cls) if f.init and f.metadata.get("task_file", 1)}
     kwargs = {}
     for k, v in data.items():
         key = f"{prefix}.{k}" if prefix else str(k)
@@ -924,8 +956,8 @@ MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2
 
 
 def validate_mpc(m: Any) -> None:
-    """Checks the ``mpc:`` settings that need no plant (an MPCConfig, or hydroilqr.control.mpc's
-    MPCSettings, which has the same fields); ConfigError naming the key."""
+    """Checks the ``mpc:`` settings that need no plant (an MPCConfig); ConfigError naming the
+    key."""
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
@@ -981,6 +1013,32 @@ def validate_solver(sv: SolverConfig) -> None:
     ):
         if not ok:
             raise ConfigError(f"solver.{name}: must be {rule}, got {getattr(sv, name)}")
+
+
+def validate_for_solve(cfg: TaskConfig) -> None:
+    """Checks a task must pass to be solved (a task that only describes a plant, e.g. for
+    its dynamics, need not): ConfigError for a cost without terms."""
+    if not _has_cost_terms(cfg.cost):
+        raise ConfigError(
+            "cost: no terms (every weight in Q, Qf and R is zero or missing): there is nothing "
+            "to optimize; give the cost some positive weights"
+        )
+
+
+def _has_cost_terms(cost: CostConfig) -> bool:
+    """Some weight of Q, Qf or R is positive (a malformed R counts: its own check says why)."""
+
+    def positive(w: Any) -> bool:
+        if isinstance(w, dict):
+            return any(positive(v) for v in w.values())
+        if isinstance(w, (list, tuple)):
+            return any(positive(v) for v in w)
+        try:
+            return float(w) > 0
+        except (TypeError, ValueError):
+            return True
+
+    return any(positive(w) for w in (cost.Q, cost.Qf, cost.R))
 
 
 def validate(cfg: TaskConfig) -> None:

@@ -15,10 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import SolverConfig, validate_solver
+from hydroilqr.problem.config import SolverConfig, validate_for_solve, validate_solver
 from hydroilqr.problem.task import Task
-from hydroilqr.solver.ilqr import IterationInfo, callback_list
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver import stopping
+from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
+from hydroilqr.solver.ilqr import IterationInfo
+from hydroilqr.solver.loop import callback_list
+from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.receding import solve_receding
 from hydroilqr.solver.solution import PHASES, Solution
 
@@ -48,91 +51,111 @@ def solve(
 
     ``stop_on_interrupt``: Ctrl+C ends a single solve with the best trajectory so far
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
-    checkpoint (continue with ``--resume``)."""
+    checkpoint (continue with ``--resume``).
+
+    The Solution's ``status`` says what the result is worth (``hydroilqr.solver.stopping``;
+    for a continuation, judged from the guess's cost on the task's own model; for a receding
+    horizon, its worst window's), ``explain(solution, task)`` why. A task whose cost has no
+    terms is refused (ConfigError)."""
+    task = _as_task(task)
+    validate_for_solve(task.config)
+    callbacks = callback_list(callbacks)
+    # A dict changes fields of each solve's own solver section (a stage may have its own);
+    # a SolverConfig replaces them all. The task itself is not changed.
+    solver = _settings_for(task.config.solver, settings)
+    stages = [] if task.config.receding_horizon is not None else task.stages()
+    stage_solvers = [_settings_for(st.config.solver, settings) for st in stages]
+    if task.config.receding_horizon is not None:
+        if U0 is not None or x0 is not None:
+            raise ValueError(
+                f"{task.name} is a receding-horizon task: U0 and x0 come from its task file "
+                "(initial_guess, initial_state)"
+            )
+        return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver)
+    x0, U0 = _start(task, U0, x0)
+    if not stages:
+        return ilqr_solve(
+            task.problem(x0=x0), U0, solver, callbacks, stop_on_interrupt=stop_on_interrupt
+        )
+    return _continuation(
+        task, list(zip(stages, stage_solvers)), solver, U0, x0, callbacks, stop_on_interrupt
+    )
+
+
+def _as_task(task) -> Task:
+    """A Task from a Task or a built-in task name / task file path."""
     if isinstance(task, (str, Path)):
         task = Task.load(str(task))
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
-    callbacks = callback_list(callbacks)
-    saved = task.config.solver
+    return task
+
+
+def _start(task: Task, U0, x0):
+    """(x0, U0) of a single solve: x0 checked (quaternions normalized) or None for the task's;
+    U0 checked against the task's N steps, or the task's initial guess (a computed guess
+    holds the given state)."""
+    N = task.config.steps
+    if x0 is not None:
+        x0 = task.checked_state(x0)  # quaternions normalized
+    if U0 is None:
+        U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
+    elif np.shape(U0)[:1] != (N,):
+        raise ValueError(
+            f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps, nu), "
+            f"got {np.shape(U0)}"
+        )
+    return x0, U0
+
+
+def _continuation(task: Task, stages, solver, U0, x0, callbacks, stop_on_interrupt) -> Solution:
+    """Solves each (stage, its solver settings) in turn, each warm-starting the next, then
+    the task itself; one joined Solution (``_join``)."""
+    task_initial_cost = _initial_cost(task, U0, x0)
+    parts = []
+    for i, (stage, stage_solver) in enumerate(stages):
+        try:
+            sol = ilqr_solve(
+                stage.problem(x0=x0), U0, stage_solver, callbacks, stop_on_interrupt=True
+            )
+        except SimulationError as e:
+            raise SimulationError(f"continuation[{i}]: {e}") from None
+        parts.append(sol)
+        U0 = sol.U
+        if sol.reason in ("interrupted", "callback"):
+            if sol.reason == "interrupted" and not stop_on_interrupt:
+                raise KeyboardInterrupt
+            # Stopped inside a stage: the result is the stage's controls on the task's own
+            # model (its trajectory and cost), not the stage model's trajectory.
+            task_part = ilqr_solve(  # no iterations: the rollout and its gains
+                task.problem(x0=x0), U0, solver, max_iterations=0
+            )
+            task_part.reason = sol.reason
+            return _join(task, parts + [task_part], task_initial_cost)
+    parts.append(
+        ilqr_solve(task.problem(x0=x0), U0, solver, callbacks, stop_on_interrupt=stop_on_interrupt)
+    )
+    return _join(task, parts, task_initial_cost)
+
+
+def _initial_cost(task: Task, U0, x0) -> float | None:
+    """The guess's cost on the task's own model (the stages' costs are theirs); None if its
+    rollout fails."""
+    try:
+        X0 = task.dynamics.rollout(np.asarray(task.x0 if x0 is None else x0, float), U0)
+        return task.cost.total(X0, U0)
+    except SimulationError:
+        return None
+
+
+def _settings_for(solver: SolverConfig, settings: SolverConfig | dict | None) -> SolverConfig:
+    """The settings a solve uses: its own section ``solver`` with ``settings`` applied."""
     if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(
             f"settings: expected a SolverConfig or a dict of its fields, got "
             f"{type(settings).__name__}"
         )
-    stages = [] if task.config.receding_horizon is not None else task.stages()  # before the swap
-    stage_saved = [st.config.solver for st in stages]
-    if settings is not None:
-        # A dict changes fields of each solve's own solver section (a stage may have its own);
-        # a SolverConfig replaces them all.
-        own = [_with_changes(st.config.solver, settings) for st in stages]
-        # For this solve only (the receding-horizon and continuation paths read the sections).
-        task.config.solver = _with_changes(saved, settings)
-        for st, s in zip(stages, own):
-            st.config.solver = s
-    try:
-        if task.config.receding_horizon is not None:
-            if U0 is not None or x0 is not None:
-                raise ValueError(
-                    f"{task.name} is a receding-horizon task: U0 and x0 come from its task file "
-                    "(initial_guess, initial_state)"
-                )
-            return solve_receding(task, callbacks, checkpoint_dir, on_resolve)
-        N = task.config.steps
-        if x0 is not None:
-            x0 = task.checked_state(x0)  # quaternions normalized
-        if U0 is None:
-            U0 = task.initial_guess(N, x=x0)  # a computed guess holds the given state
-        elif np.shape(U0)[:1] != (N,):
-            raise ValueError(
-                f"U0 must have shape [{N}, {task.dynamics.nu}] (the task's N steps, nu), "
-                f"got {np.shape(U0)}"
-            )
-        parts = []
-        task_initial_cost = None
-        if stages:  # the guess's cost on the task's own model (the stages' costs are theirs)
-            try:
-                X0 = task.dynamics.rollout(np.asarray(task.x0 if x0 is None else x0, float), U0)
-                task_initial_cost = task.cost.total(X0, U0)
-            except SimulationError:
-                pass
-        for i, stage in enumerate(stages):  # continuation: each stage warm-starts the next
-            try:
-                sol = ilqr_solve(
-                    stage.problem(x0=x0),
-                    U0,
-                    stage.config.solver,
-                    callbacks,
-                    stop_on_interrupt=True,
-                )
-            except SimulationError as e:
-                raise SimulationError(f"continuation[{i}]: {e}") from None
-            parts.append(sol)
-            U0 = sol.U
-            if sol.reason in ("interrupted", "callback"):
-                if sol.reason == "interrupted" and not stop_on_interrupt:
-                    raise KeyboardInterrupt
-                # Stopped inside a stage: the result is the stage's controls on the task's own
-                # model (its trajectory and cost), not the stage model's trajectory.
-                task_part = ilqr_solve(  # no iterations: the rollout and its gains
-                    task.problem(x0=x0), U0, task.config.solver, max_iterations=0
-                )
-                task_part.reason = sol.reason
-                return _join(task, parts + [task_part], task_initial_cost)
-        parts.append(
-            ilqr_solve(
-                task.problem(x0=x0),
-                U0,
-                task.config.solver,
-                callbacks,
-                stop_on_interrupt=stop_on_interrupt,
-            )
-        )
-        return _join(task, parts, task_initial_cost) if len(parts) > 1 else parts[0]
-    finally:
-        task.config.solver = saved
-        for st, s in zip(stages, stage_saved):
-            st.config.solver = s
+    return solver if settings is None else _with_changes(solver, settings)
 
 
 def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
@@ -150,7 +173,12 @@ def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> Solver
 def _join(task: Task, parts: list[Solution], task_initial_cost: float | None = None) -> Solution:
     """One Solution from continuation stages: the last stage's trajectory, gains and stop
     reason; the iteration histories of all stages in order (so times count every stage; each
-    stage's costs are of its own model), and ``extra["continuation"]`` per stage."""
+    stage's costs are of its own model), and ``extra["continuation"]`` per stage.
+
+    Its status is the last part's stop reason judged against the whole run: improvement is
+    measured from the guess's cost on the task's own model (its first stage's if that
+    rollout failed) to the final cost, so a last stage that starts from an already good
+    plan still converges."""
     last = parts[-1]
     stages_cfg = task.config.continuation
     costs = [parts[0].costs[0]]
@@ -158,6 +186,8 @@ def _join(task: Task, parts: list[Solution], task_initial_cost: float | None = N
         costs.extend(p.costs[1:])
     if last.iterations == 0:  # stopped in a stage: its last iterate, costed on the task's model
         costs[-1] = last.costs[0]
+    start = costs[0] if task_initial_cost is None else task_initial_cost
+    status = stopping.status(last.reason, [start, costs[-1]])
     stages = [
         {
             "overrides": dict(stages_cfg[i]) if i < len(stages_cfg) else {},  # {}: the task
@@ -178,8 +208,9 @@ def _join(task: Task, parts: list[Solution], task_initial_cost: float | None = N
         costs=np.array(costs),
         iteration_seconds=[s for p in parts for s in p.iteration_seconds],
         phase_seconds={k: [v for p in parts for v in p.phase_seconds[k]] for k in PHASES},
-        converged=last.converged,
+        converged=stopping.is_converged(status),
         reason=last.reason,
+        status=status,
         derivatives=last.derivatives,
         eps=[e for p in parts for e in p.eps],
         mu=[m for p in parts for m in p.mu],

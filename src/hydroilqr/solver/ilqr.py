@@ -1,4 +1,5 @@
-"""Iterative LQR (paper §III-B, eqs. 4-8) as small array kernels plus a driver.
+"""Iterative LQR (paper §III-B, eqs. 4-8) as small array kernels; the iteration that uses
+them is ``loop.solve`` (also importable from here as ``solve``).
 
 Backward pass (eqs. 5-6), with the second-order dynamics terms dropped (iLQR, not DDP) and a
 Levenberg-Marquardt term μ I added to Q_uu:
@@ -29,7 +30,6 @@ After convergence, u_k = ū_k − K_k (x_k − x̄_k) (eq. 8) is the local feedb
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -37,13 +37,9 @@ import numpy as np
 
 from hydroilqr.model import workers
 from hydroilqr.model.cost import QuadraticCost, Quadratization
-from hydroilqr.model.derivatives import DerivativeMethod, Linearizer
 from hydroilqr.model.plant import Dynamics, SimulationError
-from hydroilqr.problem.config import ConfigError, SolverConfig, validate_solver
-from hydroilqr.solver.solution import PHASES, Solution
-
-# Iterations over which small progress from shortened steps counts as convergence.
-STALL_WINDOW = 5
+from hydroilqr.problem.config import SolverConfig
+from hydroilqr.solver import regularization
 
 
 @dataclass
@@ -218,304 +214,6 @@ def check_finite(name: str, a: np.ndarray) -> None:
         )
 
 
-def callback_list(callbacks) -> list:
-    """``callbacks`` as a list: None, one callable, or a list/tuple of callables. TypeError
-    naming what was given otherwise."""
-    if callbacks is None:
-        return []
-    if callable(callbacks):
-        return [callbacks]
-    items = None
-    if not isinstance(callbacks, (str, bytes, dict)):
-        try:
-            items = list(callbacks)  # a list, tuple, or any other iterable of functions
-        except TypeError:
-            pass
-    if items is None or not all(callable(c) for c in items):
-        raise TypeError(
-            "callbacks: expected a function f(info) -> bool or a list of them, got "
-            f"{type(callbacks).__name__}"
-            + (f" of {', '.join(sorted({type(c).__name__ for c in items}))}" if items else "")
-        )
-    return items
-
-
-def solve(
-    problem: Problem,
-    U0: np.ndarray,
-    settings: SolverConfig | None = None,
-    callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
-    max_iterations: int | None = None,
-    final_gains: bool = True,
-    linearizer: Linearizer | None = None,
-    X0: np.ndarray | None = None,
-    stop_on_interrupt: bool = False,
-    deadline: float | None = None,
-) -> Solution:
-    """Runs iLQR from the initial control guess U0: [N, nu]. Returns a Solution.
-
-    ``settings``: the solver settings (default ``SolverConfig()``, *not* a task's: to solve a
-    task with its own settings use ``hydroilqr.solve(task, U0=..., x0=...)``).
-    ``callbacks``: a function or a list of them, called with an ``IterationInfo`` after every
-    iteration; one returning True stops the solve (``reason == "callback"``).
-    Worker processes follow ``settings.autodiff_workers`` (through the default linearizer)
-    and ``settings.line_search_workers``.
-
-    ``linearizer`` computes the partials (default: one built from ``settings``); MPC passes
-    its own to keep partials across updates. ``X0``: [N+1, nx], a rollout of U0 already
-    computed (MPC: the previous plan's prediction); used instead of the initial rollout only
-    when ``X0[0]`` equals x0 exactly, since then it *is* that rollout.
-    ``stop_on_interrupt``: Ctrl+C ends the solve with the best trajectory so far (reason
-    "interrupted") instead of raising KeyboardInterrupt.
-    ``deadline``: a ``time.perf_counter()`` value; no line-search trial starts after it (the
-    iteration then keeps its trajectory, with the gains of its backward pass). For real-time
-    MPC: an update that runs late returns in time.
-    """
-    s = settings or SolverConfig()
-    validate_solver(s)
-    dyn, cost, x0, t0 = problem.dynamics, problem.cost, problem.x0, problem.t0
-    x0 = np.asarray(x0, dtype=float)
-    U0 = np.asarray(U0, dtype=float)
-    if x0.shape != (dyn.nx,):
-        raise ValueError(f"x0 must have shape [{dyn.nx}] (nx), got {x0.shape}")
-    if U0.ndim != 2 or U0.shape[1] != dyn.nu or U0.shape[0] < 1:
-        raise ValueError(f"U0 must have shape [N, {dyn.nu}] (nu = {dyn.nu}), got {U0.shape}")
-    check_finite("x0", x0)
-    check_finite("U0", U0)
-    method = DerivativeMethod(s.derivatives)
-    max_it = s.max_iterations if max_iterations is None else max_iterations
-    callbacks = callback_list(callbacks)
-    N = U0.shape[0]
-
-    phases = {p: [] for p in PHASES}
-    iter_seconds: list[float] = []
-    t_start = time.perf_counter()
-    U = np.array(U0, dtype=float)
-    if X0 is not None and X0.shape == (N + 1, dyn.nx) and np.array_equal(X0[0], x0):
-        X = np.array(X0, dtype=float)
-    else:
-        try:
-            X = dyn.rollout(x0, U)
-        except SimulationError as e:
-            raise SimulationError(
-                f"initial rollout failed: {e} (`hydroilqr check` reports initial overlaps)"
-            ) from None
-    J = cost.total(X, U, t0)
-    if not np.isfinite(J):
-        raise ConfigError(
-            f"the cost of the initial guess is {J} on a finite trajectory: the cost weights "
-            "(or R) are too large to evaluate in floating point"
-        )
-    rollout_time = time.perf_counter() - t_start
-    costs = [J]
-    mu = s.regularization_init
-    K = np.zeros((N, dyn.nu, dyn.nx))
-    kappa = np.zeros((N, dyn.nu))
-    reason = "max_iterations"
-    converged = False
-    eps_hist, mu_hist = [], []
-    accepted = False
-
-    lin = linearizer or Linearizer.from_settings(dyn, s)
-    # One pool serves both kinds of work: sized for the larger (made here, on first use).
-    ad = getattr(lin, "autodiff_workers", 1)  # (a Linearizer stand-in: none)
-    ad = ad if getattr(lin, "method", None) is DerivativeMethod.AUTODIFF else 1
-    size = max(workers.resolve(ad), workers.resolve(s.line_search_workers))
-    if size > 1 and hasattr(dyn, "task"):  # (duck-typed test dynamics: serial)
-        workers.pool(dyn, size)
-    derivative_steps: list[int] = []
-
-    def partials(X, U):
-        out = lin(X, U, rollout=True)
-        derivative_steps.append(lin.last_computed)
-        return out
-
-    interrupted = False
-    partials_current = False
-    try:
-        for it in range(max_it):
-            # the first iteration's time includes the initial rollout (its "rollout" phase)
-            t_it = time.perf_counter() if it else t_start
-            ph = dict.fromkeys(PHASES, 0.0)
-            if it == 0:
-                ph["rollout"] = rollout_time
-            t = time.perf_counter()
-            partials_current = False
-            try:
-                A, B = partials(X, U)
-            except SimulationError as e:
-                reason = f"derivatives failed: {e}"
-                break
-            quad = cost.quadratize(X, U, t0)
-            partials_current = True  # A, B, quad are around the current (X, U)
-            ph["derivatives"] = time.perf_counter() - t
-
-            accepted = False
-            eps = 0.0
-            expected = 0.0
-            expected_full = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
-            searches = 0
-            late = False  # the deadline passed before a step was found
-            raised = False  # μ was raised in this iteration (Q_uu indefinite or a failed search)
-            first_gains = None  # (K, kappa) of the least-regularized pass around this X
-            while True:
-                t = time.perf_counter()
-                bp = backward_pass(A, B, quad, mu)
-                ph["backward_pass"] += time.perf_counter() - t
-                if not bp.ok:
-                    mu, raised = _increase(mu, s), True
-                    if mu > s.regularization_max:
-                        break
-                    continue
-                K, kappa = bp.K, bp.kappa
-                if first_gains is None:
-                    first_gains = (K, kappa)
-                expected_full = expected_decrease(bp.dV, 1.0)
-                if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
-                    # Stationary only if μ was not raised to get here: a large μ makes any
-                    # predicted decrease small.
-                    expected = expected_full
-                    break
-                t = time.perf_counter()
-                ls = line_search(problem, X, U, J, K, kappa, bp.dV, s, deadline)
-                ph["line_search"] += time.perf_counter() - t
-                if ls.tried:
-                    eps, expected = ls.eps, ls.expected
-                accepted, late = ls.accepted, ls.late
-                if accepted:
-                    Xn, Un, Jn = ls.X, ls.U, ls.J
-                if accepted or late:
-                    break
-                searches += 1
-                mu, raised = _increase(mu, s), True
-                if mu > s.regularization_max or searches > s.line_search_retries:
-                    break
-            if not accepted and first_gains is not None:
-                # No step: the gains kept are those around this X at the iteration's own μ, not
-                # those of the most-regularized retry (which have almost no feedback). With
-                # final_gains they are recomputed at the end at the smallest workable μ.
-                K, kappa = first_gains
-
-            seconds = time.perf_counter() - t_it
-            iter_seconds.append(seconds)
-            for p in PHASES:
-                phases[p].append(ph[p])
-            if accepted:
-                rel = (J - Jn) / max(abs(J), 1e-12)
-                X, U, J = Xn, Un, Jn
-                partials_current = False
-                if eps < s.short_step:
-                    # The quadratic model only held for a short step: regularize more (a trust
-                    # region that shrinks while the model is poor) instead of less.
-                    mu = min(
-                        s.regularization_max,
-                        max(mu, s.regularization_min) * s.regularization_factor,
-                    )
-                else:
-                    mu = max(s.regularization_min, mu / s.regularization_factor)
-            costs.append(J)
-            eps_hist.append(eps if accepted else 0.0)
-            mu_hist.append(mu)
-            info = IterationInfo(
-                it + 1, J, eps if accepted else 0.0, mu, seconds, ph, expected, accepted, X, U
-            )
-            # every callback sees every iteration; only True (Python's or numpy's) stops, not any
-            # truthy return value (e.g. a progress bar's update() returns True-ish counts)
-            stop = [_is_true(cb(info)) for cb in callbacks]
-            if not accepted:
-                if late:
-                    reason = "deadline"
-                elif (
-                    expected_full < s.expected_decrease_tolerance * max(1.0, abs(J))
-                    and bp.ok
-                    and not raised
-                ):
-                    reason, converged = "expected_decrease", True
-                elif not bp.ok:
-                    # Q_uu stayed indefinite up to solver.regularization_max: no descent step.
-                    reason = "regularization_max"
-                else:
-                    reason = "line_search_failed"
-                    # A local minimum at the resolution the dynamics allow: report honestly.
-                break
-            if any(stop):
-                reason = "callback"
-                break
-            # Small progress from one shortened step is not convergence (the local model may just
-            # be poor there), so a short step counts only when the last few iterations together
-            # made little progress: the solver has stalled in a local minimum.
-            if rel < s.relative_cost_tolerance and eps >= 1.0:
-                reason, converged = "relative_cost_change", True
-                break
-            w = STALL_WINDOW
-            if (
-                len(costs) > w
-                and (costs[-w - 1] - J) / max(abs(J), 1e-12) < w * s.relative_cost_tolerance
-            ):
-                reason, converged = "stalled", True
-                break
-    except KeyboardInterrupt:
-        if not stop_on_interrupt:
-            raise
-        # Ctrl+C: keep the best trajectory so far, with its statistics made consistent (an
-        # iteration cut off before its bookkeeping is recorded only if its step was taken).
-        interrupted, converged, reason = True, False, "interrupted"
-        n = min(len(iter_seconds), len(costs) - 1, len(eps_hist), len(mu_hist))
-        n = min([n] + [len(v) for v in phases.values()])
-        for lst in (iter_seconds, eps_hist, mu_hist, *phases.values()):
-            del lst[n:]
-        del costs[n + 1 :]
-        if J != costs[-1]:
-            costs.append(J)
-            iter_seconds.append(0.0)
-            eps_hist.append(0.0)
-            mu_hist.append(mu)
-            for v in phases.values():
-                v.append(0.0)
-
-    gains_mu = None
-    if final_gains and not interrupted:
-        # Gains of eq. (8) around the *final* trajectory, regularized only as much as Q_uu
-        # needs: the solver's μ at the end can be large (a run of short steps raises it), and
-        # gains at μ = 1e3 are ~0, no feedback at all. After an accepted step the last
-        # partials were around the previous trajectory (with no iterations, there were none).
-        t = time.perf_counter()
-        try:
-            if not partials_current:
-                A, B = partials(X, U)
-                quad = cost.quadratize(X, U, t0)
-            gains = feedback_gains(A, B, quad, s)
-            if gains is not None:
-                K, kappa, gains_mu = gains
-        except SimulationError:
-            pass
-        except KeyboardInterrupt:
-            if not stop_on_interrupt:
-                raise
-            # the trajectory is complete; its gains are the last pass's
-            reason, converged = "interrupted", False
-        elapsed = time.perf_counter() - t
-        if iter_seconds:
-            phases["derivatives"][-1] += elapsed
-            iter_seconds[-1] += elapsed
-    return Solution(
-        X=X,
-        U=U,
-        K=K,
-        kappa=kappa,
-        t=cost.times(N, t0),
-        costs=np.array(costs),
-        iteration_seconds=iter_seconds,
-        phase_seconds=phases,
-        converged=converged,
-        reason=reason,
-        derivatives=method.value,
-        eps=eps_hist,
-        mu=mu_hist,
-        extra={"derivative_steps": derivative_steps, "gains_mu": gains_mu},
-    )
-
-
 class FeedbackGains(NamedTuple):
     """K: [N, nu, nx], kappa: [N, nu] and the regularization μ they were computed at."""
 
@@ -528,7 +226,8 @@ def feedback_gains(
     A: np.ndarray, B: np.ndarray, quad: Quadratization, s: SolverConfig
 ) -> FeedbackGains | None:
     """The gains of eq. (8) around a trajectory: the backward pass at the smallest μ (from
-    ``regularization_min``, raised as ``_increase`` does) for which Q_uu is positive definite.
+    ``regularization_min``, raised as ``regularization.increase`` does) for which Q_uu is
+    positive definite.
     A: [N, nx, nx], B: [N, nx, nu]. Returns FeedbackGains (unpacks as (K, kappa, μ)), or None
     if Q_uu is indefinite up to ``regularization_max``."""
     mu = s.regularization_min
@@ -536,12 +235,8 @@ def feedback_gains(
         bp = backward_pass(A, B, quad, mu)
         if bp.ok:
             return FeedbackGains(bp.K, bp.kappa, mu)
-        mu = _increase(mu, s)
+        mu = regularization.increase(mu, s)
     return None
-
-
-def _is_true(value) -> bool:
-    return value is True or (isinstance(value, np.bool_) and bool(value))
 
 
 def _trials(dyn, x0, U, X, K, kappa, eps_list):
@@ -560,10 +255,11 @@ def _trials(dyn, x0, U, X, K, kappa, eps_list):
     return out
 
 
-# After a failure μ grows to at least this, whatever regularization_min is: from a tiny μ
-# (1e-9) the factor alone would take many rejected backward passes and line searches.
-MU_RESTART = 1e-6
+def __getattr__(name: str):
+    # The iteration loop lives in ``loop`` (which imports this module): ``solve`` and
+    # ``callback_list`` stay importable from here.
+    if name in ("solve", "callback_list"):
+        from hydroilqr.solver import loop
 
-
-def _increase(mu: float, s: SolverConfig) -> float:
-    return max(mu * s.regularization_factor, MU_RESTART)
+        return getattr(loop, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,8 +21,10 @@ import numpy as np
 
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.output.files import atomic_savez
-from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError
-from hydroilqr.solver.ilqr import IterationInfo, Problem, solve
+from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, SolverConfig
+from hydroilqr.solver import stopping
+from hydroilqr.solver.ilqr import IterationInfo, Problem
+from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES, Solution
 
 CHECKPOINT = "checkpoint.npz"
@@ -91,112 +93,159 @@ def solve_receding(
     callbacks: list[Callable[[IterationInfo], bool | None]] | None = None,
     checkpoint_dir: str | Path | None = None,
     on_resolve: Callable[[int, int, Solution], None] | None = None,
+    solver: SolverConfig | None = None,
 ) -> Solution:
-    """Runs the task's receding-horizon schedule. Returns the stitched Solution."""
-    cfg = task.config
-    rh = cfg.receding_horizon
-    W, S, R = rh.window_steps, rh.shift_steps, rh.resolves
-    dyn = task.dynamics
-    nx, nu = dyn.nx, dyn.nu
-    st = Checkpoint.start(task.x0, task.initial_guess(W), nx, nu)
+    """Runs the task's receding-horizon schedule. Returns the stitched Solution.
+
+    ``solver``: the solver settings of every window (default: the task's ``solver``
+    section); they are part of the checkpoint's fingerprint. The status of the stitched
+    Solution is that of its worst window (see ``stopping.worst``): a run is only as good as
+    its least successful window. A window warm-started from the previous one that did not
+    improve on its start is judged by its stop test alone (its start was already a local
+    minimum); the first window, and one started cold, must improve on the task's guess."""
+    solver = solver or task.config.solver
+    R = task.config.receding_horizon.resolves
+    st = _start(task, checkpoint_dir, solver)
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
-    run_id = fingerprint(cfg)
+    while st.done < R:
+        sol, cold, wall, t_roll = _solve_window(task, solver, st, callbacks)
+        _keep(task, st, sol, cold, wall, t_roll)
+        if ck is not None:
+            _save(ck, st)
+        if on_resolve is not None:
+            on_resolve(st.done, R, sol)
+    return _stitched(task, st, solver)
+
+
+def _start(task, checkpoint_dir: str | Path | None, solver: SolverConfig) -> Checkpoint:
+    """The run's state before its next window: a fresh start, or the checkpoint in
+    ``checkpoint_dir`` (if there is one), with the environment computing the windows to
+    come recorded."""
+    cfg = task.config
+    W = cfg.receding_horizon.window_steps
+    dyn = task.dynamics
+    st = Checkpoint.start(task.x0, task.initial_guess(W), dyn.nx, dyn.nu)
+    ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
+    run_id = fingerprint(cfg, solver)
     if ck is not None and ck.exists():
-        st = load_checkpoint(task, ck.parent)
+        st = load_checkpoint(task, ck.parent, solver)
     st.fingerprint = run_id
     st.files = files_fingerprint(cfg)
     # The environments that computed the windows (a resumed run may mix two: its results
     # then match neither, as last bits differ; summary.json's extra lists them).
     env = numeric_environment()
     envs = st.environments
-    if st.done < R and (not envs or envs[-1]["environment"] != env):
+    if st.done < cfg.receding_horizon.resolves and (not envs or envs[-1]["environment"] != env):
         envs.append({"from_resolve": st.done, "environment": env})
-    while st.done < R:
-        r = st.done
-        x0 = st.X[-1]
-        t0 = r * S * dyn.dt
-        max_it = cfg.solver.max_iterations if r == 0 else rh.max_iterations
-        t_start = time.perf_counter()
-        try:
-            t_roll = time.perf_counter()
-            guess, X0, cold = _warm_start(task, st.guess, x0, r * S)
-            t_roll = time.perf_counter() - t_roll  # the window's initial rollout(s)
-            # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
-            # trajectory (one more linearization per window), as playback --policy ilqr needs.
-            sol = solve(
-                # exactly the kept state (not re-normalized: the stitched X is a replay of U)
-                Problem(dyn, task.cost, x0, t0),
-                guess,
-                cfg.solver,
-                callbacks,
-                max_it,
-                final_gains=True,
-                X0=X0,
-            )
-        except SimulationError as e:
-            raise SimulationError(f"resolve {r}: {e}") from None
-        wall = time.perf_counter() - t_start
-        st.X = np.vstack([st.X, sol.X[1 : S + 1]])
-        st.U = np.vstack([st.U, sol.U[:S]])
-        st.K = np.concatenate([st.K, sol.K[:S]])
-        st.kappa = np.vstack([st.kappa, sol.kappa[:S]])
-        st.guess = shift_guess(sol.U, S)
-        if rh.warm_start_tail == "guess":  # the next window's last S steps: the task's guess
-            k_end = (r + 1) * S + W  # the time step after the next window's end
-            st.guess[W - S :] = task.initial_guess(S, st.X[-1], start=k_end - S)
-        st.costs += [float(c) for c in sol.costs[1:]]
-        st.iteration_seconds += sol.iteration_seconds
-        if sol.iteration_seconds:  # counted in the first iteration, as in a single solve
-            sol.iteration_seconds[0] += t_roll
-            sol.phase_seconds["rollout"][0] += t_roll
-        for p in PHASES:
-            st.phase_seconds[p] += sol.phase_seconds[p]
-        st.resolves.append(
-            {
-                "iterations": sol.iterations,
-                "seconds": wall,
-                "cost": sol.final_cost,
-                "converged": sol.converged,
-                "reason": sol.reason,
-                **({"cold_start": True} if cold else {}),
-            }
+    return st
+
+
+def _solve_window(task, solver: SolverConfig, st: Checkpoint, callbacks):
+    """Solves window ``st.done`` from the last kept state, warm-started. Returns (its
+    Solution, whether it started cold, its wall time, the seconds of its initial
+    rollout(s))."""
+    rh = task.config.receding_horizon
+    r, dyn = st.done, task.dynamics
+    x0 = st.X[-1]
+    t0 = r * rh.shift_steps * dyn.dt
+    max_it = solver.max_iterations if r == 0 else rh.max_iterations
+    t_start = time.perf_counter()
+    try:
+        t_roll = time.perf_counter()
+        guess, X0, cold = _warm_start(task, st.guess, x0, r * rh.shift_steps)
+        t_roll = time.perf_counter() - t_roll  # the window's initial rollout(s)
+        # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
+        # trajectory (one more linearization per window), as playback --policy ilqr needs.
+        sol = solve(
+            # exactly the kept state (not re-normalized: the stitched X is a replay of U)
+            Problem(dyn, task.cost, x0, t0),
+            guess,
+            solver,
+            callbacks,
+            max_it,
+            final_gains=True,
+            X0=X0,
         )
-        if r == 0:
-            st.costs.insert(0, float(sol.costs[0]))
-        st.done = r + 1
-        if ck is not None:
-            _save(ck, st)
-        if on_resolve is not None:
-            on_resolve(r + 1, R, sol)
+    except SimulationError as e:
+        raise SimulationError(f"resolve {r}: {e}") from None
+    return sol, cold, time.perf_counter() - t_start, t_roll
+
+
+def _keep(task, st: Checkpoint, sol: Solution, cold: bool, wall: float, t_roll: float) -> None:
+    """Appends the window's first S steps and its statistics to ``st``; sets the next
+    window's warm start."""
+    rh = task.config.receding_horizon
+    W, S, r = rh.window_steps, rh.shift_steps, st.done
+    st.X = np.vstack([st.X, sol.X[1 : S + 1]])
+    st.U = np.vstack([st.U, sol.U[:S]])
+    st.K = np.concatenate([st.K, sol.K[:S]])
+    st.kappa = np.vstack([st.kappa, sol.kappa[:S]])
+    st.guess = shift_guess(sol.U, S)
+    if rh.warm_start_tail == "guess":  # the next window's last S steps: the task's guess
+        k_end = (r + 1) * S + W  # the time step after the next window's end
+        st.guess[W - S :] = task.initial_guess(S, st.X[-1], start=k_end - S)
+    st.costs += [float(c) for c in sol.costs[1:]]
+    st.iteration_seconds += sol.iteration_seconds
+    if sol.iteration_seconds:  # counted in the first iteration, as in a single solve
+        sol.iteration_seconds[0] += t_roll
+        sol.phase_seconds["rollout"][0] += t_roll
+    for p in PHASES:
+        st.phase_seconds[p] += sol.phase_seconds[p]
+    status, converged = sol.status, sol.converged
+    if r > 0 and not cold and status == "no_progress":
+        # A warm start that is already a local minimum is the window's answer, not a failure.
+        status = stopping.status(sol.reason, sol.costs, require_improvement=False)
+        converged = stopping.is_converged(status)
+    st.resolves.append(
+        {
+            "iterations": sol.iterations,
+            "seconds": wall,
+            "cost": sol.final_cost,
+            "converged": converged,
+            "reason": sol.reason,
+            "status": status,
+            **({"cold_start": True} if cold else {}),
+        }
+    )
+    if r == 0:
+        st.costs.insert(0, float(sol.costs[0]))
+    st.done = r + 1
+
+
+def _stitched(task, st: Checkpoint, solver: SolverConfig) -> Solution:
+    """The run's Solution from its kept steps and per-window statistics."""
     res = st.resolves
     N = st.U.shape[0]
+    status = stopping.worst([r_.get("status", "") for r_ in res]) if res else "failed"
     return Solution(
         X=st.X,
         U=st.U,
         K=st.K,
         kappa=st.kappa,
-        t=dyn.dt * np.arange(N + 1),
+        t=task.dynamics.dt * np.arange(N + 1),
         costs=np.array(st.costs),
         iteration_seconds=st.iteration_seconds,
         phase_seconds=st.phase_seconds,
         converged=all(r_["converged"] for r_ in res) if res else False,
         reason=f"{sum(r_['converged'] for r_ in res)}/{len(res)} windows converged",
-        derivatives=cfg.solver.derivatives,
+        derivatives=solver.derivatives,
+        status=status,
         # costs are the windows' iteration costs one after another (final_cost: the last
         # window's); trajectory_cost is the task's cost (3a) of the stitched trajectory.
         extra={
             "resolves": res,
-            "window_steps": W,
-            "shift_steps": S,
+            "window_steps": task.config.receding_horizon.window_steps,
+            "shift_steps": task.config.receding_horizon.shift_steps,
             "trajectory_cost": float(task.cost.total(st.X, st.U, 0.0)),
             "environments": st.environments,
         },
     )
 
 
-def load_checkpoint(task, directory: str | Path) -> Checkpoint:
+def load_checkpoint(task, directory: str | Path, solver: SolverConfig | None = None) -> Checkpoint:
     """The saved state of an interrupted run of ``task`` in ``directory``; ConfigError if the
-    checkpoint is missing, unreadable or from a different run."""
+    checkpoint is missing, unreadable or from a different run (``solver``: the settings the
+    run solves with, default the task's own)."""
     ck = Path(directory) / CHECKPOINT
     if not ck.exists():
         raise ConfigError(f"{directory}: no {CHECKPOINT} there to continue")
@@ -206,7 +255,7 @@ def load_checkpoint(task, directory: str | Path) -> Checkpoint:
         raise ConfigError(
             f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
         ) from None
-    if st.fingerprint and st.fingerprint != fingerprint(task.config):
+    if st.fingerprint and st.fingerprint != fingerprint(task.config, solver):
         raise ConfigError(
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
@@ -247,9 +296,12 @@ def finished_run(directory: str | Path) -> bool:
     return summary.exists() and (not ck.exists() or summary.stat().st_mtime >= ck.stat().st_mtime)
 
 
-def fingerprint(cfg) -> str:
-    """What makes two runs the same computation: the resolved task minus the settings that
-    only change speed (threads, worker processes) or other commands (mpc)."""
+def fingerprint(cfg, solver: SolverConfig | None = None) -> str:
+    """What makes two runs the same computation: the resolved task (with ``solver`` for its
+    solver section, if given) minus the settings that only change speed (threads, worker
+    processes) or other commands (mpc)."""
+    if solver is not None:
+        cfg = dataclasses.replace(cfg, solver=solver)
     d = dataclasses.asdict(cfg)  # (not to_dict: checkpoints keep their fingerprints)
     d.pop("base_dir", None)
     for key in ("threads", "autodiff_workers", "line_search_workers"):

@@ -49,6 +49,13 @@ class Solution:
     costs: [iterations+1] cost before the first and after every iteration,
     iteration_seconds: wall time per iteration, phase_seconds: phase -> per-iteration seconds
     (rollout, derivatives, backward_pass, line_search).
+
+    ``reason``: the test that stopped the solve; ``status``: what the result is worth, one of
+    converged, stalled, max_iterations, line_search_failed, no_progress, interrupted,
+    callback, deadline, failed (defined in ``hydroilqr.solver.stopping``; "" when unknown,
+    e.g. a file from an older version or an MPC run); ``converged`` is true only for
+    converged and stalled (a convergence test held after the plan improved on its initial
+    guess). ``explain(solution, task)`` (``hydroilqr.solver.explain``) says why in a sentence.
     """
 
     X: np.ndarray
@@ -65,13 +72,15 @@ class Solution:
     eps: list[float] = field(default_factory=list)
     mu: list[float] = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # e.g. receding-horizon per-resolve stats
+    status: str = ""
 
     def __repr__(self) -> str:  # the arrays' shapes, not their thousands of numbers
         shapes = ", ".join(
             f"{k} {list(np.shape(getattr(self, k)))}" for k in ("X", "U", "K", "kappa", "t")
         )
         return (
-            f"Solution({shapes}; reason={self.reason!r}, converged={self.converged}, "
+            f"Solution({shapes}; status={self.status!r}, reason={self.reason!r}, "
+            f"converged={self.converged}, "
             f"iterations={self.iterations}, initial_cost={self.initial_cost:.6g}, "
             f"final_cost={self.final_cost:.6g}, total_seconds={self.total_seconds:.3g})"
         )
@@ -98,6 +107,7 @@ class Solution:
         return {
             "converged": bool(self.converged),
             "reason": self.reason,
+            "status": self.status,
             "iterations": self.iterations,
             "final_cost": self.final_cost,
             "initial_cost": self.initial_cost,
@@ -159,6 +169,7 @@ class Solution:
                 eps=meta.get("eps", []),
                 mu=meta.get("mu", []),
                 extra=meta.get("extra", {}),
+                status=meta.get("status", ""),
             )
         sol.check_shapes(path)
         for name in ("X", "U", "K", "t"):  # a solve never writes these; an edited file might

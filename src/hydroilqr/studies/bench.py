@@ -275,6 +275,7 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
             rollout=True,
             adaptive=adaptive,
             autodiff_workers=s.autodiff_workers,
+            fd_forces=s.fd_forces,
         )
         return np.concatenate([A, B], axis=2), time.perf_counter() - t
 
@@ -318,7 +319,7 @@ def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
     for _ in range(repeats):
         for n in counts:
             t = time.perf_counter()
-            linearize(dyn, X, U, method, s.fd_epsilon, n, 1)
+            linearize(dyn, X, U, method, s.fd_epsilon, n, 1, fd_forces=s.fd_forces)
             times[n].append(time.perf_counter() - t)
     med = {n: float(np.median(v)) for n, v in times.items()}
     return {
@@ -344,7 +345,17 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
         for m in best:
             t = time.perf_counter()
             s = task.config.solver  # AutoDiff with the task's processes, as it would run
-            linearize(dyn, Xs, Us, m, s.fd_epsilon, threads, 1, autodiff_workers=s.autodiff_workers)
+            linearize(
+                dyn,
+                Xs,
+                Us,
+                m,
+                s.fd_epsilon,
+                threads,
+                1,
+                autodiff_workers=s.autodiff_workers,
+                fd_forces=s.fd_forces,
+            )
             best[m] = min(best[m], (time.perf_counter() - t) / idx.size)
     return {"seconds_per_step": best, "choice": min(best, key=best.get)}
 

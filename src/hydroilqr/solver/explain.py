@@ -1,0 +1,110 @@
+"""One sentence on how a solve ended and its likely cause (``explain(solution, task)``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydroilqr.metrics import contact_pairs
+from hydroilqr.model.plant import SimulationError
+from hydroilqr.solver.solution import Solution
+
+
+def explain(sol: Solution, task) -> str:
+    """A one-sentence explanation of ``sol.status`` (see ``hydroilqr.solver.stopping``) for a
+    solve of ``task``, with the likely cause; for a receding-horizon run, of its worst
+    window."""
+    costs = f"cost {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
+    status = sol.status
+    if status == "no_progress":
+        return _no_progress(sol, task, costs)
+    sentences = {
+        "converged": f"converged ({sol.reason}) after improving on the initial guess ({costs})",
+        "stalled": (
+            "stalled in a local minimum: the last iterations' shortened steps together made "
+            f"little progress ({costs})"
+        ),
+        "max_iterations": (
+            f"stopped at solver.max_iterations while still improving ({costs}): allow more "
+            "iterations to continue"
+        ),
+        "line_search_failed": (
+            f"no step size decreased the cost any more ({costs}): a local minimum at the "
+            "resolution the dynamics allow"
+        ),
+        "interrupted": f"interrupted: the best plan so far is kept ({costs})",
+        "callback": f"a callback stopped the solve ({costs})",
+        "deadline": f"the deadline passed before a step was found ({costs})",
+        "failed": f"failed ({sol.reason}; {costs})",
+    }
+    text = sentences.get(status, f"stopped ({sol.reason}; {costs})")
+    if "resolves" in sol.extra:
+        text = f"{sol.reason}; the worst window: {text}"
+    return text
+
+
+def tracked_bodies(task) -> set[str]:
+    """Bodies of unactuated joints (objects) whose coordinates the cost weights (Q or Qf)."""
+    from pydrake.multibody.tree import JointIndex
+
+    dyn = task.dynamics
+    plant, layout = dyn.plant, dyn.layout
+    weighted: set[int] = set()
+    for weights in (task.config.cost.Q, task.config.cost.Qf):
+        for name, w in weights.items():
+            if np.any(np.asarray(w, float) > 0):
+                weighted |= set(layout.block(name).coords)
+    actuated = {
+        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
+    }
+    out = set()
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        if j.index() in actuated:
+            continue
+        q = range(j.position_start(), j.position_start() + j.num_positions())
+        v = range(dyn.nq + j.velocity_start(), dyn.nq + j.velocity_start() + j.num_velocities())
+        if weighted & (set(q) | set(v)):
+            out.add(j.child_body().name())
+    return out
+
+
+def touches_tracked(task, X: np.ndarray) -> bool:
+    """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
+    or what is welded to it, such as the ground)."""
+    dyn = task.dynamics
+    plant = dyn.plant
+    fixed = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
+    tracked = tracked_bodies(task)
+    for x in X:
+        for _, a, _, b, _ in contact_pairs(dyn, x):
+            if (a in tracked and b not in fixed and b != a) or (
+                b in tracked and a not in fixed and a != b
+            ):
+                return True
+    return False
+
+
+def _guess_rollout(sol: Solution, task) -> np.ndarray:
+    """The rollout of the task's initial guess when the solve started from the task's state
+    over its steps; else the plan itself (for no progress, close to its guess)."""
+    N = sol.U.shape[0]
+    if N == task.steps and np.array_equal(sol.X[0], task.x0):
+        try:
+            return task.dynamics.rollout(task.x0, task.initial_guess(N))
+        except SimulationError:
+            pass
+    return sol.X
+
+
+def _no_progress(sol: Solution, task, costs: str) -> str:
+    tracked = tracked_bodies(task)
+    if tracked and not touches_tracked(task, _guess_rollout(sol, task)):
+        names = ", ".join(sorted(tracked))
+        return (
+            f"no progress ({costs}): no contact along the initial guess between {names} and "
+            "a moving body: no gradient reaches the object (start them touching, or closer)"
+        )
+    return (
+        f"no progress ({costs}): the plan never improved on its initial guess, which may "
+        "already be a local minimum of this cost"
+    )
