@@ -130,7 +130,9 @@ def contact_metrics(task, sol) -> dict:
             {
                 "pair": list(key),
                 "bodies": list(bodies),
-                "intervals": [[float(t[a]), float(t[b])] for a, b in runs(on[:, j])],
+                "intervals": [
+                    [round(float(t[a]), 9), round(float(t[b]), 9)] for a, b in runs(on[:, j])
+                ],
                 "steps": int(np.sum(on[:, j])),
                 "peak_normal_force_N": float(np.max(force[:, j])),
             }
@@ -162,18 +164,38 @@ def plot_contacts(task, sol, out) -> None:
     savefig(fig, Path(out) / "contacts.png")
 
 
-def touched_pairs(task, steps: int | None = None) -> list[dict]:
-    """Pairs a rollout of the task's initial guess from x0 touches (over ``steps`` steps,
-    default the task's): [{pair, bodies, steps}] in order of first contact. A geometry query
-    per state: no contact solve beyond the rollout's own."""
-    N = task.steps if steps is None else int(steps)
-    U = task.initial_guess(N)
-    X = task.dynamics.rollout(task.x0, U)
+def touched_pairs(task, X: np.ndarray | None = None, steps: int | None = None) -> list[dict]:
+    """Pairs that touch along X: [T, nx] (default: a rollout of the task's initial guess from
+    x0 over ``steps`` steps, default the task's): [{pair, bodies, steps}] in order of first
+    contact. A geometry query per state: no contact solve beyond the rollout's own."""
+    if X is None:
+        N = task.steps if steps is None else int(steps)
+        X = task.dynamics.rollout(task.x0, task.initial_guess(N))
     pairs, on, _ = timeline(task, X, None)
     return [
         {"pair": list(key), "bodies": list(bodies), "steps": int(np.sum(on[:, j]))}
         for j, (key, bodies) in enumerate(pairs)
     ]
+
+
+def tracked_bodies(task) -> set[str]:
+    """Bodies whose motion the cost weighs: the bodies moved by every joint (floating ones
+    included) with a state weight > 0 in cost.Q or cost.Qf."""
+    from pydrake.multibody.tree import JointIndex
+
+    dyn = task.dynamics
+    plant = dyn.plant
+    nv = dyn.nv
+    w = np.asarray(task.cost.q) + np.asarray(task.cost.qf)
+    joints = []
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        v0, n = j.velocity_start(), j.num_velocities()
+        if n and (np.any(w[v0 : v0 + n] > 0) or np.any(w[nv + v0 : nv + v0 + n] > 0)):
+            joints.append(j.index())
+    if not joints:
+        return set()
+    return {plant.get_body(b).name() for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
 
 
 register(Metric("contacts", compute=contact_metrics, plot=plot_contacts, files=("contacts.png",)))

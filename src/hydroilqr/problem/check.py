@@ -153,6 +153,30 @@ def start_warning(task, rollout_steps: int = ROLLOUT_STEPS) -> str:
     return _start_warning(pairs, speed)
 
 
+def _report_touched(task, X, console, out: dict, warn) -> None:
+    """Pairs the initial-guess rollout touches, and a warning if none involves a body the cost
+    tracks (contact then moves nothing the cost weighs, at the start)."""
+    from hydroilqr.metrics.contacts import touched_pairs, tracked_bodies
+
+    touched = touched_pairs(task, X)
+    out["touched_pairs"] = touched
+    if touched:
+        console.print(
+            "  pairs touching along the rollout (states): "
+            + ", ".join(f"{t['pair'][0]}/{t['pair'][1]} ({t['steps']})" for t in touched)
+        )
+    else:
+        console.print("  no contact along the rollout")
+    tracked = tracked_bodies(task)
+    out["tracked_bodies"] = sorted(tracked)
+    if touched and tracked and not any(set(t["bodies"]) & tracked for t in touched):
+        warn(
+            "no pair touched along the initial-guess rollout involves a body the cost tracks "
+            f"({', '.join(sorted(tracked))}): contact gives the solver no gradient at the "
+            "start; a guess that makes contact may be needed"
+        )
+
+
 def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     """Prints the report described in the module docstring; returns its facts as a dict."""
     from rich.table import Table
@@ -162,6 +186,9 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     layout = dyn.layout
     x0 = task.x0
     _ = task.cost  # validates the cost's names and sizes
+    from hydroilqr import metrics
+
+    metrics.validate(task)  # metric names and metric_params
     out: dict = {"warnings": []}
     warn = out["warnings"].append
 
@@ -402,6 +429,7 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
     w = _start_warning(pairs, speed)
     if w:
         warn(w)
+    _report_touched(task, X, console, out, warn)
     if out["contact_faces"] > 500:
         warn(
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "
