@@ -211,3 +211,16 @@ def test_previous_plots_named_after_a_body_are_outputs(tmp_path):
     (tmp_path / "mine.png").write_bytes(b"x")
     names = {p.name for p in report.solve_outputs(tmp_path)}
     assert {"box.png", "contacts.png", "summary.json"} <= names and "mine.png" not in names
+
+
+def test_metric_decorator_registers_a_metric_of_ones_own(monkeypatch):
+    monkeypatch.setattr(metrics, "METRICS", dict(metrics.METRICS))
+
+    @metrics.metric("mine", files=("mine.png",))
+    def mine(task, sol):
+        return {"answer": 42}
+
+    assert metrics.get("mine").compute is mine and "mine.png" in metrics.plot_files()
+    task = Task.load("cartpole-wall", ["metrics=[mine]"], smoke=True)
+    metrics.validate(task)
+    assert metrics.compute(task, SimpleNamespace()) == {"answer": 42}

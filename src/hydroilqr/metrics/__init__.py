@@ -59,6 +59,17 @@ def register(m: Metric) -> Metric:
     return m
 
 
+def metric(name: str, **fields):
+    """Decorator: registers fn(task, sol) -> dict as metric ``name`` (``fields``: the other
+    ``Metric`` fields, e.g. plot=, files=, validate=)."""
+
+    def deco(fn):
+        register(Metric(name, compute=fn, **fields))
+        return fn
+
+    return deco
+
+
 def get(name: str) -> Metric:
     if name not in METRICS:
         raise ConfigError(f"metrics: unknown metric {name!r} (known: {', '.join(METRICS)})")

@@ -158,7 +158,7 @@ def plot_contacts(task, sol, out) -> None:
     ax.set_ylim(-0.6, max(P, 1) - 0.4)
     ax.set_xlim(t[0], t[-1] + dt)
     ax.set_xlabel("time [s]")
-    title = "contact between geometry pairs" if P else "no contact along the solution"
+    title = "contact per geometry pair" if P else "no contact along the solution"
     ax.set_title(f"{task.name}: {title}")
     ax.grid(True, axis="x", alpha=0.3)
     savefig(fig, Path(out) / "contacts.png")
