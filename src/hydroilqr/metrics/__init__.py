@@ -83,6 +83,7 @@ def validate(task) -> None:
         m = get(name)
         if m.validate is not None:
             m.validate(task)
+    common.validate_camera(task)
 
 
 def compute(task, sol) -> dict:

@@ -119,7 +119,9 @@ def _default(task, sol) -> dict:
     return {**default_metrics(task, sol), **contact_metrics(task, sol)}
 
 
-def _validate_default(task) -> None:
+def validate_camera(task) -> None:
+    """``metric_params.camera`` (the replays' viewpoint, whatever the metrics) is
+    {position: [x, y, z], target: [x, y, z]}."""
     cam = task.config.metric_params.get("camera")
     if cam is None:
         return
@@ -143,6 +145,5 @@ register(
         compute=_default,
         plot=plot_contacts,
         files=("contacts.png",),
-        validate=_validate_default,
     )
 )
