@@ -224,3 +224,25 @@ def test_metric_decorator_registers_a_metric_of_ones_own(monkeypatch):
     task = Task.load("cartpole-wall", ["metrics=[mine]"], smoke=True)
     metrics.validate(task)
     assert metrics.compute(task, SimpleNamespace()) == {"answer": 42}
+
+
+def test_check_warns_when_no_touched_pair_involves_a_tracked_body(monkeypatch):
+    from rich.console import Console
+
+    from hydroilqr.metrics import contacts
+    from hydroilqr.problem import check
+
+    task = Task.load("cartpole-wall", smoke=True)
+    assert {"cart", "pole"} <= contacts.tracked_bodies(task)
+    other = [{"pair": ["a", "b"], "bodies": ["world", "crate"], "steps": 2}]
+    monkeypatch.setattr(contacts, "touched_pairs", lambda task, X: other)
+    out: dict = {}
+    warnings: list = []
+    check._report_touched(task, None, Console(file=io.StringIO()), out, warnings.append)
+    assert out["touched_pairs"] == other and len(warnings) == 1
+    assert "involves a body the cost tracks" in warnings[0]
+    touching = [{"pair": ["tip", "wall"], "bodies": ["pole", "world"], "steps": 2}]
+    monkeypatch.setattr(contacts, "touched_pairs", lambda task, X: touching)
+    warnings.clear()
+    check._report_touched(task, None, Console(file=io.StringIO()), out, warnings.append)
+    assert warnings == []
