@@ -141,6 +141,7 @@ def test_foot_slip_is_zero_for_feet_rolling_on_their_lowest_points(cheetah):
 def test_kinova_metrics_on_a_synthetic_ball_path_and_contacts(monkeypatch):
     """kinova-up weights only the ball's final z (Qf); its running Q here weighs every axis."""
     from hydroilqr.metrics import kinova as mk
+    from hydroilqr.metrics import objects
 
     task = Task.load("kinova-up", ["cost.Q.ball_position=[1, 1, 1]"], smoke=True)
     lay = task.dynamics.layout
@@ -166,7 +167,7 @@ def test_kinova_metrics_on_a_synthetic_ball_path_and_contacts(monkeypatch):
         3: [("half_arm_2_link_collision", "half_arm_2_link", "ground", "world", 6)],
     }
     keys = {X[k].tobytes(): k for k in range(T)}
-    monkeypatch.setattr(mk, "contact_pairs", lambda dyn, x: pairs.get(keys[x.tobytes()], []))
+    monkeypatch.setattr(objects, "contact_pairs", lambda dyn, x: pairs.get(keys[x.tobytes()], []))
     sol = SimpleNamespace(t=0.01 * np.arange(T), X=X)
     m = mk.kinova_metrics(task, sol)
     np.testing.assert_allclose(m["ball_displacement_m"], [0.04, 0.02, 0.10], atol=1e-12)
@@ -214,7 +215,7 @@ def _wall_run(task, carts, final_angle=np.pi):
 
 def test_cartpole_wall_tunnelling_overlap_and_contact_steps():
     """Wall: x in [-0.55, -0.45]; tip: a 5 cm sphere starting on the +x side."""
-    from hydroilqr.metrics import cartpole_wall
+    from hydroilqr.metrics.cartpole import cartpole_wall
 
     task = Task.load("cartpole-wall", ["num_steps=5", "metric_params.contact_pair=[pole, wall]"])
     # Through the wall: the tip centre ends a step beyond the far face (x < -0.55), then back.

@@ -209,6 +209,14 @@ def _simulation(r: dict) -> None:
         f"rollout of the initial guess ({r['model']['initial_guess']}) ok, "
         f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
     )
+    touched = r.get("touched_pairs") or []
+    if touched:
+        console.print(
+            "  pairs touching along the rollout (states): "
+            + ", ".join(f"{t['pair'][0]}/{t['pair'][1]} ({t['steps']})" for t in touched)
+        )
+    else:
+        console.print("  no contact along the rollout of the initial guess")
 
 
 def _warnings(r: dict) -> None:

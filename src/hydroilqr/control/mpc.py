@@ -755,6 +755,8 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from hydroilqr.output.plots import savefig
+
     layout = task.dynamics.layout
     blocks = plotted_blocks(task)
     fig, axes = plt.subplots(len(blocks) + 1, 1, figsize=(7, 2.0 * (len(blocks) + 1)), sharex=True)
@@ -792,9 +794,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     ax.set_xlim(res.t[0], res.t[-1])  # a push lasting past the run's end widened the axis
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     axes[0].set_title(f"{task.name}: closed-loop MPC at {res.settings.rate:g} Hz")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def write_outputs(

@@ -706,6 +706,8 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from hydroilqr.output.plots import savefig
+
     c = list(r.obj.coords)
     labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
     if len(c) != len(labels):
@@ -740,9 +742,7 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
         f"{ob['max_deviation']:.3g} {r.obj.unit}",
         fontsize=9,
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def write_replay(task, r: PlaybackResult, path: Path) -> None:

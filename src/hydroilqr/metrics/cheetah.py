@@ -45,8 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.metrics import contact_pairs, metric
-from hydroilqr.output import report
+from hydroilqr.metrics import Metric, register
+from hydroilqr.metrics.common import contact_pairs
 from hydroilqr.problem.config import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
@@ -101,10 +101,7 @@ def contacts(task, sol) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if _cache.get("key") == key:
         return _cache["value"]
     p = _params(task)
-    names = {n for n, _ in task.dynamics.geometry_names().values()}
-    for n in p["feet"] + [p["body_collision"], *p["ground"]]:
-        if n not in names:
-            raise ConfigError(f"metric_params: no collision geometry named {n!r}")
+    _check_names(task, p)
     X = np.asarray(sol.X)
     T = X.shape[0]
     feet = np.zeros((T, 4), bool)
@@ -206,7 +203,6 @@ def pair_sync(f: np.ndarray) -> dict[str, float]:
     }
 
 
-@metric("cheetah")
 def cheetah_metrics(task, sol) -> dict:
     p = _params(task)
     pos, _ = _blocks(task, p["body"])
@@ -281,9 +277,10 @@ def _foot_load(task, sol, feet, settled, labels) -> dict[str, float]:
     }
 
 
-@report.plot("cheetah", files=("velocity.png", "gait.png"))
 def plot_cheetah(task, sol, out: Path) -> None:
-    import matplotlib.pyplot as plt
+    from hydroilqr.output.plots import pyplot, savefig
+
+    plt = pyplot()
 
     t = np.asarray(sol.t)
     vx, target = forward_velocity(task, sol)
@@ -295,9 +292,7 @@ def plot_cheetah(task, sol, out: Path) -> None:
     ax.set_title(f"{task.name}: forward base velocity")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(Path(out) / "velocity.png", dpi=120)
-    plt.close(fig)
+    savefig(fig, Path(out) / "velocity.png")
 
     feet, _, body = contacts(task, sol)
     labels = [name.split("_")[0] for name in _params(task)["feet"]]
@@ -315,9 +310,7 @@ def plot_cheetah(task, sol, out: Path) -> None:
     ax.set_xlabel("time [s]")
     ax.set_title(f"{task.name}: ground contact (diagonal pairs same colour)")
     ax.grid(True, axis="x", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(Path(out) / "gait.png", dpi=120)
-    plt.close(fig)
+    savefig(fig, Path(out) / "gait.png")
 
 
 def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]:
@@ -334,3 +327,32 @@ def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]
         else:
             k += 1
     return runs
+
+
+def _check_names(task, p: dict) -> None:
+    names = {n for n, _ in task.dynamics.geometry_names().values()}
+    for n in p["feet"] + [p["body_collision"], *p["ground"]]:
+        if n not in names:
+            raise ConfigError(f"metric_params: no collision geometry named {n!r}")
+
+
+def validate(task) -> None:
+    """The cheetah's ``metric_params`` name a floating body and existing collision geometries,
+    and its times are numbers."""
+    try:
+        p = _params(task)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"metric_params (cheetah): {e}") from None
+    _blocks(task, p["body"])
+    _check_names(task, p)
+
+
+register(
+    Metric(
+        "cheetah",
+        compute=cheetah_metrics,
+        plot=plot_cheetah,
+        files=("velocity.png", "gait.png"),
+        validate=validate,
+    )
+)

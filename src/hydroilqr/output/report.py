@@ -6,38 +6,21 @@ summary.json    task, converged, reason, status, iterations, final_cost, iterati
                 environment (code commit, package versions, CPU)
 convergence.png cost against iteration (log scale)
 replay.html     self-contained Meshcat replay with contact surfaces/forces
-plus task plots registered in ``PLOTS`` (e.g. ball.png, velocity.png, gait.png)
+plus the plots of the task's metrics (``hydroilqr.metrics``: contacts.png, ball.png,
+velocity.png, gait.png, ...)
 """
 
 from __future__ import annotations
 
 import functools
 import json
-from collections.abc import Callable
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from hydroilqr import metrics as metrics_mod  # noqa: E402
+from hydroilqr import metrics as metrics_mod
 from hydroilqr.output.files import atomic_write
-
-PLOTS: dict[str, Callable] = {}
-PLOT_FILES: set[str] = set()  # every file name a registered plot writes
-
-
-def plot(name: str, files: tuple[str, ...]):
-    """Registers fn(task, sol, out) as the plots of metric ``name``; it writes ``files``."""
-
-    def deco(fn):
-        PLOTS[name] = fn
-        PLOT_FILES.update(files)
-        return fn
-
-    return deco
+from hydroilqr.output.plots import plot_convergence
 
 
 def json_safe(obj):
@@ -59,33 +42,6 @@ def json_safe(obj):
 
 def write_json(path: Path, data: dict) -> None:
     atomic_write(path, json.dumps(json_safe(data), indent=2))
-
-
-def plot_convergence(sol, path: Path, title: str) -> None:
-    fig, ax = plt.subplots(figsize=(5, 3.2))
-    c = np.asarray(sol.costs, float)
-    ax.semilogy(np.arange(len(c)), np.maximum(c, 1e-300), "o-", ms=3)
-    windows = "resolves" in sol.extra  # receding horizon: one window's costs after another
-    stages = sol.extra.get("continuation") or []
-    if stages:  # continuation: each stage on its own model; mark where the next one starts
-        start = 0
-        for i, st in enumerate(stages[:-1]):
-            start += st["iterations"]
-            ax.axvline(start, color="0.5", ls=":", lw=1)
-            nxt = stages[i + 1]["start_cost"]
-            ax.plot([start], [max(nxt, 1e-300)], "o", mfc="none", mec="C0", ms=6)
-    label = "iteration"
-    if windows:
-        label = "iteration (all windows, each with its own cost)"
-    elif stages:
-        label = "iteration (continuation stages, each on its own model)"
-    ax.set_xlabel(label)
-    ax.set_ylabel("cost")
-    ax.set_title(f"{title}: iLQR cost per iteration")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 class deferred_interrupt:
@@ -150,9 +106,7 @@ def write_outputs(
         summary["wall_seconds"] = wall_seconds
     write_json(out / "summary.json", summary)
     plot_convergence(sol, out / "convergence.png", task.name)
-    for name in task.config.metrics:
-        if name in PLOTS:
-            PLOTS[name](task, sol, out)
+    metrics_mod.plot(task, sol, out)
     if replay:
         from hydroilqr.output.replay import write_replay
 
@@ -349,11 +303,20 @@ def solve_outputs(out: Path) -> list[Path]:
     out = Path(out)
     if not out.is_dir():
         return []
-    metrics_mod.load_plugins()
-    names = set(SOLVE_FILES) | PLOT_FILES
+    names = set(SOLVE_FILES) | metrics_mod.plot_files() | _previous_plot_files(out)
     found = [out / n for n in sorted(names) if (out / n).exists()]
     found += sorted(p for p in out.glob("playback-*") if (p / "playback.json").exists())
     return found
+
+
+def _previous_plot_files(out: Path) -> set[str]:
+    """Plots named after the task's parameters (e.g. a body) that the solve recorded in
+    ``out/summary.json`` wrote."""
+    try:
+        cfg = json.loads((Path(out) / "summary.json").read_text()).get("config") or {}
+        return metrics_mod.plot_files(cfg.get("metrics") or [], cfg.get("metric_params") or {})
+    except (OSError, ValueError, AttributeError, TypeError):
+        return set()
 
 
 @functools.cache

@@ -156,6 +156,9 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     dyn = task.dynamics
     x0 = task.x0
     _ = task.cost  # validates the cost's names and sizes
+    from hydroilqr import metrics
+
+    metrics.validate(task)  # metric names and metric_params
     out: dict = {"warnings": []}
     warn = out["warnings"].append
 
@@ -226,6 +229,9 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
+    w = _untracked_contact_warning(out["touched_pairs"], set(out["tracked_objects"]))
+    if w:
+        warn(w)
     if out["contact_faces"] > 500:
         warn(
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "
@@ -233,6 +239,27 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         )
     done("warnings")
     return out
+
+
+def _untracked_contact_warning(touched: list[dict], tracked: set[str]) -> str:
+    """A warning when the guess's rollout touches none of the objects the cost tracks
+    (``tracked_objects``): gradients reach an object only through contact, so the solve could
+    not start moving it."""
+    if not tracked:
+        return ""
+    if not touched:
+        return (
+            f"the initial-guess rollout touches nothing, and the cost tracks "
+            f"{', '.join(sorted(tracked))}: no gradient reaches it at the start; a guess that "
+            "makes contact (or a start closer to it) may be needed"
+        )
+    if not any(set(p["bodies"]) & tracked for p in touched):
+        return (
+            "no pair touched along the initial-guess rollout involves a body the cost tracks "
+            f"({', '.join(sorted(tracked))}): contact gives the solver no gradient at the "
+            "start; a guess that makes contact may be needed"
+        )
+    return ""
 
 
 #: The sections of ``check_task``'s report, in the order they are complete.
@@ -354,8 +381,13 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
+    from hydroilqr.metrics.contacts import touched_pairs, tracked_bodies, tracked_objects
+
     out.update(
         {
+            "touched_pairs": touched_pairs(task, X),
+            "tracked_bodies": sorted(tracked_bodies(task)),
+            "tracked_objects": sorted(tracked_objects(task)),
             "one_step_ok": bool(np.all(np.isfinite(x1))),
             "rollout_steps": N,
             "max_speed": speed,

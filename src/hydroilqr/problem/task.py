@@ -136,12 +136,7 @@ class Task:
                 raise ConfigError(f"continuation[{i}]: changes the state or input size")
         from hydroilqr import metrics as metrics_mod
 
-        metrics_mod.load_plugins()
-        for name in self.config.metrics:
-            if name not in metrics_mod.METRICS:
-                raise ConfigError(
-                    f"metrics: unknown metric {name!r} (known: {', '.join(metrics_mod.METRICS)})"
-                )
+        metrics_mod.validate(self)  # metric names and metric_params
 
     def initial_guess(self, N: int, x: np.ndarray | None = None, start: int = 0) -> np.ndarray:
         """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hydroilqr.metrics import contact_pairs
+from hydroilqr.metrics.contacts import tracked_objects
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.solver.solution import Solution
 
@@ -42,39 +43,13 @@ def explain(sol: Solution, task) -> str:
     return text
 
 
-def tracked_bodies(task) -> set[str]:
-    """Bodies of unactuated joints (objects) whose coordinates the cost weights (Q or Qf)."""
-    from pydrake.multibody.tree import JointIndex
-
-    dyn = task.dynamics
-    plant, layout = dyn.plant, dyn.layout
-    weighted: set[int] = set()
-    for weights in (task.config.cost.Q, task.config.cost.Qf):
-        for name, w in weights.items():
-            if np.any(np.asarray(w, float) > 0):
-                weighted |= set(layout.block(name).coords)
-    actuated = {
-        plant.get_joint_actuator(i).joint().index() for i in plant.GetJointActuatorIndices()
-    }
-    out = set()
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        if j.index() in actuated:
-            continue
-        q = range(j.position_start(), j.position_start() + j.num_positions())
-        v = range(dyn.nq + j.velocity_start(), dyn.nq + j.velocity_start() + j.num_velocities())
-        if weighted & (set(q) | set(v)):
-            out.add(j.child_body().name())
-    return out
-
-
 def touches_tracked(task, X: np.ndarray) -> bool:
     """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
     or what is welded to it, such as the ground)."""
     dyn = task.dynamics
     plant = dyn.plant
     fixed = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
-    tracked = tracked_bodies(task)
+    tracked = tracked_objects(task)
     for x in X:
         for _, a, _, b, _ in contact_pairs(dyn, x):
             if (a in tracked and b not in fixed and b != a) or (
@@ -97,7 +72,7 @@ def _guess_rollout(sol: Solution, task) -> np.ndarray:
 
 
 def _no_progress(sol: Solution, task, costs: str) -> str:
-    tracked = tracked_bodies(task)
+    tracked = tracked_objects(task)
     if tracked and not touches_tracked(task, _guess_rollout(sol, task)):
         names = ", ".join(sorted(tracked))
         return (

@@ -494,6 +494,8 @@ def plot(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from hydroilqr.output.plots import savefig
+
     rows = [
         r
         for r in rows
@@ -538,9 +540,7 @@ def plot(rows: list[dict], path: Path) -> None:
         )
     ax.set_ylabel("iteration time [s]")
     ax.set_title("iLQR iteration times (paper Fig. 8)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 BENCH_MARK = "bench"  # the "task" of a bench directory: other commands refuse to write there

@@ -40,10 +40,10 @@ import numpy as np
 from hydroilqr.output.files import atomic_savez, atomic_write
 from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
 
+# Columns of every point; a task's metrics add theirs (metrics.sweep_columns) after final_cost,
+# and their extra columns before "worker".
 POINT_COLUMNS = (
     "final_cost",
-    "max_overlap_m",
-    "tunnelled",
     "iterations",
     "converged",
     "wall_seconds",
@@ -54,9 +54,6 @@ EXTRA_COLUMNS = (
     "initial_cost",
     "reason",
     "solve_seconds",
-    "final_angle_error_rad",
-    "min_signed_distance_m",
-    "wall_contact_steps",
     "worker",
     "code",
 )
@@ -232,44 +229,6 @@ def _scalar(v) -> bool:
     return isinstance(v, (bool, int, float, str, np.floating, np.integer, np.bool_))
 
 
-def _cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-step world positions of the tip, its pin and the cart, the tip radius, and the
-    per-step signed distance of the contact pair (what plot_snapshots draws)."""
-    from hydroilqr.metrics import geometry_ids, signed_distance
-
-    dyn = task.dynamics
-    plant = dyn.plant
-    a_name, b_name = task.config.metric_params.get("contact_pair", ["tip", "wall"])
-    gid = geometry_ids(dyn, a_name)[0]
-    body = plant.GetBodyByName(dyn.geometry_names()[gid][1])
-    joint = next(
-        (
-            plant.get_joint(j)
-            for j in plant.GetJointIndices()
-            if plant.get_joint(j).child_body().index() == body.index()
-        ),
-        None,
-    )
-    inspector = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context).inspector()
-    shape = inspector.GetShape(gid)
-    radius = float(shape.radius()) if hasattr(shape, "radius") else 0.05
-    tip, pin, cart = [], [], []
-    return_pin = joint is not None
-    for x in X:
-        plant.SetPositionsAndVelocities(dyn.plant_context, x)
-        tip.append(body.EvalPoseInWorld(dyn.plant_context).translation())
-        if return_pin:
-            pin.append(joint.frame_on_child().CalcPoseInWorld(dyn.plant_context).translation())
-            cart.append(joint.parent_body().EvalPoseInWorld(dyn.plant_context).translation())
-    out = {"tip_xyz": np.array(tip), "tip_radius": np.array(radius)}
-    if return_pin:
-        out["pin_xyz"] = np.array(pin)
-        out["cart_xyz"] = np.array(cart)
-    ia, ib = geometry_ids(dyn, a_name), geometry_ids(dyn, b_name)
-    out["signed_distance"] = np.array([signed_distance(dyn, x, ia, ib) for x in X])
-    return out
-
-
 def _error_text(e: BaseException) -> str:
     """A failed point's error column: the exception's type and first line."""
     msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
@@ -333,8 +292,7 @@ def solve_point(
         for k, v in m.items():
             if isinstance(v, dict):
                 row.update({f"{k}.{kk}": vv for kk, vv in v.items() if _scalar(vv)})
-        if "cartpole_wall" in task.config.metrics:
-            arrays.update(_cartpole_geometry(task, sol.X))
+        arrays.update(metrics_mod.sweep_arrays(task, sol.X))
     except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
             raise
@@ -367,10 +325,20 @@ def load_point(points_dir: Path, pid: str) -> dict | None:
         return None  # missing, or a torn file from before atomic writes: recompute
 
 
-def columns(param_keys: list[str], rows: list[dict]) -> list[str]:
-    cols = list(param_keys) + list(POINT_COLUMNS)
+def columns(
+    param_keys: list[str], rows: list[dict], metric_columns: tuple[list, list] = ([], [])
+) -> list[str]:
+    """Table columns: the swept keys, POINT_COLUMNS with the metrics' columns after
+    final_cost, the extra columns (the metrics' before "worker") that points have, then every
+    other scalar. metric_columns: ``metrics.sweep_columns`` of the task's metrics."""
+    lead, extra = metric_columns
+    point = list(POINT_COLUMNS)
+    point[1:1] = [c for c in lead if c not in point]
+    cols = list(param_keys) + point
     have = set().union(*(r.keys() for r in rows)) if rows else set()
-    cols += [c for c in EXTRA_COLUMNS if c in have]
+    more = list(EXTRA_COLUMNS)
+    more[more.index("worker") : more.index("worker")] = [c for c in extra if c not in more]
+    cols += [c for c in more if c in have and c not in cols]
     # Then every other scalar a point reported (task metrics), in a stable order.
     plain = (bool, int, float, str, type(None))
     scalar = {
@@ -394,7 +362,12 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
 
 
 def write_tables(
-    out: Path, spec: dict, param_keys: list[str], rows: list[dict], pending: int
+    out: Path,
+    spec: dict,
+    param_keys: list[str],
+    rows: list[dict],
+    pending: int,
+    metric_columns: tuple[list, list] = ([], []),
 ) -> None:
     from hydroilqr.output.report import json_safe
 
@@ -405,7 +378,7 @@ def write_tables(
             (r[k] is None, r[k] if isinstance(r[k], (int, float)) else 0) for k in param_keys
         ),
     )
-    cols = columns(param_keys, rows)
+    cols = columns(param_keys, rows, metric_columns)
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols + ["id"], extrasaction="ignore")
     w.writeheader()
@@ -444,6 +417,8 @@ def plot_sweep(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from hydroilqr.output.plots import savefig
 
     key = param_keys[0]
     other = param_keys[1] if len(param_keys) > 1 else None
@@ -518,9 +493,7 @@ def plot_sweep(
         ax.set_xscale("log")
     ax.set_xlabel(key + (" [Pa]" if key.endswith("hydroelastic_modulus") else ""))
     axes[0, 0].set_title(f"{task_name}: sweep of {key}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    savefig(fig, path)
 
 
 def _representative(rows: list[dict], key: str, n: int = 4) -> list[dict]:
@@ -540,6 +513,8 @@ def plot_snapshots(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.patches import Circle, Rectangle
+
+    from hydroilqr.output.plots import savefig
 
     key = param_keys[0]
     chosen = []
@@ -605,9 +580,7 @@ def plot_snapshots(
         f"{task_cfg.name}: configuration of maximum overlap (grey: tip path over the horizon)",
         fontsize=9,
     )
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    savefig(fig, path)
     return True
 
 
@@ -776,6 +749,9 @@ def run_sweep(
         t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
         t.validate()
     task_cfg = t.config
+    from hydroilqr import metrics as metrics_mod
+
+    metric_cols = metrics_mod.sweep_columns(task_cfg.metrics)
     check_numeric_params(task_arg, overrides, cfg_arg, smoke, params)
 
     out = Path(out)
@@ -900,7 +876,7 @@ def run_sweep(
                     with open(log, "a") as fh:
                         fh.write(f"{ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
                     monitor.finished(ids[i], row, keys)
-                    write_tables(out, spec, keys, ordered(), len(points) - len(rows))
+                    write_tables(out, spec, keys, ordered(), len(points) - len(rows), metric_cols)
                 try:
                     client.unsubscribe_topic(EVENT_TOPIC)
                 except Exception:  # noqa: BLE001
@@ -912,7 +888,7 @@ def run_sweep(
             if cluster is not None:
                 cluster.close()
     all_rows = ordered()  # this grid's points and those kept from earlier runs
-    write_tables(out, spec, keys, all_rows, len(points) - len(rows))
+    write_tables(out, spec, keys, all_rows, len(points) - len(rows), metric_cols)
     if lost:
         raise ConfigError(
             f"the Dask scheduler went away (or cancelled the work): {lost} point(s) not "

@@ -1,0 +1,132 @@
+"""The cart-pole against a wall (paper Fig. 7): metric ``cartpole_wall``.
+
+Values: ``final_angle_error_rad`` (|final pole angle − its nominal|), ``max_overlap_m`` (tip vs
+wall), ``min_signed_distance_m``, ``wall_contact_steps``, ``tunnelled`` (the tip's centre ended
+up beyond the wall's far face at some step).
+
+``metric_params`` (optional): ``angle_block`` (state block of the pole angle, default
+``pole_angle``), ``contact_pair`` ([tip, wall] collision or body names, default
+``[tip, wall]``).
+
+Sweeps: the columns ``max_overlap_m`` and ``tunnelled`` (always), the other values where
+points have them, and per point the tip/pin/cart paths and the pair's signed distance
+(``snapshots.png``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydroilqr.metrics import Metric, register
+from hydroilqr.metrics.common import contact_pairs, geometry_ids, involves, signed_distance
+from hydroilqr.problem.config import ConfigError
+
+
+def _pair(task) -> tuple[str, str]:
+    pair = task.config.metric_params.get("contact_pair", ["tip", "wall"])
+    if (
+        not isinstance(pair, (list, tuple))
+        or len(pair) != 2
+        or not all(isinstance(n, str) for n in pair)
+    ):
+        raise ConfigError(
+            f"metric_params.contact_pair: expected two collision or body names, got {pair!r}"
+        )
+    return pair[0], pair[1]
+
+
+def validate(task) -> None:
+    dyn = task.dynamics
+    name = task.config.metric_params.get("angle_block", "pole_angle")
+    if not isinstance(name, str):
+        raise ConfigError(f"metric_params.angle_block: expected a state block name, got {name!r}")
+    dyn.layout.block(name, "metric_params.angle_block")
+    for n in _pair(task):
+        geometry_ids(dyn, n)
+
+
+def cartpole_wall(task, sol) -> dict:
+    """final_angle_error_rad, max_overlap_m (tip vs wall), wall_contact_steps, tunnelled."""
+    p = task.config.metric_params
+    dyn = task.dynamics
+    angle = dyn.layout.block(p.get("angle_block", "pole_angle"))
+    a_name, b_name = _pair(task)
+    ids_a, ids_b = geometry_ids(dyn, a_name), geometry_ids(dyn, b_name)
+    target = task.cost.nominal(np.array([sol.t[-1]]))[0][angle.coords[0]]
+    dist = np.array([signed_distance(dyn, x, ids_a, ids_b) for x in sol.X])
+    steps = sum(
+        any(involves(pr, a_name) and involves(pr, b_name) for pr in contact_pairs(dyn, x))
+        for x in sol.X[1:]
+    )
+    # Tunnelling: the tip's centre ended up beyond the wall's far face at some step. The far
+    # face is the one away from the side of the wall the tip starts on (axis-aligned wall).
+    tunnelled = False
+    wall = next((o for o in task.config.scene if o.name == b_name and o.shape == "box"), None)
+    if wall is not None:
+        body = dyn.plant.GetBodyByName(dyn.geometry_names()[ids_a[0]][1])
+        xs = []
+        for x in sol.X:
+            dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+            xs.append(body.EvalPoseInWorld(dyn.plant_context).translation()[0])
+        side = 1.0 if xs[0] >= wall.xyz[0] else -1.0
+        far_face = wall.xyz[0] - side * 0.5 * wall.size[0]
+        tunnelled = bool(np.min(side * (np.array(xs) - far_face)) < 0.0)
+    return {
+        "final_angle_error_rad": float(abs(sol.X[-1, angle.coords[0]] - target)),
+        "max_overlap_m": float(max(0.0, -np.min(dist))),
+        "min_signed_distance_m": float(np.min(dist)),
+        "wall_contact_steps": int(steps),
+        "tunnelled": tunnelled,
+    }
+
+
+def cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-step world positions of the tip, its pin and the cart, the tip radius, and the
+    per-step signed distance of the contact pair (what the sweep's plot_snapshots draws)."""
+    dyn = task.dynamics
+    plant = dyn.plant
+    a_name, b_name = _pair(task)
+    gid = geometry_ids(dyn, a_name)[0]
+    body = plant.GetBodyByName(dyn.geometry_names()[gid][1])
+    joint = next(
+        (
+            plant.get_joint(j)
+            for j in plant.GetJointIndices()
+            if plant.get_joint(j).child_body().index() == body.index()
+        ),
+        None,
+    )
+    inspector = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context).inspector()
+    shape = inspector.GetShape(gid)
+    radius = float(shape.radius()) if hasattr(shape, "radius") else 0.05
+    tip, pin, cart = [], [], []
+    return_pin = joint is not None
+    for x in X:
+        plant.SetPositionsAndVelocities(dyn.plant_context, x)
+        tip.append(body.EvalPoseInWorld(dyn.plant_context).translation())
+        if return_pin:
+            pin.append(joint.frame_on_child().CalcPoseInWorld(dyn.plant_context).translation())
+            cart.append(joint.parent_body().EvalPoseInWorld(dyn.plant_context).translation())
+    out = {"tip_xyz": np.array(tip), "tip_radius": np.array(radius)}
+    if return_pin:
+        out["pin_xyz"] = np.array(pin)
+        out["cart_xyz"] = np.array(cart)
+    ia, ib = geometry_ids(dyn, a_name), geometry_ids(dyn, b_name)
+    out["signed_distance"] = np.array([signed_distance(dyn, x, ia, ib) for x in X])
+    return out
+
+
+register(
+    Metric(
+        "cartpole_wall",
+        compute=cartpole_wall,
+        sweep_columns=("max_overlap_m", "tunnelled"),
+        sweep_extra_columns=(
+            "final_angle_error_rad",
+            "min_signed_distance_m",
+            "wall_contact_steps",
+        ),
+        sweep_arrays=cartpole_geometry,
+        validate=validate,
+    )
+)

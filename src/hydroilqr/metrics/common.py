@@ -1,0 +1,149 @@
+"""Metrics and helpers for every task: geometry ids, signed distances, touching pairs, and the
+``default`` metric (final cost terms, final errors, contact polygons, commands beyond limits,
+the contact timeline)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydroilqr.metrics import Metric, register
+from hydroilqr.metrics.contacts import contact_metrics, plot_contacts
+from hydroilqr.problem.config import ConfigError
+
+# ------------------------------------------------------------------------------------------
+# Helpers over a trajectory
+# ------------------------------------------------------------------------------------------
+
+
+def geometry_ids(dyn, name: str) -> list:
+    """Collision geometry ids whose collision name or body name is ``name``."""
+    ids = [g for g, (n, b) in dyn.geometry_names().items() if name in (n, b)]
+    if not ids:
+        raise ConfigError(f"metric_params: no collision geometry or body named {name!r}")
+    return ids
+
+
+def signed_distance(dyn, x: np.ndarray, ids_a: list, ids_b: list) -> float:
+    """Smallest signed distance between two sets of geometries at state x: [nx] (negative =
+    overlap)."""
+    dyn.plant.SetPositionsAndVelocities(dyn.plant_context, x)
+    query = dyn.plant.get_geometry_query_input_port().Eval(dyn.plant_context)
+    best = np.inf
+    for a in ids_a:
+        for b in ids_b:
+            try:
+                d = query.ComputeSignedDistancePairClosestPoints(a, b).distance
+            except RuntimeError:
+                continue
+            best = min(best, d)
+    return float(best)
+
+
+def contact_pairs(dyn, x: np.ndarray) -> list[tuple[str, str, str, str, int]]:
+    """Touching pairs at x: (geom A, body A, geom B, body B, polygons); see plant.Dynamics."""
+    return dyn.contact_pairs(x)
+
+
+def involves(pair, name: str) -> bool:
+    return name in (pair[0], pair[1], pair[2], pair[3])
+
+
+def max_contact_faces(task, sol) -> int:
+    dyn = task.dynamics
+    return int(max((sum(p[4] for p in contact_pairs(dyn, x)) for x in sol.X), default=0))
+
+
+def floating_block(task, name: str, param: str):
+    """The position block of floating body ``name`` (ConfigError naming ``param`` if none)."""
+    layout = task.dynamics.layout
+    key = f"{name}.position"
+    if not isinstance(name, str) or key not in layout.primitives:
+        raise ConfigError(f"metric_params.{param}: no floating body named {name!r}")
+    return layout.primitives[key]
+
+
+def body_order(task) -> list[str]:
+    """The plant's body names in index order."""
+    from pydrake.multibody.tree import BodyIndex
+
+    plant = task.dynamics.plant
+    return [plant.get_body(BodyIndex(i)).name() for i in range(plant.num_bodies())]
+
+
+# ------------------------------------------------------------------------------------------
+# The default metric
+# ------------------------------------------------------------------------------------------
+
+
+def default_metrics(task, sol) -> dict:
+    """Final cost terms, the final tangent error of every Qf block, and contact polygons."""
+    cost = task.cost
+    N = sol.U.shape[0]
+    t0 = float(sol.t[0])
+    terms = cost.breakdown(sol.X, sol.U, t0)
+    xn = cost.nominal(np.array([sol.t[-1]]))[0]
+    err = cost.layout.diff(sol.X[-1], xn)
+    final_err = {}
+    for name in task.config.cost.Qf:
+        b = cost.layout.block(name)
+        final_err[name] = float(np.linalg.norm(err[list(b.tangent)]))
+    return {
+        "cost_terms": terms,
+        "final_error": final_err,
+        "steps": int(N),
+        "max_contact_faces": max_contact_faces(task, sol),
+        **beyond_limits(task.dynamics, sol.U),
+    }
+
+
+def beyond_limits(dyn, U: np.ndarray) -> dict:
+    """Commands beyond the actuators' effort limits in U: [N, nu]. Drake's plant applies the
+    limit instead (the trajectory is the same as with the clipped command), so a plan may
+    list larger commands than act; the cost prices the commands. Returns
+    ``commands_beyond_limits`` (entries of U) and, if any, ``max_command_over_limit``
+    (max |u| / limit) with its actuator."""
+    lim = np.asarray(getattr(dyn, "effort_limits", np.full(U.shape[1], np.inf)), float)
+    ratio = np.abs(U) / lim  # 0 where there is no limit (inf)
+    n = int(np.sum(ratio > 1.0))
+    out: dict = {"commands_beyond_limits": n}
+    if n:
+        k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        out["max_command_over_limit"] = float(ratio[k, j])
+        out["max_command_over_limit_actuator"] = dyn.plant.get_joint_actuator(
+            dyn.plant.GetJointActuatorIndices()[j]
+        ).name()
+    return out
+
+
+def _default(task, sol) -> dict:
+    return {**default_metrics(task, sol), **contact_metrics(task, sol)}
+
+
+def validate_camera(task) -> None:
+    """``metric_params.camera`` (the replays' viewpoint, whatever the metrics) is
+    {position: [x, y, z], target: [x, y, z]}."""
+    cam = task.config.metric_params.get("camera")
+    if cam is None:
+        return
+    ok = isinstance(cam, dict) and all(
+        np.shape(np.asarray(cam.get(k), dtype=object)) == (3,) for k in ("position", "target")
+    )
+    if ok:
+        try:
+            ok = all(np.all(np.isfinite(np.asarray(cam[k], float))) for k in ("position", "target"))
+        except (TypeError, ValueError):
+            ok = False
+    if not ok:
+        raise ConfigError(
+            "metric_params.camera: expected {position: [x, y, z], target: [x, y, z]} (numbers)"
+        )
+
+
+register(
+    Metric(
+        "default",
+        compute=_default,
+        plot=plot_contacts,
+        files=("contacts.png",),
+    )
+)

@@ -1,0 +1,224 @@
+"""The contact timeline (part of the ``default`` metric; also ``metrics: [contacts]``).
+
+``contacts``: one entry per pair of collision geometries that touched along the solution,
+in order of first contact::
+
+    {pair: [geometry A, geometry B], bodies: [body A, body B],
+     intervals: [[t_first, t_last], ...], steps: n, peak_normal_force_N: f}
+
+``intervals`` are runs of consecutive states in contact (times of the first and last state of
+each run); ``steps`` counts the states in contact; ``peak_normal_force_N`` is the largest
+normal force of the pair over the steps, from the contact solve of each step (x_k, u_k) (the
+final state has no step: it adds contact but no force). Plot: ``contacts.png``, pairs against
+time, a bar wherever a pair touches.
+
+``touched_pairs(task)`` gives the pairs a rollout of the initial guess touches (``check``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hydroilqr.metrics import Metric, register
+
+_cache: dict = {}
+
+
+def _normal_force_hydro(info) -> float:
+    """Normal force of a hydroelastic contact: the force along the area-weighted mean normal
+    of its surface."""
+    s = info.contact_surface()
+    F = np.asarray(info.F_Ac_W().translational())
+    n = np.zeros(3)
+    for i in range(s.num_faces()):
+        n += s.area(i) * np.asarray(s.face_normal(i))
+    norm = np.linalg.norm(n)
+    return float(abs(F @ n) / norm) if norm > 0 else float(np.linalg.norm(F))
+
+
+def timeline(task, X: np.ndarray, U: np.ndarray | None):
+    """Contact of every state of X: [T, nx] stepped with U: [T-1, nu] (or fewer rows / None:
+    the states without a control contribute contact from a geometry query, no force).
+
+    Returns (pairs: list of ((geom A, geom B), (body A, body B)) in order of first contact,
+    on: [T, P] bool, force: [T, P] peak normal force per state (0 without a step))."""
+    dyn = task.dynamics
+    plant = dyn.plant
+    names = dyn.geometry_names()
+    unknown = ("?", "?")
+    X = np.asarray(X)
+    U = np.zeros((0, dyn.nu)) if U is None else np.asarray(U)
+    if U.ndim != 2 or U.shape[1] != dyn.nu:
+        U = np.zeros((0, dyn.nu))
+    index: dict = {}
+    pairs: list = []
+    rows: list[dict] = []
+    port = plant.get_contact_results_output_port()
+
+    def add(row, ida, idb, f):
+        a, b = names.get(ida, unknown), names.get(idb, unknown)
+        key = (a[0], b[0]) if a[0] <= b[0] else (b[0], a[0])
+        if key not in index:
+            index[key] = len(pairs)
+            pairs.append((key, (a[1], b[1]) if key[0] == a[0] else (b[1], a[1])))
+        j = index[key]
+        row[j] = max(row.get(j, 0.0), f)
+
+    for k, x in enumerate(X):
+        row: dict = {}
+        if k < len(U) and k < len(X) - 1:
+            plant.SetPositionsAndVelocities(dyn.plant_context, x)
+            dyn._input.FixValue(dyn.context, U[k])
+            results = port.Eval(dyn.plant_context)
+            for i in range(results.num_hydroelastic_contacts()):
+                info = results.hydroelastic_contact_info(i)
+                s = info.contact_surface()
+                add(row, s.id_M(), s.id_N(), _normal_force_hydro(info))
+            for i in range(results.num_point_pair_contacts()):
+                info = results.point_pair_contact_info(i)
+                pp = info.point_pair()
+                f = float(abs(np.asarray(info.contact_force()) @ np.asarray(pp.nhat_BA_W)))
+                add(row, pp.id_A, pp.id_B, f)
+        else:
+            surfaces, points = dyn.contact_query(x)
+            for s in surfaces:
+                add(row, s.id_M(), s.id_N(), 0.0)
+            for pp in points:
+                add(row, pp.id_A, pp.id_B, 0.0)
+        rows.append(row)
+    on = np.zeros((len(X), len(pairs)), bool)
+    force = np.zeros((len(X), len(pairs)))
+    for k, row in enumerate(rows):
+        for j, f in row.items():
+            on[k, j] = True
+            force[k, j] = f
+    return pairs, on, force
+
+
+def _cached(task, sol):
+    key = (task, sol.X)  # held, so neither id is reused while cached
+    old = _cache.get("key", (None, None))
+    if not (old[0] is task and old[1] is sol.X):
+        _cache["key"] = key
+        _cache["value"] = timeline(task, sol.X, getattr(sol, "U", None))
+    return _cache["value"]
+
+
+def runs(on: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index of every run of True in ``on``."""
+    out = []
+    k = 0
+    while k < len(on):
+        if on[k]:
+            j = k
+            while j + 1 < len(on) and on[j + 1]:
+                j += 1
+            out.append((k, j))
+            k = j + 1
+        else:
+            k += 1
+    return out
+
+
+def contact_metrics(task, sol) -> dict:
+    pairs, on, force = _cached(task, sol)
+    t = np.asarray(sol.t)
+    return {
+        "contacts": [
+            {
+                "pair": list(key),
+                "bodies": list(bodies),
+                "intervals": [
+                    [round(float(t[a]), 9), round(float(t[b]), 9)] for a, b in runs(on[:, j])
+                ],
+                "steps": int(np.sum(on[:, j])),
+                "peak_normal_force_N": float(np.max(force[:, j])),
+            }
+            for j, (key, bodies) in enumerate(pairs)
+        ]
+    }
+
+
+def plot_contacts(task, sol, out) -> None:
+    from hydroilqr.output.plots import pyplot, savefig
+
+    plt = pyplot()
+    pairs, on, _ = _cached(task, sol)
+    t = np.asarray(sol.t)
+    dt = float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+    P = len(pairs)
+    fig, ax = plt.subplots(figsize=(6.5, 1.2 + 0.3 * max(P, 1)))
+    for j in range(P):
+        bars = [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in runs(on[:, j])]
+        ax.broken_barh(bars, (P - 1 - j - 0.35, 0.7), color=f"C{j % 10}")
+    ax.set_yticks([P - 1 - j for j in range(P)], [f"{a} / {b}" for (a, b), _ in pairs])
+    ax.tick_params(axis="y", labelsize=7)
+    ax.set_ylim(-0.6, max(P, 1) - 0.4)
+    ax.set_xlim(t[0], t[-1] + dt)
+    ax.set_xlabel("time [s]")
+    title = "contact per geometry pair" if P else "no contact along the solution"
+    ax.set_title(f"{task.name}: {title}")
+    ax.grid(True, axis="x", alpha=0.3)
+    savefig(fig, Path(out) / "contacts.png")
+
+
+def touched_pairs(task, X: np.ndarray | None = None, steps: int | None = None) -> list[dict]:
+    """Pairs that touch along X: [T, nx] (default: a rollout of the task's initial guess from
+    x0 over ``steps`` steps, default the task's): [{pair, bodies, steps}] in order of first
+    contact. A geometry query per state: no contact solve beyond the rollout's own."""
+    if X is None:
+        N = task.steps if steps is None else int(steps)
+        X = task.dynamics.rollout(task.x0, task.initial_guess(N))
+    pairs, on, _ = timeline(task, X, None)
+    return [
+        {"pair": list(key), "bodies": list(bodies), "steps": int(np.sum(on[:, j]))}
+        for j, (key, bodies) in enumerate(pairs)
+    ]
+
+
+def tracked_bodies(task) -> set[str]:
+    """Bodies whose motion the cost weighs: the bodies moved by every joint (floating ones
+    included) with a state weight > 0 in cost.Q or cost.Qf."""
+    from pydrake.multibody.tree import JointIndex
+
+    dyn = task.dynamics
+    plant = dyn.plant
+    nv = dyn.nv
+    w = np.asarray(task.cost.q) + np.asarray(task.cost.qf)
+    joints = []
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        v0, n = j.velocity_start(), j.num_velocities()
+        if n and (np.any(w[v0 : v0 + n] > 0) or np.any(w[nv + v0 : nv + v0 + n] > 0)):
+            joints.append(j.index())
+    if not joints:
+        return set()
+    return {plant.get_body(b).name() for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
+
+
+def tracked_objects(task) -> set[str]:
+    """The tracked bodies (``tracked_bodies``) that the robot can move only through contact:
+    neither moved by an actuated joint nor on the path from the world to one (a robot's own
+    links and base are excluded), and not welded to the world. A pushed ball or block."""
+    from pydrake.multibody.tree import JointIndex
+
+    plant = task.dynamics.plant
+    parent = {}
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        parent[j.child_body().index()] = j.parent_body().index()
+    actuated = [plant.get_joint_actuator(i).joint() for i in plant.GetJointActuatorIndices()]
+    robot = set(plant.GetBodiesKinematicallyAffectedBy([j.index() for j in actuated]))
+    for j in actuated:
+        b = j.parent_body().index()
+        while b in parent and b not in robot:
+            robot.add(b)
+            b = parent[b]
+    robot |= {b.index() for b in plant.GetBodiesWeldedTo(plant.world_body())}
+    names = {plant.get_body(b).name() for b in robot}
+    return tracked_bodies(task) - names
+
+
+register(Metric("contacts", compute=contact_metrics, plot=plot_contacts, files=("contacts.png",)))
