@@ -170,9 +170,19 @@ class Task:
                 f"initial_guess: expected zeros, gravity_compensation, hold or a file; "
                 f"no such file {path}"
             )
+        from hydroilqr.problem import inputs
+
+        # rows: at most the whole trajectory (a file may hold more: a generous floor)
+        rh = self.config.receding_horizon
+        rows = rh.resolves * rh.shift_steps + rh.window_steps if rh else self.config.steps
+        cap = inputs.table_cap(rows + 1, dyn.nu)
+        if path.suffix == ".npz":
+            inputs.check_npz(path, "initial_guess:", cap)
+        else:
+            inputs.check_file(path, "initial_guess:", cap)
         try:
             if path.suffix == ".npz":
-                with np.load(path) as d:
+                with np.load(path, allow_pickle=False) as d:
                     U = np.asarray(d["U"], float)
             else:
                 with warnings.catch_warnings():

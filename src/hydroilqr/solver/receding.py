@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.output.files import atomic_savez
+from hydroilqr.output.files import atomic_savez, content_hash
 from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError
+from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_MODEL_BYTES, check_npz, read_bounded
 from hydroilqr.solver.ilqr import IterationInfo, Problem, solve
 from hydroilqr.solver.solution import PHASES, Solution
 
@@ -202,6 +203,10 @@ def load_checkpoint(task, directory: str | Path) -> Checkpoint:
         raise ConfigError(f"{directory}: no {CHECKPOINT} there to continue")
     try:
         st = _load(ck)
+    except CorruptCheckpoint as e:
+        raise ConfigError(f"{ck}: {e}; remove it to start over") from None
+    except ConfigError:
+        raise
     except Exception as e:  # torn or foreign file
         raise ConfigError(
             f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
@@ -300,8 +305,8 @@ def files_fingerprint(cfg) -> str:
         f = cfg.resolve_path(p)
         h.update(str(p).encode())
         try:
-            h.update(f.read_bytes())
-        except OSError:
+            h.update(read_bounded(f, "file", MAX_MODEL_BYTES))
+        except (OSError, ConfigError):
             h.update(b"<unreadable>")
     return h.hexdigest()[:16]
 
@@ -313,23 +318,36 @@ def _save(path: Path, st: Checkpoint) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint. The
     arrays as arrays, the rest as JSON in ``meta``."""
     meta = {f.name: getattr(st, f.name) for f in dataclasses.fields(st) if f.name not in _ARRAYS}
+    arrays = {k: np.asarray(getattr(st, k)) for k in _ARRAYS}
+    text = json.dumps(meta)
     atomic_savez(
         path,
         compressed=False,
-        X=st.X,
-        U=st.U,
-        K=st.K,
-        kappa=st.kappa,
-        guess=st.guess,
-        meta=np.array(json.dumps(meta)),
+        **arrays,
+        meta=np.array(text),
+        sha256=np.array(content_hash(arrays, text)),
     )
 
 
+class CorruptCheckpoint(ValueError):
+    """A checkpoint whose content does not match its hash, or holds non-finite values."""
+
+
 def _load(path: Path) -> Checkpoint:
-    """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys)."""
+    """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys), and
+    CorruptCheckpoint for one changed since it was written (its content hash; checkpoints
+    written before hashes have none and are accepted) or holding NaN or infinite values."""
+    check_npz(path, "checkpoint", MAX_ARRAY_FILE_BYTES)
     with np.load(path, allow_pickle=False) as d:
-        meta = json.loads(str(d["meta"]))
+        text = str(d["meta"])
+        meta = json.loads(text)
         arrays = {k: np.array(d[k]) for k in _ARRAYS}
+        saved = str(d["sha256"]) if "sha256" in d.files else None
+    if saved is not None and saved != content_hash(arrays, text):
+        raise CorruptCheckpoint("its content does not match its hash (changed since written)")
+    for k, a in arrays.items():
+        if a.dtype.kind not in "fiu" or not np.all(np.isfinite(a)):
+            raise CorruptCheckpoint(f"its {k} holds NaN, infinite or non-numeric values")
     if not isinstance(meta, dict):
         raise ValueError("meta is not a mapping")
     return Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from hydroilqr.cli import add_task_args, console, register, task_name_from_args
-from hydroilqr.output.files import atomic_savez, atomic_write
+from hydroilqr.output.files import atomic_savez, atomic_write, content_hash
 from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
 
 POINT_COLUMNS = (
@@ -356,8 +356,34 @@ def save_point(points_dir: Path, result: dict) -> None:
     row = result["row"]
     pid = row["id"]
     if result.get("arrays"):
-        atomic_savez(points_dir / f"{pid}.npz", **result["arrays"])
+        arrays = {k: np.asarray(v) for k, v in result["arrays"].items()}
+        digest = content_hash(arrays, json.dumps(row, sort_keys=True))
+        atomic_savez(points_dir / f"{pid}.npz", **arrays, **{POINT_HASH: np.array(digest)})
     atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))
+
+
+POINT_HASH = "_sha256"  # in a point's .npz: its arrays' and its row's content hash
+
+
+def point_intact(points_dir: Path, row: dict) -> bool:
+    """False for a finished point whose arrays are missing, unreadable, not finite, or
+    changed since written (their hash, which covers the row too; points saved before hashes
+    have none: checked for readability and finite values only). Failed points have none."""
+    from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
+
+    path = points_dir / f"{row.get('id')}.npz"
+    if not path.exists():
+        return row.get("status") != "ok"
+    try:
+        check_npz(path, "point", MAX_ARRAY_FILE_BYTES)
+        with np.load(path, allow_pickle=False) as d:
+            arrays = {k: np.array(d[k]) for k in d.files if k != POINT_HASH}
+            saved = str(d[POINT_HASH]) if POINT_HASH in d.files else None
+    except Exception:  # noqa: BLE001 - torn, foreign or too large: recompute
+        return False
+    if saved is not None and saved != content_hash(arrays, json.dumps(row, sort_keys=True)):
+        return False
+    return all(a.dtype.kind not in "fc" or np.all(np.isfinite(a)) for a in arrays.values())
 
 
 def load_point(points_dir: Path, pid: str) -> dict | None:
@@ -851,6 +877,9 @@ def run_sweep(
     for i, pid in enumerate(ids):
         _adopt_older_point(points_dir, points[i], pid)
         r = load_point(points_dir, pid)
+        if r is not None and not point_intact(points_dir, r):
+            console.print(f"[yellow]note:[/yellow] point {pid}: its files are damaged; recomputed")
+            r = None
         if r is not None and not (retry_failed and r.get("status") != "ok"):
             rows[pid] = r
         else:
