@@ -407,6 +407,12 @@ def _escape_unencodable_output() -> None:
             pass
 
 
+def _first_line(e: object) -> str:
+    """The first line of an error's text (at most 500 characters)."""
+    text = str(e).strip()
+    return text.splitlines()[0][:500] if text else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     import logging
 
@@ -423,6 +429,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = _join_negative_values(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    if isinstance(getattr(args, "out", None), str) and not args.out.strip():
+        print("hydroilqr: error: --out: an empty directory name", file=sys.stderr)
+        return 2
     import shlex
 
     from hydroilqr.output import report
@@ -450,6 +459,11 @@ def main(argv: list[str] | None = None) -> int:
         detail = f": {e}" if str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
+    except SystemExit as e:  # e.g. from pydrake: its message, as one line
+        if isinstance(e.code, int) or e.code is None or os.environ.get("HYDROILQR_DEBUG"):
+            raise
+        print(f"hydroilqr: error: {_first_line(e.code)}", file=sys.stderr)
+        return 1
     except OSError as e:  # e.g. a full disk or a directory made read-only during the run
         if os.environ.get("HYDROILQR_DEBUG"):
             raise
@@ -459,6 +473,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # noqa: BLE001 - the promise is one line, never a traceback
         if os.environ.get("HYDROILQR_DEBUG"):
             raise
+        if isinstance(e, RuntimeError) and str(e).lstrip().startswith("Failure at "):
+            print(f"hydroilqr: Drake failure: {_first_line(e)}", file=sys.stderr)
+            return 3
         msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
         print(
             f"hydroilqr: internal error: {type(e).__name__}: {msg} "

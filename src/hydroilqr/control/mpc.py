@@ -556,6 +556,7 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
     if settings.shrinking_horizon:
         N = task.steps
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
+    task.check_memory(N, "mpc.horizon")
     # The controller's solver settings, on a copy of the task (the caller's is not changed).
     solver = dataclasses.replace(
         task.config.solver,

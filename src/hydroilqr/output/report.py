@@ -184,6 +184,8 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
     of that run clears."""
     from hydroilqr.problem.config import ConfigError
 
+    if not str(out).strip():
+        raise ConfigError("--out: an empty directory name")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")

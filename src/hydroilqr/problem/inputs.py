@@ -175,10 +175,10 @@ def available_memory() -> int:
     return int(MEMORY_FRACTION * avail)
 
 
-def check_memory(steps: int, nx: int, nu: int, what: str) -> None:
-    """ConfigError if a solve over ``steps`` time steps (``what`` names them) would need more
-    memory than ``available_memory``."""
-    need = horizon_bytes(steps, nx, nu)
+def check_memory(steps: int, nx: int, nu: int, what: str, extra: int = 0) -> None:
+    """ConfigError if a solve over ``steps`` time steps (``what`` names them), plus ``extra``
+    bytes, would need more memory than ``available_memory``."""
+    need = horizon_bytes(steps, nx, nu) + extra
     have = available_memory()
     if need > have:
         raise _config_error(

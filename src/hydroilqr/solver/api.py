@@ -54,6 +54,7 @@ def solve(
     if not isinstance(task, Task):
         raise TypeError(f"task: expected a Task or a task name/path, got {type(task).__name__}")
     callbacks = callback_list(callbacks)
+    task.check_memory()  # before any horizon is allocated
     saved = task.config.solver
     if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(

@@ -759,6 +759,64 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
             )
 
 
+CONNECT_SECONDS = 15.0  # connecting to a --scheduler: at most this long
+
+
+def _probe_scheduler(address: str, seconds: float = CONNECT_SECONDS) -> None:
+    """ConfigError naming ``address`` unless a TCP scheduler there greets within ``seconds``
+    (a Dask scheduler sends its handshake first; a silent or HTTP listener is refused here,
+    before Dask waits on it). Other schemes (tls://, ...) are left to ``_client_within``."""
+    import socket
+
+    scheme, _, rest = address.rpartition("://")
+    if scheme not in ("", "tcp"):
+        return
+    host, _, port = rest.rpartition(":")
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        port_no = int(port)
+    except ValueError:
+        raise ConfigError(f"--scheduler {address}: expected tcp://HOST:PORT") from None
+    deadline = time.monotonic() + seconds
+    try:
+        with socket.create_connection((host, port_no), timeout=seconds) as s:
+            s.settimeout(max(0.1, deadline - time.monotonic()))
+            first = s.recv(16)
+    except TimeoutError:
+        raise ConfigError(
+            f"--scheduler {address}: no answer within {seconds:g} s (not a Dask scheduler?)"
+        ) from None
+    except OSError as e:
+        raise ConfigError(f"--scheduler {address}: cannot connect ({e.strerror or e})") from None
+    if not first:
+        raise ConfigError(f"--scheduler {address}: closed the connection (not a Dask scheduler?)")
+    if first[:5] in (b"HTTP/", b"<!DOC", b"<html") or first[:4] == b"SSH-":
+        raise ConfigError(f"--scheduler {address}: answers, but not as a Dask scheduler")
+
+
+def _client_within(Client, address: str, seconds: float = CONNECT_SECONDS):
+    """``Client(address)``, or ConfigError naming the address when it is not connected
+    within ``seconds`` (Dask's own timeout does not bound every way a connection can stall)."""
+    box: dict = {}
+
+    def connect() -> None:
+        try:
+            box["client"] = Client(address, timeout=f"{seconds:g}s")
+        except BaseException as e:  # noqa: BLE001 - reported by the caller
+            box["error"] = e
+
+    t = threading.Thread(target=connect, name="hydroilqr-connect", daemon=True)
+    t.start()
+    t.join(seconds + 2)
+    if t.is_alive():
+        raise ConfigError(f"--scheduler {address}: not connected within {seconds:g} s")
+    e = box.get("error")
+    if e is not None:
+        text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"--scheduler {address}: cannot connect ({text})") from None
+    return box["client"]
+
+
 def _open_client(scheduler: str | None, workers: int | None):
     import logging
 
@@ -772,11 +830,8 @@ def _open_client(scheduler: str | None, workers: int | None):
             )
         # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
-        try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError, ValueError) as e:
-            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
-        return client, None
+        _probe_scheduler(scheduler)
+        return _client_within(Client, scheduler), None
     import signal
 
     from hydroilqr.model.workers import cores
