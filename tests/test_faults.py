@@ -435,3 +435,22 @@ def test_sweep_point_hash_and_recompute(tmp_path):
     # the row is covered too: a hand-edited cost no longer matches
     save_point(tmp_path, {"row": row, "arrays": {"X": np.ones((3, 2))}})
     assert not point_intact(tmp_path, {**row, "final_cost": 0.1})
+
+
+def test_probe_and_client_accept_a_real_scheduler():
+    import asyncio
+
+    from distributed import Client, Scheduler
+
+    from hydroilqr.studies.sweep import _client_within, _probe_scheduler
+
+    async def main():
+        async with Scheduler(port=0, host="127.0.0.1", dashboard_address=":0") as s:
+
+            def connect():
+                _probe_scheduler(s.address, seconds=5)
+                _client_within(Client, s.address, seconds=10).close()
+
+            await asyncio.get_running_loop().run_in_executor(None, connect)
+
+    asyncio.run(main())

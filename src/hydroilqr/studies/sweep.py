@@ -40,6 +40,7 @@ import numpy as np
 from hydroilqr.cli import add_task_args, console, register, task_name_from_args
 from hydroilqr.output.files import atomic_savez, atomic_write, content_hash
 from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
+from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
 
 POINT_COLUMNS = (
     "final_cost",
@@ -389,7 +390,7 @@ def point_intact(points_dir: Path, row: dict) -> bool:
 def load_point(points_dir: Path, pid: str) -> dict | None:
     p = points_dir / f"{pid}.json"
     try:
-        return json.loads(p.read_text())
+        return json.loads(read_bounded(p, "point", MAX_JSON_BYTES))
     except (OSError, ValueError):
         return None  # missing, or a torn file from before atomic writes: recompute
 
@@ -732,7 +733,7 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
     if not spec_file.exists():
         return
     try:
-        old = json.loads(spec_file.read_text())
+        old = json.loads(read_bounded(spec_file, "sweep spec", MAX_JSON_BYTES))
     except (ValueError, OSError):
         old = None
     if not isinstance(old, dict) and any(points_dir.iterdir()):
