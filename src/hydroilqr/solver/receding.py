@@ -202,9 +202,7 @@ def load_checkpoint(task, directory: str | Path) -> Checkpoint:
     if not ck.exists():
         raise ConfigError(f"{directory}: no {CHECKPOINT} there to continue")
     try:
-        st = _load(ck)
-    except CorruptCheckpoint as e:
-        raise ConfigError(f"{ck}: {e}; remove it to start over") from None
+        st = _load(ck, raise_damage=False)  # reported after the consistency checks
     except ConfigError:
         raise
     except Exception as e:  # torn or foreign file
@@ -241,6 +239,8 @@ def load_checkpoint(task, directory: str | Path) -> Checkpoint:
             f"{ck}: its contents disagree with each other (resolves done {done!r}, "
             f"{st.X.shape[0]} states); remove it to start over"
         )
+    if st._damage:
+        raise ConfigError(f"{ck}: {st._damage}; remove it to start over")
     return st
 
 
@@ -333,7 +333,7 @@ class CorruptCheckpoint(ValueError):
     """A checkpoint whose content does not match its hash, or holds non-finite values."""
 
 
-def _load(path: Path) -> Checkpoint:
+def _load(path: Path, raise_damage: bool = True) -> Checkpoint:
     """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys), and
     CorruptCheckpoint for one changed since it was written (its content hash; checkpoints
     written before hashes have none and are accepted) or holding NaN or infinite values."""
@@ -343,11 +343,16 @@ def _load(path: Path) -> Checkpoint:
         meta = json.loads(text)
         arrays = {k: np.array(d[k]) for k in _ARRAYS}
         saved = str(d["sha256"]) if "sha256" in d.files else None
+    damage = ""
     if saved is not None and saved != content_hash(arrays, text):
-        raise CorruptCheckpoint("its content does not match its hash (changed since written)")
+        damage = "its content does not match its hash (changed since written)"
     for k, a in arrays.items():
-        if a.dtype.kind not in "fiu" or not np.all(np.isfinite(a)):
-            raise CorruptCheckpoint(f"its {k} holds NaN, infinite or non-numeric values")
+        if not damage and (a.dtype.kind not in "fiu" or not np.all(np.isfinite(a))):
+            damage = f"its {k} holds NaN, infinite or non-numeric values"
     if not isinstance(meta, dict):
         raise ValueError("meta is not a mapping")
-    return Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)
+    st = Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)
+    if raise_damage and damage:
+        raise CorruptCheckpoint(damage)
+    st._damage = damage  # (not a field: never saved) load_checkpoint reports it
+    return st
