@@ -213,7 +213,7 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
         def close(self):
             pass
 
-    monkeypatch.setattr(sweep_mod, "_open_client", lambda s, w: (FakeClient(), None))
+    monkeypatch.setattr(sweep_mod, "open_client", lambda s, w: (FakeClient(), None))
     monkeypatch.setattr(distributed, "as_completed", lambda futs: list(futs))
     out = tmp_path / "sw"
     with pytest.raises(ConfigError, match="2 point"):

@@ -123,6 +123,12 @@ def _escape_unencodable_output() -> None:
             pass
 
 
+def _first_line(e: object) -> str:
+    """The first line of an error's text (at most 500 characters)."""
+    text = str(e).strip()
+    return text.splitlines()[0][:500] if text else ""
+
+
 def main(argv: list[str] | None = None) -> int:
     import logging
 
@@ -138,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = _join_negative_values(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    if isinstance(getattr(args, "out", None), str) and not args.out.strip():
+        print("hydroilqr: error: --out: an empty directory name", file=sys.stderr)
+        return 2
     import shlex
 
     # recorded in the results as environment.command
@@ -171,7 +180,14 @@ def _exit_code(e: BaseException) -> int | None:
         detail = f": {e}" if str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
-    if not isinstance(e, Exception) or os.environ.get("HYDROILQR_DEBUG"):
+    if os.environ.get("HYDROILQR_DEBUG"):
+        return None
+    if isinstance(e, SystemExit):  # e.g. from pydrake: its message, as one line
+        if isinstance(e.code, int) or e.code is None:
+            return None
+        print(f"hydroilqr: error: {_first_line(e.code)}", file=sys.stderr)
+        return 1
+    if not isinstance(e, Exception):
         return None
     if isinstance(e, ConfigError):
         print(f"hydroilqr: error: {e}", file=sys.stderr)
@@ -183,9 +199,11 @@ def _exit_code(e: BaseException) -> int | None:
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"hydroilqr: error: {where}{e.strerror or e}", file=sys.stderr)
         return 1
-    msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    if isinstance(e, RuntimeError) and str(e).lstrip().startswith("Failure at "):
+        print(f"hydroilqr: Drake failure: {_first_line(e)}", file=sys.stderr)
+        return 3
     print(
-        f"hydroilqr: internal error: {type(e).__name__}: {msg} "
+        f"hydroilqr: internal error: {type(e).__name__}: {_first_line(e)} "
         "(set HYDROILQR_DEBUG=1 for a traceback)",
         file=sys.stderr,
     )

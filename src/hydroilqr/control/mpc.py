@@ -558,6 +558,7 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
     if settings.shrinking_horizon:
         N = task.steps
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
+    task.check_memory(N, "mpc.horizon")
     solver = controller_solver(task.config.solver, settings)
     ctrl = Controller(task, N, settings.iterations_per_update, settings, solver)
     loop = ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides))

@@ -209,6 +209,7 @@ class SolvedRun(NamedTuple):
 
 def load_run(run_dir: str | Path) -> SolvedRun:
     """The task, Solution and summary.json of a ``hydroilqr solve`` output directory."""
+    from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
     from hydroilqr.problem.task import Task
 
     run_dir = Path(run_dir)
@@ -221,7 +222,7 @@ def load_run(run_dir: str | Path) -> SolvedRun:
         if not p.exists():
             raise ConfigError(f"{run_dir}: no {p.name} (is this a `hydroilqr solve` output?)")
     try:
-        summary = json.loads(summary_path.read_text())
+        summary = json.loads(read_bounded(summary_path, "summary", MAX_JSON_BYTES))
         config = summary["config"]
     except (OSError, ValueError, KeyError, TypeError):
         raise ConfigError(f"{summary_path}: unreadable or has no 'config'") from None

@@ -265,7 +265,10 @@ def _load_reference(
 def _run_models(run_dir: Path) -> list[str] | None:
     """File names of the models a run's summary.json records (None: not recorded)."""
     try:
-        models = json.loads((run_dir / "summary.json").read_text())["config"]["models"]
+        from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+
+        text = read_bounded(run_dir / "summary.json", "summary", MAX_JSON_BYTES)
+        models = json.loads(text)["config"]["models"]
         return sorted(Path(m["file"]).name for m in models)
     except (OSError, ValueError, KeyError, TypeError):
         return None

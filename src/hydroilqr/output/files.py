@@ -3,6 +3,7 @@ never a torn one (results, checkpoints and sweep points are all written this way
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 from pathlib import Path
@@ -33,3 +34,14 @@ def atomic_savez(path: str | Path, compressed: bool = True, **arrays: np.ndarray
     buf = io.BytesIO()
     (np.savez_compressed if compressed else np.savez)(buf, **arrays)
     return atomic_write(path, buf.getvalue())
+
+
+def content_hash(arrays: dict[str, np.ndarray], text: str = "") -> str:
+    """SHA-256 of named arrays (names, dtypes, shapes and bytes, in name order) and a text."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    h.update(text.encode())
+    return h.hexdigest()

@@ -124,12 +124,14 @@ RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json"
 
 def previous_task(out: Path) -> str | None:
     """Name of the task whose results ``out`` holds (None: no results there)."""
+    from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+
     for marker in RESULT_MARKERS:
         path = Path(out) / marker
         if not path.exists():
             continue
         try:
-            task = json.loads(path.read_text()).get("task")
+            task = json.loads(read_bounded(path, "results file", MAX_JSON_BYTES)).get("task")
         except (OSError, ValueError, AttributeError):
             continue
         if task:
@@ -144,6 +146,8 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
     of that run clears."""
     from hydroilqr.problem.config import ConfigError
 
+    if not str(out).strip():
+        raise ConfigError("--out: an empty directory name")
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
@@ -238,8 +242,10 @@ def _lock(out: Path) -> None:
     except OSError:
         os.close(fd)
         try:
-            other = path.read_text().strip()
-        except OSError:
+            from hydroilqr.problem.inputs import read_bounded
+
+            other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
+        except (OSError, ValueError):
             other = ""
         who = (
             f" (process {other}, or a playback reading its plan)"

@@ -696,6 +696,65 @@ class _UniqueKeyLoader(yaml.SafeLoader):
             seen[key] = key_node.start_mark.line
         return super().construct_mapping(node, deep)
 
+    def compose_document(self):
+        """The document's node graph, refused (before anything is built from it) when its
+        aliases would expand to more than MAX_YAML_NODES nodes, or refer to themselves."""
+        node = super().compose_document()
+        if node is not None and self.anchors_seen:
+            n = _expanded_nodes(node)
+            if n < 0 or n > MAX_YAML_NODES:
+                problem = (
+                    "an alias refers to a node that contains it"
+                    if n < 0
+                    else f"its aliases expand to more than {MAX_YAML_NODES} values"
+                )
+                raise yaml.composer.ComposerError(None, None, problem, node.start_mark)
+        return node
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self.anchors_seen = True
+        return super().compose_node(parent, index)
+
+    anchors_seen = False
+
+
+MAX_YAML_NODES = 100_000  # nodes of a YAML document with its aliases expanded
+
+
+def _expanded_nodes(root) -> int:
+    """Nodes of the composed YAML graph ``root`` counted as if every alias were a copy of
+    its anchor (what a deep copy or a JSON dump of the loaded data holds); counted once per
+    distinct node, so an alias bomb is measured without being expanded. -1 for a recursive
+    alias (a node inside itself)."""
+    size: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = []
+        if isinstance(node, yaml.SequenceNode):
+            children = node.value
+        elif isinstance(node, yaml.MappingNode):
+            children = [n for pair in node.value for n in pair]
+        if done:
+            on_path.discard(key)
+            size[key] = min(1 + sum(size[id(c)] for c in children), 1 << 62)
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            return -1
+        on_path.add(key)
+        stack.append((node, True))
+        for c in children:
+            if id(c) in on_path:
+                return -1
+            if id(c) not in size:
+                stack.append((c, False))
+    return size[id(root)]
+
 
 # YAML 1.1 (PyYAML) reads 1e6 (no dot) as the *string* "1e6"; read it as a number, as YAML 1.2
 # and every reader of a task file would.
@@ -711,16 +770,16 @@ def yaml_value(text: str) -> Any:
     return yaml.load(text, Loader=_UniqueKeyLoader)
 
 
+_KEY_LIKE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]{0,63}$")  # shown in messages as typed
+
+
 def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     if path.resolve() in _chain:
         loop = " -> ".join(p.name for p in (*_chain, path.resolve()))
         raise ConfigError(f"{what} {path}: `extends` loops back on itself ({loop})")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{what} {path}: {e.strerror}") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{what} {path}: not UTF-8 text (byte {e.start})") from None
+    from hydroilqr.problem.inputs import read_text_bounded
+
+    text = read_text_bounded(path, what)  # a regular file of at most 1 MiB
     try:
         data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
@@ -732,6 +791,11 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{what} {path}: expected a mapping at the top level")
+    for k in data:
+        if not (isinstance(k, str) and _KEY_LIKE.match(k)):  # not quoted: not a task file?
+            raise ConfigError(
+                f"{what} {path}: a top-level key that is no task setting (is it a task file?)"
+            )
     return _extend(data, path.parent, f"{what} {path}", (*_chain, path.resolve()))
 
 
@@ -1075,6 +1139,10 @@ def validate(cfg: TaskConfig) -> None:
             raise ConfigError(f"models[{i}].file: required")
         if not m.file.startswith("package://") and not cfg.resolve_path(m.file).exists():
             raise ConfigError(f"models[{i}].file: no such file {cfg.resolve_path(m.file)}")
+        if not m.file.startswith("package://"):
+            from hydroilqr.problem.inputs import MAX_MODEL_BYTES, check_file
+
+            check_file(cfg.resolve_path(m.file), f"models[{i}].file:", MAX_MODEL_BYTES)
     for i, m in enumerate(cfg.models):
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]

@@ -126,6 +126,7 @@ class Task:
     def validate(self) -> None:
         """Builds everything that can fail on bad input, before any solve starts."""
         _ = self.dynamics, self.cost, self.x0
+        self.check_memory()
         self.initial_guess(self.steps)
         for i, stage in enumerate(self.stages()):
             try:
@@ -137,6 +138,23 @@ class Task:
         from hydroilqr import metrics as metrics_mod
 
         metrics_mod.validate(self)  # metric names and metric_params
+
+    def check_memory(self, steps: int | None = None, what: str | None = None) -> None:
+        """ConfigError if a solve over ``steps`` (default: this task's window or horizon, and
+        a receding run's whole trajectory besides) would not fit in the memory this process
+        may use (problem.inputs.available_memory)."""
+        from hydroilqr.problem.inputs import check_memory
+
+        dyn, rh = self.dynamics, self.config.receding_horizon
+        if steps is not None:
+            check_memory(steps, dyn.nx, dyn.nu, what or "horizon")
+        elif rh is None:
+            check_memory(self.steps, dyn.nx, dyn.nu, "horizon")
+        else:
+            # the window's solve, and the kept trajectory (X, U, K, kappa) of every window
+            kept = rh.resolves * rh.shift_steps
+            extra = 8 * kept * (dyn.nx + 2 * dyn.nu + dyn.nu * dyn.nx)
+            check_memory(rh.window_steps, dyn.nx, dyn.nu, "receding_horizon.window_steps", extra)
 
     def initial_guess(self, N: int, x: np.ndarray | None = None, start: int = 0) -> np.ndarray:
         """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file.
@@ -165,9 +183,19 @@ class Task:
                 f"initial_guess: expected zeros, gravity_compensation, hold or a file; "
                 f"no such file {path}"
             )
+        from hydroilqr.problem import inputs
+
+        # rows: at most the whole trajectory (a file may hold more: a generous floor)
+        rh = self.config.receding_horizon
+        rows = rh.resolves * rh.shift_steps + rh.window_steps if rh else self.config.steps
+        cap = inputs.table_cap(rows + 1, dyn.nu)
+        if path.suffix == ".npz":
+            inputs.check_npz(path, "initial_guess:", cap)
+        else:
+            inputs.check_file(path, "initial_guess:", cap)
         try:
             if path.suffix == ".npz":
-                with np.load(path) as d:
+                with np.load(path, allow_pickle=False) as d:
                     U = np.asarray(d["U"], float)
             else:
                 with warnings.catch_warnings():

@@ -59,6 +59,7 @@ def solve(
     terms is refused (ConfigError)."""
     task = _as_task(task)
     validate_for_solve(task.config)
+    task.check_memory()  # before any horizon is allocated
     callbacks = callback_list(callbacks)
     # A dict changes fields of each solve's own solver section (a stage may have its own);
     # a SolverConfig replaces them all. The task itself is not changed.

@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.output.files import atomic_savez
+from hydroilqr.output.files import atomic_savez, content_hash
 from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, SolverConfig
+from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_MODEL_BYTES, check_npz, read_bounded
 from hydroilqr.solver import stopping
 from hydroilqr.solver.ilqr import IterationInfo, Problem
 from hydroilqr.solver.loop import solve
@@ -250,7 +251,9 @@ def load_checkpoint(task, directory: str | Path, solver: SolverConfig | None = N
     if not ck.exists():
         raise ConfigError(f"{directory}: no {CHECKPOINT} there to continue")
     try:
-        st = _load(ck)
+        st = _load(ck, raise_damage=False)  # reported after the consistency checks
+    except ConfigError:
+        raise
     except Exception as e:  # torn or foreign file
         raise ConfigError(
             f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
@@ -285,6 +288,8 @@ def load_checkpoint(task, directory: str | Path, solver: SolverConfig | None = N
             f"{ck}: its contents disagree with each other (resolves done {done!r}, "
             f"{st.X.shape[0]} states); remove it to start over"
         )
+    if st._damage:
+        raise ConfigError(f"{ck}: {st._damage}; remove it to start over")
     return st
 
 
@@ -352,8 +357,8 @@ def files_fingerprint(cfg) -> str:
         f = cfg.resolve_path(p)
         h.update(str(p).encode())
         try:
-            h.update(f.read_bytes())
-        except OSError:
+            h.update(read_bounded(f, "file", MAX_MODEL_BYTES))
+        except (OSError, ConfigError):
             h.update(b"<unreadable>")
     return h.hexdigest()[:16]
 
@@ -365,23 +370,41 @@ def _save(path: Path, st: Checkpoint) -> None:
     """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint. The
     arrays as arrays, the rest as JSON in ``meta``."""
     meta = {f.name: getattr(st, f.name) for f in dataclasses.fields(st) if f.name not in _ARRAYS}
+    arrays = {k: np.asarray(getattr(st, k)) for k in _ARRAYS}
+    text = json.dumps(meta)
     atomic_savez(
         path,
         compressed=False,
-        X=st.X,
-        U=st.U,
-        K=st.K,
-        kappa=st.kappa,
-        guess=st.guess,
-        meta=np.array(json.dumps(meta)),
+        **arrays,
+        meta=np.array(text),
+        sha256=np.array(content_hash(arrays, text)),
     )
 
 
-def _load(path: Path) -> Checkpoint:
-    """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys)."""
+class CorruptCheckpoint(ValueError):
+    """A checkpoint whose content does not match its hash, or holds non-finite values."""
+
+
+def _load(path: Path, raise_damage: bool = True) -> Checkpoint:
+    """Raises for a file that is not a checkpoint (missing arrays or meta, unknown keys), and
+    CorruptCheckpoint for one changed since it was written (its content hash; checkpoints
+    written before hashes have none and are accepted) or holding NaN or infinite values."""
+    check_npz(path, "checkpoint", MAX_ARRAY_FILE_BYTES)
     with np.load(path, allow_pickle=False) as d:
-        meta = json.loads(str(d["meta"]))
+        text = str(d["meta"])
+        meta = json.loads(text)
         arrays = {k: np.array(d[k]) for k in _ARRAYS}
+        saved = str(d["sha256"]) if "sha256" in d.files else None
+    damage = ""
+    if saved is not None and saved != content_hash(arrays, text):
+        damage = "its content does not match its hash (changed since written)"
+    for k, a in arrays.items():
+        if not damage and (a.dtype.kind not in "fiu" or not np.all(np.isfinite(a))):
+            damage = f"its {k} holds NaN, infinite or non-numeric values"
     if not isinstance(meta, dict):
         raise ValueError("meta is not a mapping")
-    return Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)
+    st = Checkpoint(**arrays, **meta)  # (older checkpoints lack some meta keys: defaults)
+    if raise_damage and damage:
+        raise CorruptCheckpoint(damage)
+    st._damage = damage  # (not a field: never saved) load_checkpoint reports it
+    return st

@@ -147,7 +147,10 @@ class Solution:
     def load(path: str | Path) -> Solution:
         """From a file written by ``save`` (the path given to it, with or without ``.npz``), or
         a run directory holding solution.npz."""
+        from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
+
         path = solution_file(path)
+        check_npz(path, "solution file", MAX_ARRAY_FILE_BYTES)
         try:
             d = np.load(path, allow_pickle=False)
         except (ValueError, EOFError, zipfile.BadZipFile):  # OSErrors pass as they are

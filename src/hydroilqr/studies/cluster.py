@@ -2,7 +2,8 @@
 
 ``open_client(None)`` starts an embedded ``LocalCluster``: one single-threaded worker process
 per core (``workers`` to choose), its dashboard on a free loopback port. ``open_client(ADDRESS)``
-connects to an existing scheduler and fails with one line naming the address when it cannot.
+connects to an existing scheduler within ``CONNECT_SECONDS`` or fails with one line naming the
+address (a silent listener, one that closes, or one speaking another protocol included).
 """
 
 from __future__ import annotations
@@ -10,53 +11,97 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import time
 
 from hydroilqr.problem.config import ConfigError
 
-CONNECT_TIMEOUT = "15s"
+CONNECT_SECONDS = 15.0  # connecting to a --scheduler: at most this long
 
 
-def connect(scheduler: str):
-    """A client of the scheduler at ``scheduler``, or ConfigError naming it."""
-    from distributed import Client
+def _probe_scheduler(address: str, seconds: float = CONNECT_SECONDS) -> None:
+    """ConfigError naming ``address`` unless a TCP scheduler there greets within ``seconds``
+    (a Dask scheduler sends its handshake first; a silent or HTTP listener is refused here,
+    before Dask waits on it). Other schemes (tls://, ...) are left to ``_client_within``."""
+    import socket
 
-    # a lost scheduler is reported in one line, not as Dask's tracebacks
-    logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
+    scheme, _, rest = address.rpartition("://")
+    if scheme not in ("", "tcp"):
+        return
+    host, _, port = rest.rpartition(":")
+    host = host.strip("[]") or "127.0.0.1"
     try:
-        return Client(scheduler, timeout=CONNECT_TIMEOUT)
-    except (OSError, TimeoutError, ValueError) as e:
-        raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
+        port_no = int(port)
+    except ValueError:
+        raise ConfigError(f"--scheduler {address}: expected tcp://HOST:PORT") from None
+    deadline = time.monotonic() + seconds
+    try:
+        with socket.create_connection((host, port_no), timeout=seconds) as s:
+            s.settimeout(max(0.1, deadline - time.monotonic()))
+            first = s.recv(16)
+    except TimeoutError:
+        raise ConfigError(
+            f"--scheduler {address}: no answer within {seconds:g} s (not a Dask scheduler?)"
+        ) from None
+    except OSError as e:
+        raise ConfigError(f"--scheduler {address}: cannot connect ({e.strerror or e})") from None
+    if not first:
+        raise ConfigError(f"--scheduler {address}: closed the connection (not a Dask scheduler?)")
+    if first[:5] in (b"HTTP/", b"<!DOC", b"<html") or first[:4] == b"SSH-":
+        raise ConfigError(f"--scheduler {address}: answers, but not as a Dask scheduler")
 
 
-def local_cluster(workers: int | None = None):
-    """An embedded cluster of ``workers`` (default: one per core) single-threaded processes."""
-    from distributed import LocalCluster
+def _client_within(Client, address: str, seconds: float = CONNECT_SECONDS):
+    """``Client(address)``, or ConfigError naming the address when it is not connected
+    within ``seconds`` (Dask's own timeout does not bound every way a connection can stall)."""
+    box: dict = {}
 
+    def connect() -> None:
+        try:
+            box["client"] = Client(address, timeout=f"{seconds:g}s")
+        except BaseException as e:  # noqa: BLE001 - reported by the caller
+            box["error"] = e
+
+    t = threading.Thread(target=connect, name="hydroilqr-connect", daemon=True)
+    t.start()
+    t.join(seconds + 2)
+    if t.is_alive():
+        raise ConfigError(f"--scheduler {address}: not connected within {seconds:g} s")
+    e = box.get("error")
+    if e is not None:
+        text = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"--scheduler {address}: cannot connect ({text})") from None
+    return box["client"]
+
+
+def open_client(scheduler: str | None, workers: int | None = None):
+    """(client, cluster): cluster is None when connected to an existing scheduler."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
+        _probe_scheduler(scheduler)
+        return _client_within(Client, scheduler), None
     from hydroilqr.model.workers import cores
 
+    n = workers or cores()
     # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
-    # process group) then reaches only this process, which stops the work and the cluster.
+    # process group) then reaches only this process, which stops the work and the cluster,
+    # instead of every worker printing its own KeyboardInterrupt traceback.
     main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
     try:
-        return LocalCluster(
-            n_workers=workers or cores(),
+        cluster = LocalCluster(
+            n_workers=n,
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
             silence_logs=logging.ERROR,
+            # The scheduler's HTTP routes still bind a port: any free one, so
+            # parallel sweeps do not warn about 8787 being taken.
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
         )
     finally:
         if main_thread:
             signal.signal(signal.SIGINT, previous)
-
-
-def open_client(scheduler: str | None, workers: int | None = None):
-    """(client, cluster): cluster is None when connected to an existing scheduler."""
-    from distributed import Client
-
-    if scheduler:
-        return connect(scheduler), None
-    cluster = local_cluster(workers)
     return Client(cluster), cluster

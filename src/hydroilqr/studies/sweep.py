@@ -28,7 +28,6 @@ import io
 import json
 import math
 import os
-import threading
 import time
 import warnings
 from concurrent.futures import CancelledError
@@ -37,8 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from hydroilqr.output.files import atomic_savez, atomic_write
+from hydroilqr.output.files import atomic_savez, atomic_write, content_hash
 from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
+from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.studies.cluster import open_client
 
 # Columns of every point; a task's metrics add theirs (metrics.sweep_columns) after final_cost,
 # and their extra columns before "worker".
@@ -313,14 +314,40 @@ def save_point(points_dir: Path, result: dict) -> None:
     row = result["row"]
     pid = row["id"]
     if result.get("arrays"):
-        atomic_savez(points_dir / f"{pid}.npz", **result["arrays"])
+        arrays = {k: np.asarray(v) for k, v in result["arrays"].items()}
+        digest = content_hash(arrays, json.dumps(row, sort_keys=True))
+        atomic_savez(points_dir / f"{pid}.npz", **arrays, **{POINT_HASH: np.array(digest)})
     atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))
+
+
+POINT_HASH = "_sha256"  # in a point's .npz: its arrays' and its row's content hash
+
+
+def point_intact(points_dir: Path, row: dict) -> bool:
+    """False for a finished point whose arrays are missing, unreadable, not finite, or
+    changed since written (their hash, which covers the row too; points saved before hashes
+    have none: checked for readability and finite values only). Failed points have none."""
+    from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
+
+    path = points_dir / f"{row.get('id')}.npz"
+    if not path.exists():
+        return row.get("status") != "ok"
+    try:
+        check_npz(path, "point", MAX_ARRAY_FILE_BYTES)
+        with np.load(path, allow_pickle=False) as d:
+            arrays = {k: np.array(d[k]) for k in d.files if k != POINT_HASH}
+            saved = str(d[POINT_HASH]) if POINT_HASH in d.files else None
+    except Exception:  # noqa: BLE001 - torn, foreign or too large: recompute
+        return False
+    if saved is not None and saved != content_hash(arrays, json.dumps(row, sort_keys=True)):
+        return False
+    return all(a.dtype.kind not in "fc" or np.all(np.isfinite(a)) for a in arrays.values())
 
 
 def load_point(points_dir: Path, pid: str) -> dict | None:
     p = points_dir / f"{pid}.json"
     try:
-        return json.loads(p.read_text())
+        return json.loads(read_bounded(p, "point", MAX_JSON_BYTES))
     except (OSError, ValueError):
         return None  # missing, or a torn file from before atomic writes: recompute
 
@@ -629,7 +656,7 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
     if not spec_file.exists():
         return
     try:
-        old = json.loads(spec_file.read_text())
+        old = json.loads(read_bounded(spec_file, "sweep spec", MAX_JSON_BYTES))
     except (ValueError, OSError):
         old = None
     if not isinstance(old, dict) and any(points_dir.iterdir()):
@@ -654,46 +681,6 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
                 f"{old.get('task')}, --param {', '.join(old_keys)}, --set "
                 f"{old.get('set') or 'none'}, smoke {old.get('smoke')}): choose another --out"
             )
-
-
-def _open_client(scheduler: str | None, workers: int | None):
-    import logging
-
-    from distributed import Client, LocalCluster
-
-    if scheduler:
-        # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
-        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
-        try:
-            client = Client(scheduler, timeout="15s")
-        except (OSError, TimeoutError, ValueError) as e:
-            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({e})") from None
-        return client, None
-    import signal
-
-    from hydroilqr.model.workers import cores
-
-    n = workers or cores()
-    # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
-    # process group) then reaches only this process, which stops the sweep and the cluster,
-    # instead of every worker printing its own KeyboardInterrupt traceback.
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
-    try:
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-            # The scheduler's HTTP routes still bind a port: any free one, so
-            # parallel sweeps do not warn about 8787 being taken.
-            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-        )
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
-    return Client(cluster), cluster
 
 
 def run_sweep(
@@ -778,6 +765,11 @@ def run_sweep(
     for i, pid in enumerate(ids):
         _adopt_older_point(points_dir, points[i], pid)
         r = load_point(points_dir, pid)
+        if r is not None and not point_intact(points_dir, r):
+            monitor.message(
+                f"[yellow]note:[/yellow] point {pid}: its files are damaged; recomputed"
+            )
+            r = None
         if r is not None and not (retry_failed and r.get("status") != "ok"):
             rows[pid] = r
         else:
@@ -816,7 +808,7 @@ def run_sweep(
                 f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
                 "cluster's own workers run the points)"
             )
-        client, cluster = _open_client(scheduler, workers)
+        client, cluster = open_client(scheduler, workers)
         try:
             nthreads = sum(client.nthreads().values())
             where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
