@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
@@ -34,12 +33,41 @@ def setup(p) -> None:
         help="after the solve, play the result on a local Meshcat page until Ctrl+C",
     )
     p.add_argument("--no-replay", action="store_true", help="skip writing replay.html")
+    p.add_argument(
+        "--starts",
+        type=int,
+        default=1,
+        metavar="N",
+        help="multi-start: N solves from perturbed initial guesses (the first unperturbed) as "
+        "Dask jobs; the best (goal met, then cost) is kept and the spread reported",
+    )
+    p.add_argument("--seed", type=int, default=0, help="multi-start: the perturbations' seed")
+    p.add_argument(
+        "--start-noise",
+        type=float,
+        default=0.1,
+        metavar="F",
+        help="multi-start: perturbation size, a fraction of each input's scale (default 0.1)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="multi-start: an existing Dask scheduler (default: a local cluster)",
+    )
+    p.add_argument(
+        "--workers", type=int, help="multi-start: local worker processes (default: cores)"
+    )
+
+
+#: Exit code of a solve whose results were written but whose task goal was not met.
+GOAL_NOT_MET = 4
 
 
 def run(args) -> int:
     from hydroilqr.output import report
 
     task = load_task_from_args(args, _solver_overrides(args))
+    _check_starts(task, args)
     if args.resume:
         _check_resume(task, args)
     out, restart = _output_dir(task, args)
@@ -47,24 +75,99 @@ def run(args) -> int:
     if not args.resume:  # a resumed run starts elsewhere
         _warn_about_start(task)
     t0 = time.perf_counter()
-    sol = _solve(task, out, restart)
+    sol, extra = _solve_many(task, args) if args.starts > 1 else (_solve(task, out, restart), {})
     wall = time.perf_counter() - t0
     _print_outcome(sol, task, wall)
     if args.view:
         from hydroilqr.output.replay import meshcat_instance
 
         console.print(f"live view: {meshcat_instance().web_url()}")
-    # An earlier solve's results are replaced only now that this one has a trajectory: a
-    # failed or killed solve leaves them as they were.
+    # An earlier solve's results are replaced only once this one's are complete: a failed or
+    # killed run leaves them as they were (output/rundir.py).
     with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
-        _write_results(task, sol, out, args, wall)
-    _print_notes(task, sol)
+        summary = _write_results(task, sol, out, args, wall, extra)
     if sol.reason == "interrupted":
         _print_interrupted(sol, out)
         return 130
+    code = _print_goal(summary["goal"], args.smoke)
     if args.view:
         _serve_view(task, sol, out, args.no_replay)
-    return 0
+    return code
+
+
+def _check_starts(task, args) -> None:
+    """Refuses multi-start arguments that cannot work, before any work."""
+    if args.starts < 1:
+        raise ConfigError(f"--starts: must be at least 1, got {args.starts}")
+    if args.start_noise < 0 or args.start_noise != args.start_noise:
+        raise ConfigError(f"--start-noise: must be a number >= 0, got {args.start_noise}")
+    if args.starts > 1 and task.config.receding_horizon is not None:
+        raise ConfigError(
+            "--starts: multi-start perturbs a single solve's initial guess; "
+            f"{task.name} is a receding-horizon task"
+        )
+    if args.starts > 1 and (args.resume or args.view):
+        raise ConfigError("--starts does not combine with --resume or --view")
+    if args.starts == 1 and (args.scheduler or args.workers):
+        raise ConfigError("--scheduler and --workers go with --starts N (N > 1)")
+
+
+def _solve_many(task, args):
+    """Multi-start (studies/multistart.py): the best start's solution and the summary entry
+    with every start's outcome and the spread."""
+    from hydroilqr.studies.multistart import run_multistart, spread
+
+    ref = {
+        "name": args.task_file or args.task,
+        "overrides": [*args.set, *_solver_overrides(args)],
+        "config": args.config,
+        "smoke": bool(args.smoke),
+    }
+    where = args.scheduler or "a local Dask cluster"
+    console.print(f"multi-start: {args.starts} solves (seed {args.seed}) on {where}")
+
+    def done(r) -> None:
+        rec = r.record()
+        cost = "failed" if rec["final_cost"] is None else f"cost {rec['final_cost']:.6g}"
+        goal = {True: "goal met", False: "goal not met", None: ""}[rec["goal_met"]]
+        detail = f" ({r.error})" if r.error else ""
+        console.print(f"  start {r.index}: {rec['status']}, {cost}, {goal}{detail}")
+
+    results, best = run_multistart(
+        ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
+    )
+    if best is None:
+        raise ConfigError(f"multi-start: none of the {args.starts} starts finished")
+    s = spread(results)
+    console.print(
+        f"multi-start: best start {best}; cost best {s['best_cost']:.6g} / median "
+        f"{s['median_cost']:.6g} / worst {s['worst_cost']:.6g}; goal met by {s['goal_met']} "
+        f"of {s['starts']}"
+    )
+    entry = {
+        "seed": args.seed,
+        "noise": args.start_noise,
+        "best": best,
+        **s,
+        "results": [r.record() for r in results],
+    }
+    return results[best].solution, {"multistart": entry}
+
+
+def _print_goal(goal: dict, smoke: bool) -> int:
+    """The PASS/FAIL line of the task's goal; the exit code it gives (a smoke-sized run is
+    not judged: its goal is the full task's)."""
+    from hydroilqr.metrics.goals import verdict_line
+
+    line = verdict_line(goal)
+    if goal.get("met") is None:
+        return 0
+    if smoke:
+        console.print(f"{line} (smoke-sized run: not judged)", soft_wrap=True)
+        return 0
+    colour = "green" if goal["met"] else "red"
+    console.print(f"[{colour}]{line}[/{colour}]", soft_wrap=True)
+    return 0 if goal["met"] else GOAL_NOT_MET
 
 
 def _solver_overrides(args) -> list[str]:
@@ -201,59 +304,32 @@ def _print_outcome(sol, task, wall: float) -> None:
         )
 
 
-def _write_results(task, sol, out: Path, args, wall: float) -> None:
+def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict:
+    """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
+    set's files and the playbacks of its plan are retired in the same commit."""
     from hydroilqr import metrics as metrics_mod
-    from hydroilqr.output import report
+    from hydroilqr.output import report, rundir
     from hydroilqr.solver import receding
 
-    _clear_previous(out, keep=(receding.CHECKPOINT,))
-    summary = report.write_outputs(
-        task,
-        sol,
-        out,
-        replay=not args.no_replay,
-        wall_seconds=wall,
-        command=command_line(args),
-    )
+    retire = [p.name for p in report.solve_outputs(out) if p.name != receding.CHECKPOINT]
+    if retire:
+        console.print(f"replacing the previous results in {out} ({len(retire)} files/directories)")
+    with rundir.result_set(out, retire) as stage:
+        summary = report.write_outputs(
+            task,
+            sol,
+            stage,
+            replay=not args.no_replay,
+            wall_seconds=wall,
+            command=command_line(args),
+            extra_summary=extra,
+        )
     for line in metrics_mod.summary_lines(summary["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
-
-
-def _clear_previous(out: Path, keep: tuple[str, ...] = ()) -> None:
-    """Removes what an earlier solve wrote into ``out`` (plots, replay, checkpoint, playbacks of
-    its solution), so the directory never mixes two runs. Other files, and the names in
-    ``keep`` (this run's own checkpoint), are left alone."""
-    from hydroilqr.output import report
-
-    stale = [p for p in report.solve_outputs(out) if p.name not in keep]
-    if stale:
-        console.print(f"replacing the previous results in {out} ({len(stale)} files/directories)")
-    for p in stale:
-        if p.is_dir():
-            shutil.rmtree(p)
-        else:
-            p.unlink()
-
-
-def _print_notes(task, sol) -> None:
-    """A note when the solver hardly moved from the initial guess."""
-    stepped = any(e > 0 for e in sol.eps)
-    if (
-        task.config.receding_horizon is None
-        and sol.reason not in ("interrupted", "max_iterations")
-        and sol.iterations <= 1
-    ):
-        moved = "one step was taken" if stepped else "no step was taken"
-        console.print(
-            f"[yellow]note:[/yellow] {moved}: the initial guess is already (nearly) stationary "
-            "for the model the solver sees. If the cost depends on a contact that never happens "
-            "along it, or on an object that static friction holds still, there is no gradient "
-            "to follow: try a guess that makes contact or pushes harder (docs/guide.md, "
-            "section 3)"
-        )
+    return summary
 
 
 def _print_interrupted(sol, out: Path) -> None:

@@ -83,10 +83,14 @@ def write_outputs(
     replay: bool = True,
     wall_seconds: float | None = None,
     command: str | None = None,
+    extra_summary: dict | None = None,
 ) -> dict:
     """Writes the standard outputs; returns the summary dict. ``wall_seconds``: the solve's
     wall time as the caller measured it (setup included), recorded last in summary.json;
-    ``command``: the command line that ran the solve (``environment.command``)."""
+    ``command``: the command line that ran the solve (``environment.command``);
+    ``extra_summary``: more top-level entries (e.g. ``multistart``)."""
+    from hydroilqr.metrics.goals import evaluate
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sol.save(out / "solution.npz")
@@ -94,7 +98,9 @@ def write_outputs(
     summary = {
         "task": task.name,
         **sol.stats(),
+        "goal": evaluate(task.config.goal, metrics),
         "metrics": metrics,
+        **(extra_summary or {}),
         "extra": sol.extra,
         "config": task.config.to_dict(),
         # Directory the config's relative paths resolve against (rebuild with

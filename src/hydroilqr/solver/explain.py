@@ -72,6 +72,8 @@ def _guess_rollout(sol: Solution, task) -> np.ndarray:
 
 
 def _no_progress(sol: Solution, task, costs: str) -> str:
+    steps = sum(1 for e in sol.eps if e > 0)
+    costs += "; no step was taken" if steps == 0 else f"; {steps} small step(s) were taken"
     tracked = tracked_objects(task)
     if tracked and not touches_tracked(task, _guess_rollout(sol, task)):
         names = ", ".join(sorted(tracked))

@@ -1,0 +1,176 @@
+"""What a user sees of goals, status, multi-start and crash-safe result sets through
+``hydroilqr solve`` (small acrobot task: a few seconds each)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import yaml
+
+from hydroilqr import cli
+from hydroilqr.cli.solve import GOAL_NOT_MET
+from hydroilqr.output import rundir
+
+ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
+TASK = {
+    "name": "trust-acrobot",
+    "models": [{"file": ACROBOT}],
+    "plant": {"time_step": 0.02},
+    "num_steps": 20,
+    "blocks": {"angles": ["shoulder", "elbow"]},
+    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 50.0}, "nominal": {"angles": 1.0}},
+    "solver": {"max_iterations": 15},
+    "metrics": ["default"],
+}
+
+
+def write_task(tmp_path, **changes):
+    path = tmp_path / "task.yaml"
+    path.write_text(yaml.safe_dump({**TASK, **changes}))
+    return path
+
+
+def summary(out):
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_goal_pass_and_fail_reach_the_terminal_json_and_exit_code(tmp_path, capsys):
+    ok = write_task(tmp_path, goal={"steps": {"min": 20}})
+    assert cli.main(["solve", str(ok), "--out", str(tmp_path / "a"), "--no-replay"]) == 0
+    s = summary(tmp_path / "a")
+    assert s["goal"]["met"] is True and s["goal"]["checks"][0]["value"] == 20
+    assert "goal: PASS (1/1 checks)" in capsys.readouterr().out
+    bad = write_task(tmp_path, goal={"final_error.angles": {"max": 1e-9}})
+    rc = cli.main(["solve", str(bad), "--out", str(tmp_path / "b"), "--no-replay"])
+    assert rc == GOAL_NOT_MET == 4
+    s = summary(tmp_path / "b")
+    assert s["goal"]["met"] is False and "> 1e-09" in s["goal"]["checks"][0]["why"]
+    assert "goal: FAIL (0/1 checks): final_error.angles" in capsys.readouterr().out
+
+
+def test_a_smoke_run_reports_its_goal_but_is_not_judged(tmp_path, capsys):
+    bad = write_task(tmp_path, goal={"final_error.angles": {"max": 1e-9}})
+    rc = cli.main(["solve", str(bad), "--smoke", "--out", str(tmp_path / "s"), "--no-replay"])
+    assert rc == 0
+    assert "(smoke-sized run: not judged)" in capsys.readouterr().out
+    assert summary(tmp_path / "s")["goal"]["met"] is False
+
+
+def test_status_is_written_and_printed(tmp_path, capsys):
+    task = write_task(tmp_path)
+    assert cli.main(["solve", str(task), "--out", str(tmp_path / "o"), "--no-replay"]) == 0
+    s = summary(tmp_path / "o")
+    assert s["status"] in ("converged", "stalled", "max_iterations")
+    assert s["converged"] == (s["status"] in ("converged", "stalled"))
+    assert f"status {s['status']}:" in capsys.readouterr().out
+
+
+def test_multistart_keeps_the_best_and_reports_the_spread(tmp_path, capsys):
+    task = write_task(tmp_path, goal={"steps": {"min": 20}})
+    out = tmp_path / "m"
+    argv = ["solve", str(task), "--out", str(out), "--no-replay", "--starts", "2"]
+    assert cli.main([*argv, "--workers", "2", "--start-noise", "0.5"]) == 0
+    ms = summary(out)["multistart"]
+    assert ms["starts"] == ms["finished"] == 2 and ms["goal_met"] == 2
+    assert [r["index"] for r in ms["results"]] == [0, 1]
+    best = ms["results"][ms["best"]]
+    assert best["final_cost"] == ms["best_cost"] == min(r["final_cost"] for r in ms["results"])
+    assert abs(summary(out)["final_cost"] - ms["best_cost"]) <= 1e-9 * abs(ms["best_cost"])
+    text = capsys.readouterr().out
+    assert "multi-start: 2 solves (seed 0)" in text and "start 1:" in text
+
+
+def test_multistart_arguments_are_checked_before_work(tmp_path, capsys):
+    task = str(write_task(tmp_path))
+    for extra, message in [
+        (["--starts", "0"], "--starts: must be at least 1"),
+        (["--scheduler", "tcp://127.0.0.1:1"], "go with --starts N"),
+        (["--starts", "2", "--start-noise", "-1"], "--start-noise: must be a number >= 0"),
+    ]:
+        assert cli.main(["solve", task, "--out", str(tmp_path / "x"), *extra]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+
+
+def _complete_run(tmp_path):
+    out = tmp_path / "run"
+    assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
+    return out, (out / "solution.npz").read_bytes(), summary(out)
+
+
+def test_a_run_failing_after_the_solve_leaves_the_earlier_set(tmp_path, capsys, monkeypatch):
+    out, npz, first = _complete_run(tmp_path)
+    from hydroilqr import metrics
+
+    def broken(*a, **k):
+        raise RuntimeError("a metric failed")
+
+    monkeypatch.setattr(metrics, "compute", broken)
+    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    assert rc == 1 and "a metric failed" in capsys.readouterr().err
+    assert (out / "solution.npz").read_bytes() == npz and summary(out) == first
+    assert not (out / rundir.STAGE).exists()
+
+
+def test_a_full_disk_while_writing_leaves_the_earlier_set(tmp_path, capsys, monkeypatch):
+    import errno
+
+    out, npz, first = _complete_run(tmp_path)
+    from hydroilqr.output import report
+
+    real = report.write_json
+
+    def full(path, data):
+        real(path, data)
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(report, "write_json", full)
+    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    assert rc == 1 and "No space left on device" in capsys.readouterr().err
+    assert (out / "solution.npz").read_bytes() == npz and summary(out) == first
+
+
+def test_resolving_retires_old_playbacks_and_never_follows_a_symlink(tmp_path):
+    out, _, _ = _complete_run(tmp_path)
+    (out / "playback-pd").mkdir()
+    (out / "playback-pd" / "playback.json").write_text('{"task": "trust-acrobot"}')
+    target = tmp_path / "keep"
+    target.mkdir()
+    (target / "playback.json").write_text("precious")
+    (out / "playback-ilqr").symlink_to(target)
+    (out / "notes.txt").write_text("mine")
+    assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
+    assert not (out / "playback-pd").exists()  # derived from the earlier plan
+    assert (target / "playback.json").read_text() == "precious"
+    assert (out / "notes.txt").read_text() == "mine"
+
+
+def _solve_in_a_process(task, out, kill_at: str = ""):
+    env = {**os.environ, rundir.KILL_ENV: kill_at}
+    cmd = [sys.executable, "-m", "hydroilqr", "solve", task, "--out", str(out), "--no-replay"]
+    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_killed_while_writing_results_leaves_one_complete_set(tmp_path):
+    out = tmp_path / "run"  # (another process: this one would hold the directory's lock)
+    assert _solve_in_a_process(str(write_task(tmp_path)), out).returncode == 0
+    first, npz = summary(out), (out / "solution.npz").read_bytes()
+    task = str(write_task(tmp_path, solver={"max_iterations": 3}))
+    for step in ("staged", "journal", "retire:0", "install:1", "installed"):
+        proc = _solve_in_a_process(task, out, step)
+        assert proc.returncode == -9, proc.stderr
+        rundir.recover(out)
+        s = summary(out)
+        if step == "staged":  # before the journal: the earlier set, untouched
+            assert s == first and (out / "solution.npz").read_bytes() == npz
+        else:  # after it: the new set, whole
+            assert s["iterations"] <= 3 and s["config"]["solver"]["max_iterations"] == 3
+        from hydroilqr import Solution
+
+        assert Solution.load(out).final_cost == s["final_cost"]
+        names = {p.name for p in out.iterdir() if not p.name.startswith(".")}
+        assert names == {"summary.json", "solution.npz", "convergence.png", "contacts.png"}
+        first, npz = s, (out / "solution.npz").read_bytes()
