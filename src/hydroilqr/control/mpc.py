@@ -247,6 +247,7 @@ class MPCResult:
     phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
     interrupted: bool = False  # stopped by Ctrl+C before the end
     past_deadline: int = 0  # updates whose line search mpc.deadline cut short
+    saturated_fraction: float = 0.0  # commands clipped at an effort limit (of all commands)
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -282,6 +283,7 @@ class MPCResult:
             "deadline_fraction": self.settings.deadline,
             "updates_past_deadline": self.past_deadline,
             "feedback_scale": self.settings.feedback_scale,
+            "saturated_fraction": self.saturated_fraction,
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
@@ -488,6 +490,9 @@ class Controller:
         return X
 
 
+SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (as playback)
+
+
 class Truth:
     """The simulated plant being controlled (its own Drake context), with external pushes."""
 
@@ -502,6 +507,8 @@ class Truth:
             )
         self.plant = self.dyn.plant
         self.limits = self.dyn.effort_limits
+        self.commands = 0  # actuator commands applied (steps × actuators)
+        self.saturated = 0  # of them, beyond an effort limit (clipped)
         self.port = self.plant.get_applied_spatial_force_input_port()
         self._pushing = None
         self._set_force(())
@@ -535,6 +542,8 @@ class Truth:
             if k0 <= k < k0 + max(1, int(round(p.duration / dt))):
                 active.append(p)
         self._set_force(tuple(active))
+        self.commands += len(u)
+        self.saturated += int(np.count_nonzero(np.abs(u) > self.limits))
         u = np.clip(u, -self.limits, self.limits)
         return self.dyn.step(x, u), u
 
@@ -679,6 +688,7 @@ def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCRes
         ctrl.phases[1:],
         interrupted,
         ctrl.past_deadline,
+        truth.saturated / max(1, truth.commands),
     )
 
 
@@ -920,6 +930,13 @@ def cmd_mpc(args) -> int:
             f"[yellow]note:[/yellow] the controller kept up with {stats['achieved_rate_hz']:.1f} "
             f"of the {settings.rate:g} Hz asked (--realtime: the plant ran on older plans "
             "while updates were late; the loop real-time factor is ~1 by construction)"
+        )
+    if stats["saturated_fraction"] > SATURATION_WARNING:
+        from hydroilqr.cli import warn
+
+        warn(
+            f"{100 * stats['saturated_fraction']:.0f}% of the commands hit the effort limits "
+            "(clipped): the plant could not apply what the controller asked"
         )
     for line in metrics.summary_lines(task_metrics):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

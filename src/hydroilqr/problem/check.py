@@ -239,14 +239,41 @@ def check_task(task, console, rollout_steps: int = ROLLOUT_STEPS) -> dict:
 
     # ---------------------------------------------------------------- actuators
     t = Table(title="actuators (names for cost.R)", title_justify="left")
-    for col in ("#", "actuator", "joint", "effort limit"):
+    for col in (
+        "#",
+        "actuator",
+        "joint",
+        "effort limit",
+        "rotor inertia",
+        "gear ratio",
+        "reflected",
+    ):
         t.add_column(col)
     actuators = []
     for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
         a = dyn.plant.get_joint_actuator(i)
         lim = float(dyn.effort_limits[k])
-        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
-        t.add_row(str(k), a.name(), a.joint().name(), _fmt_limit(lim))
+        rho, gear = float(a.default_rotor_inertia()), float(a.default_gear_ratio())
+        reflected = float(a.default_reflected_inertia())
+        actuators.append(
+            {
+                "name": a.name(),
+                "joint": a.joint().name(),
+                "effort_limit": lim,
+                "rotor_inertia": rho,
+                "gear_ratio": gear,
+                "reflected_inertia": reflected,
+            }
+        )
+        t.add_row(
+            str(k),
+            a.name(),
+            a.joint().name(),
+            _fmt_limit(lim),
+            f"{rho:.3g}",
+            f"{gear:.3g}",
+            f"{reflected:.3g}",
+        )
     console.print(t)
     out["actuators"] = actuators
 
