@@ -180,6 +180,38 @@ class ObjectSpec:
 
 
 @dataclass
+class HoldPhase:
+    """After the plan's end, on the truth time grid: t: [M] playback time (s), continuing the
+    playback's; X: [M, nx] actual states; U: [M, nu] applied inputs; X_plan: [M, nx] the
+    planning model's extension (settle_plan) at the same times since the plan's end. Its own
+    states: X_settle: [P+1, nx] at the planner's time step. rested / rested_plan: whether the
+    object came to rest before rest_max (else it was still moving when measured)."""
+
+    t: np.ndarray
+    X: np.ndarray
+    U: np.ndarray
+    X_plan: np.ndarray
+    X_settle: np.ndarray
+    rested: bool
+    rested_plan: bool
+
+    def summary(self) -> dict:
+        dt_plan = (self.X_settle.shape[0] - 1) if len(self.X_settle) else 0
+        return {
+            "actual": {"rested": bool(self.rested), "hold_s": self.seconds},
+            "planned": {"rested": bool(self.rested_plan), "hold_steps": int(dt_plan)},
+        }
+
+    @property
+    def seconds(self) -> float:
+        return float(self.t[-1] - self.t[0]) + self.step if len(self.t) else 0.0
+
+    @property
+    def step(self) -> float:
+        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else 0.0
+
+
+@dataclass
 class PlaybackResult:
     """Everything a playback produced. Arrays are sampled at every truth time step."""
 
@@ -201,10 +233,9 @@ class PlaybackResult:
     metrics: dict
     wall_seconds: float
     U_plan: np.ndarray | None = None  # [T, nu] the plan's input at plan time speed·t
-    # Index into t/X of the plan's end; after it the robot holds its last reference until the
-    # object rests (X_plan there: the planning model's own extension, see settle_plan).
-    plan_end_index: int | None = None
-    rest: dict | None = None  # how each extension ended (rested or capped, seconds)
+    # After the plan's end: the robot holding its last reference until the object rests, and
+    # the planning model extended the same way (None with rest_max 0).
+    hold: HoldPhase | None = None
 
 
 # ------------------------------------------------------------------------------------------
@@ -507,28 +538,22 @@ def playback(
     t = np.arange(n + 1) * dt
     X_plan = np.array([plan.state(s * tk) for tk in t])
     U_plan = np.array([plan.input(s * tk) for tk in t[:-1]])
-    rest = None
+    hold = None
     if settings.rest_max > 0:
         # Where things come to rest: the robot holds its last reference, the planning model
         # is extended the same way (settle_plan), both until the object rests or rest_max.
-        hold = hold_reference(truth, plan.X[-1], qi)
-        Xh, Uh, sat_h, ctl_h, rested = _hold(truth, X[-1], hold, qi, vi, limits, obj, settings)
+        ref = hold_reference(truth, plan.X[-1], qi)
+        Xh, Uh, sat_h, ctl_h, rested = _hold(truth, X[-1], ref, qi, vi, limits, obj, settings)
         saturated += sat_h
         controls += ctl_h
         Xs, rested_plan = settle_plan(planner, plan.X[-1], obj, settings)
         ext = PlanSampler(
-            _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt), truth.layout.quaternions
+            _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt),
+            truth.layout.quaternions,
         )
         th = t[-1] + dt * np.arange(1, len(Xh) + 1)
-        X = np.concatenate([X, Xh])
-        U = np.concatenate([U, Uh])
-        X_plan = np.concatenate([X_plan, [ext.state(tk - t[-1]) for tk in th]])
-        U_plan = np.concatenate([U_plan, np.repeat(U_plan[-1:], len(Uh), axis=0)])
-        t = np.concatenate([t, th])
-        rest = {
-            "actual": {"rested": rested, "hold_s": float(len(Xh) * dt)},
-            "planned": {"rested": rested_plan, "hold_s": float((len(Xs) - 1) * planner.dt)},
-        }
+        Xp = np.array([ext.state(tk - t[-1]) for tk in th]).reshape(len(th), truth.nx)
+        hold = HoldPhase(th, Xh, Uh, Xp, Xs, rested, rested_plan)
     reference = Reference(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
@@ -554,8 +579,7 @@ def playback(
         obj=obj,
         metrics={},
         wall_seconds=0.0,
-        plan_end_index=n,
-        rest=rest,
+        hold=hold,
     )
     result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
     result.metrics["warnings"] = advisories(truth.plant, settings)
@@ -817,7 +841,7 @@ def _gap_key(name: str, unit: str) -> str:
 def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_plan_final) -> dict:
     o = r.obj
     c = list(o.coords)
-    e = len(r.t) - 1 if r.plan_end_index is None else int(r.plan_end_index)
+    e = len(r.t) - 1
     actual, planned = r.X[:, c], r.X_plan[:, c]
     err = np.linalg.norm(actual - planned, axis=1)
     kmax = int(np.argmax(err))
@@ -841,10 +865,12 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
         # Fraction of the planned displacement achieved along its direction.
         "progress_ratio": float(actual_disp @ planned_disp / pd2) if pd2 > 1e-12 else None,
     }
-    if r.rest is not None:
+    h = r.hold
+    if h is not None:
         # Where the object came to rest (the robot holding its last reference), against where
         # the planning model, extended the same way, puts it to rest.
-        planned_rest, actual_rest = r.X_plan[-1, c], r.X[-1, c]
+        planned_rest = h.X_settle[-1, c]
+        actual_rest = h.X[-1, c] if len(h.X) else r.X[-1, c]
         rest_disp = actual_rest - r.X[0, c]
         obj.update(
             {
@@ -856,7 +882,7 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
                 "resting_progress_ratio": (
                     float(rest_disp @ planned_disp / pd2) if pd2 > 1e-12 else None
                 ),
-                "rest": r.rest,
+                "rest": h.summary(),
             }
         )
     if o.orientation:
@@ -897,8 +923,9 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
         "planner": {"time_step": r.planner_time_step, "contact_approximation": r.planner_contact},
         "plan_duration_s": float(r.t[e] * st.speed),
         "playback_duration_s": float(r.t[e]),
-        "hold_duration_s": float(r.t[-1] - r.t[e]),
+        "hold_duration_s": h.seconds if h is not None else 0.0,
         "truth_steps": int(len(r.U)),
+        "hold_truth_steps": int(len(h.U)) if h is not None else 0,
         # the headline: where the object rests against where the plan puts it to rest (None
         # without a resting measurement, rest_max 0); final_gap: at the plan's last instant
         _gap_key("resting_gap", o.unit): obj.get("resting_gap"),
@@ -945,6 +972,11 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     import matplotlib.pyplot as plt
 
     c = list(r.obj.coords)
+    t, X, X_plan = r.t, r.X, r.X_plan
+    if r.hold is not None and len(r.hold.t):  # the hold after the plan, on the same axes
+        t = np.concatenate([t, r.hold.t])
+        X = np.concatenate([X, r.hold.X])
+        X_plan = np.concatenate([X_plan, r.hold.X_plan])
     labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
     if len(c) != len(labels):
         labels = [f"{r.obj.name}[{i}]" for i in range(len(c))]
@@ -953,8 +985,8 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     for i, ax in enumerate(axes[:-1]):
         stretched = abs(r.settings.speed - 1.0) > 1e-12
         plan_label = "planned (time-stretched)" if stretched else "planned"
-        ax.plot(r.t, r.X_plan[:, c[i]], "--", color="0.4", label=plan_label)
-        ax.plot(r.t, r.X[:, c[i]], color="C0", label="actual")
+        ax.plot(t, X_plan[:, c[i]], "--", color="0.4", label=plan_label)
+        ax.plot(t, X[:, c[i]], color="C0", label="actual")
         ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, loc="best")
@@ -962,7 +994,7 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     m = r.metrics
     qi = r.q_indices
     for i, name in enumerate(r.joints):
-        ax.plot(r.t, r.X[:, qi[i]] - r.X_plan[:, qi[i]], lw=1, label=name)
+        ax.plot(t, X[:, qi[i]] - X_plan[:, qi[i]], lw=1, label=name)
     units = set(r.joint_units)
     unit = f" [{units.pop()}]" if len(units) == 1 else " [m or rad]"
     ax.set_ylabel(f"joint error{unit}\n(actual − plan)")
@@ -980,9 +1012,9 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
         f"{ob['max_deviation']:.3g} {r.obj.unit}",
         fontsize=9,
     )
-    if r.plan_end_index is not None and r.plan_end_index < len(r.t) - 1:
+    if len(t) > len(r.t):
         for ax in axes:  # the plan's end; after it the robot holds its last reference
-            ax.axvline(r.t[r.plan_end_index], color="0.6", lw=0.8, ls=":")
+            ax.axvline(r.t[-1], color="0.6", lw=0.8, ls=":")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -1021,6 +1053,16 @@ def write_outputs(
         ref_q=r.reference.q,
         ref_v=r.reference.v,
         ref_u=r.reference.u,
+        **(
+            {
+                "hold_t": r.hold.t,
+                "hold_X": r.hold.X,
+                "hold_U": r.hold.U,
+                "hold_X_plan": r.hold.X_plan,
+            }
+            if r.hold is not None
+            else {}
+        ),
     )
     plot_playback(r, out / "playback.png", task.name)
     if replay:
@@ -1057,6 +1099,7 @@ def cmd_playback(args) -> int:
         clip_torques=not args.no_clip,
         scale_velocity_reference=not args.no_velocity_scaling,
         object=args.object,
+        **({} if args.rest_max is None else {"rest_max": args.rest_max}),
     )
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
@@ -1167,6 +1210,12 @@ def setup(p) -> None:
         "--object",
         help="state block compared planned vs actual (default: the "
         "floating body, else the unactuated joint the plan moves most, else the first joint)",
+    )
+    p.add_argument(
+        "--rest-max",
+        type=float,
+        help="seconds the robot holds its last reference after the plan while waiting for the "
+        "object to come to rest (default 3; 0: no resting measurement)",
     )
     p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
     p.add_argument(
