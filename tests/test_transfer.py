@@ -1,0 +1,72 @@
+"""Transfer regression guard (issue 28): each built-in task with an object is solved at full
+size, played back open loop (PD+, the paper's gains, half speed) on the "real" simulation,
+and the object's resting gap must not exceed the committed baseline (a ratchet: a gap that
+has been reached must stay reached).
+
+Baselines and tolerance: tests/transfer_baseline.json. After a change that makes transfer
+better, lower the baseline to the new numbers (``python tests/test_transfer.py`` prints
+them); a change that makes it worse by more than the tolerance fails here.
+
+Full-size solves: this module takes minutes, not seconds. HYDROILQR_TRANSFER_SET (dotted
+overrides separated by spaces, e.g. ``solver.max_iterations=3``) applies overrides to every
+task, to see the guard fail on a deliberately worsened plan.
+"""
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from hydroilqr import Task
+from hydroilqr.control.playback import PlaybackSettings, playback
+from hydroilqr.solver.api import solve
+
+BASELINE = Path(__file__).with_name("transfer_baseline.json")
+
+
+def _baseline() -> dict:
+    return json.loads(BASELINE.read_text())
+
+
+def measure(name: str) -> dict:
+    """Solve the built-in task ``name`` and play it back as the baseline file says."""
+    spec = _baseline()
+    overrides = os.environ.get("HYDROILQR_TRANSFER_SET", "").split()
+    task = Task.load(name, overrides)
+    sol = solve(task)
+    r = playback(task, sol, PlaybackSettings(**spec["playback"]))
+    ob = r.metrics["object"]
+    z0, z_plan, z_rest = ob["initial"][2], ob["planned_final"][2], ob["actual_resting"][2]
+    lift = z_plan - z0
+    return {
+        "resting_gap_m": ob["resting_gap"],
+        "final_gap_m": ob["final_gap"],
+        "kept_lift_fraction": float((z_rest - z0) / lift) if abs(lift) > 0.02 else None,
+        "rested": ob["rest"]["actual"]["rested"],
+        "warnings": r.metrics["warnings"],
+    }
+
+
+@pytest.mark.parametrize("name", sorted(_baseline()["tasks"]))
+def test_transfer_does_not_regress(name):
+    spec = _baseline()
+    want = spec["tasks"][name]
+    rel, floor = spec["tolerance"]["relative"], spec["tolerance"]["absolute_m"]
+    got = measure(name)
+    limit = want["resting_gap_m"] * (1 + rel) + floor
+    assert got["resting_gap_m"] <= limit, (
+        f"{name}: resting gap {got['resting_gap_m']:.4f} m > baseline "
+        f"{want['resting_gap_m']:.4f} m (+{100 * rel:g} % +{floor:g} m = {limit:.4f} m)"
+    )
+    if want.get("kept_lift_fraction") is not None:
+        keep = want["kept_lift_fraction"] - spec["tolerance"]["lift_fraction"]
+        assert got["kept_lift_fraction"] is not None and got["kept_lift_fraction"] >= keep, (
+            f"{name}: kept {got['kept_lift_fraction']} of the planned lift < {keep:.3f}"
+        )
+
+
+if __name__ == "__main__":  # prints the numbers a new baseline would hold
+    names = sys.argv[1:] or sorted(_baseline()["tasks"])
+    print(json.dumps({n: measure(n) for n in names}, indent=2))
