@@ -1,7 +1,8 @@
 """Transfer regression guard (issue 28): each built-in task with an object is solved at full
 size, played back open loop (PD+, the paper's gains, half speed) on the "real" simulation,
-and the object's resting gap must not exceed the committed baseline (a ratchet: a gap that
-has been reached must stay reached).
+and the object's resting gap (where it rests against where the plan puts it to rest) and its
+distance to the target at rest must not exceed the committed baseline (a ratchet: a gap
+that has been reached must stay reached); a lift must keep its fraction of the planned rise.
 
 Baselines and tolerance: tests/transfer_baseline.json. After a change that makes transfer
 better, lower the baseline to the new numbers (``python tests/test_transfer.py`` prints
@@ -17,6 +18,7 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hydroilqr import Task
@@ -38,12 +40,19 @@ def measure(name: str) -> dict:
     sol = solve(task)
     r = playback(task, sol, PlaybackSettings(**spec["playback"]))
     ob = r.metrics["object"]
-    z0, z_plan, z_rest = ob["initial"][2], ob["planned_final"][2], ob["actual_resting"][2]
+    # a lift (kinova-up): the fraction of the planned rise the ball has at the plan's end
+    z0, z_plan, z_end = ob["initial"][2], ob["planned_final"][2], ob["actual_final"][2]
     lift = z_plan - z0
+    # where the ball rests against the task's target, on the axes its terminal cost weighs (a
+    # plan that does not move the ball transfers perfectly, but misses this)
+    target = np.asarray(task.config.cost.nominal["ball_position"], float)
+    axes = np.broadcast_to(np.asarray(task.config.cost.Qf["ball_position"], float), (3,)) > 0
+    miss = (np.asarray(ob["actual_resting"]) - target)[axes]
     return {
         "resting_gap_m": ob["resting_gap"],
+        "resting_target_error_m": float(np.linalg.norm(miss)),
         "final_gap_m": ob["final_gap"],
-        "kept_lift_fraction": float((z_rest - z0) / lift) if abs(lift) > 0.02 else None,
+        "kept_lift_fraction": float((z_end - z0) / lift) if abs(lift) > 0.02 else None,
         "rested": ob["rest"]["actual"]["rested"],
         "warnings": r.metrics["warnings"],
     }
@@ -59,6 +68,11 @@ def test_transfer_does_not_regress(name):
     assert got["resting_gap_m"] <= limit, (
         f"{name}: resting gap {got['resting_gap_m']:.4f} m > baseline "
         f"{want['resting_gap_m']:.4f} m (+{100 * rel:g} % +{floor:g} m = {limit:.4f} m)"
+    )
+    limit = want["resting_target_error_m"] * (1 + rel) + floor
+    assert got["resting_target_error_m"] <= limit, (
+        f"{name}: the ball rests {got['resting_target_error_m']:.4f} m from its target > "
+        f"baseline {want['resting_target_error_m']:.4f} m (limit {limit:.4f} m)"
     )
     if want.get("kept_lift_fraction") is not None:
         keep = want["kept_lift_fraction"] - spec["tolerance"]["lift_fraction"]
