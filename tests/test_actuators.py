@@ -91,3 +91,15 @@ def test_playback_measures_where_the_object_comes_to_rest():
     assert ob["resting_gap"] < 0.01
     off = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002, rest_max=0))
     assert off.hold is None and off.metrics["resting_gap_m"] is None
+
+
+def test_mpc_truth_counts_the_commands_it_clips_at_the_task_limits():
+    from hydroilqr.control.mpc import Truth
+
+    task = Task.load("kinova-forward", ["actuators.joint_7.effort_limit=2"], smoke=True)
+    truth = Truth(task)
+    assert truth.limits[6] == 2.0
+    u = np.zeros(7)
+    u[6] = 3.0
+    _, applied = truth.step(task.x0, u, 0, [])
+    assert applied[6] == 2.0 and (truth.saturated, truth.commands) == (1, 7)
