@@ -48,9 +48,13 @@ def measure(name: str) -> dict:
     target = np.asarray(task.config.cost.nominal["ball_position"], float)
     axes = np.broadcast_to(np.asarray(task.config.cost.Qf["ball_position"], float), (3,)) > 0
     miss = (np.asarray(ob["actual_resting"]) - target)[axes]
+    # where the plan itself puts the ball to rest (a plan that gives up on the push transfers
+    # perfectly and may even rest nearer the target than a bad transfer: this catches it)
+    planned_miss = (np.asarray(ob["planned_resting"]) - target)[axes]
     return {
         "resting_gap_m": ob["resting_gap"],
         "resting_target_error_m": float(np.linalg.norm(miss)),
+        "planned_resting_target_error_m": float(np.linalg.norm(planned_miss)),
         "final_gap_m": ob["final_gap"],
         "kept_lift_fraction": float((z_end - z0) / lift) if abs(lift) > 0.02 else None,
         "rested": ob["rest"]["actual"]["rested"],
@@ -74,6 +78,13 @@ def test_transfer_does_not_regress(name):
         f"{name}: the ball rests {got['resting_target_error_m']:.4f} m from its target > "
         f"baseline {want['resting_target_error_m']:.4f} m (limit {limit:.4f} m)"
     )
+    if want.get("planned_resting_target_error_m") is not None:
+        limit = want["planned_resting_target_error_m"] * (1 + rel) + floor
+        assert got["planned_resting_target_error_m"] <= limit, (
+            f"{name}: the plan rests the ball {got['planned_resting_target_error_m']:.4f} m from "
+            f"its target > baseline {want['planned_resting_target_error_m']:.4f} m "
+            f"(limit {limit:.4f} m)"
+        )
     if want.get("kept_lift_fraction") is not None:
         keep = want["kept_lift_fraction"] - spec["tolerance"]["lift_fraction"]
         assert got["kept_lift_fraction"] is not None and got["kept_lift_fraction"] >= keep, (
