@@ -102,13 +102,20 @@ def _blocks(r: dict) -> None:
 
 
 def _actuators(r: dict) -> None:
-    t = Table(title="actuators (names for cost.R)", title_justify="left")
-    for col in ("#", "actuator", "joint", "effort limit"):
+    t = Table(title="actuators (names for cost.R and actuators:)", title_justify="left")
+    cols = ("#", "actuator", "joint", "effort limit", "rotor inertia", "gear ratio", "reflected")
+    for col in cols:
         t.add_column(col)
     for k, a in enumerate(r["actuators"]):
         lim = a["effort_limit"]
         t.add_row(
-            str(k), a["name"], a["joint"], f"{lim:g}" if math.isfinite(lim) else "none (unbounded)"
+            str(k),
+            a["name"],
+            a["joint"],
+            f"{lim:g}" if math.isfinite(lim) else "none (unbounded)",
+            f"{a['rotor_inertia']:.3g}",
+            f"{a['gear_ratio']:.3g}",
+            f"{a['reflected_inertia']:.3g}",
         )
     console.print(t)
 

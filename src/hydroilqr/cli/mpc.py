@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hydroilqr.cli.common import add_task_args, command_line, console, load_task_from_args
+from hydroilqr.cli.common import add_task_args, command_line, console, load_task_from_args, warn
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 HELP = "closed-loop MPC over hydroelastic contact"
@@ -169,6 +169,13 @@ def _print_summary(data: dict, settings) -> None:
             f"[yellow]note:[/yellow] the controller kept up with {data['achieved_rate_hz']:.1f} "
             f"of the {settings.rate:g} Hz asked (--realtime: the plant ran on older plans "
             "while updates were late; the loop real-time factor is ~1 by construction)"
+        )
+    from hydroilqr.control.mpc import SATURATION_WARNING
+
+    if data.get("saturated_fraction", 0.0) > SATURATION_WARNING:
+        warn(
+            f"{100 * data['saturated_fraction']:.0f}% of the commands hit the effort limits "
+            "(clipped): the plant could not apply what the controller asked"
         )
     for line in metrics.summary_lines(data["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

@@ -62,6 +62,12 @@ def setup(p) -> None:
         help="state block compared planned vs actual (default: the "
         "floating body, else the unactuated joint the plan moves most, else the first joint)",
     )
+    p.add_argument(
+        "--rest-max",
+        type=float,
+        help="seconds the robot holds its last reference after the plan while waiting for the "
+        "object to come to rest (default 3; 0: no resting measurement)",
+    )
     p.add_argument("--no-clip", action="store_true", help="do not clip torques to effort limits")
     p.add_argument(
         "--no-velocity-scaling",
@@ -126,6 +132,7 @@ def _settings(args):
         clip_torques=not args.no_clip,
         scale_velocity_reference=not args.no_velocity_scaling,
         object=args.object,
+        **({} if args.rest_max is None else {"rest_max": args.rest_max}),
     )
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
@@ -155,7 +162,15 @@ def _print_result(data: dict, wall_seconds: float) -> None:
     unit = f" {ob['unit']}" if ob["unit"] else ""
     console.print(
         f"{data['truth_steps']} truth steps in {wall_seconds:.2f} s; object "
-        f"{ob['name']}: final gap {ob['final_gap']:.4g}{unit}, max deviation "
+        f"{ob['name']}: "
+        + (
+            f"resting gap {ob['resting_gap']:.4g}{unit} "
+            f"({'at rest' if ob['rest']['actual']['rested'] else 'still moving'} after "
+            f"{ob['rest']['actual']['hold_s']:.2f} s of hold), "
+            if ob.get("resting_gap") is not None
+            else ""
+        )
+        + f"final gap {ob['final_gap']:.4g}{unit} (plan's end), max deviation "
         f"{ob['max_deviation']:.4g}{unit}, progress ratio "
         f"{_fmt(ob['progress_ratio'])}"
     )

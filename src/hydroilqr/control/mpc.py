@@ -229,6 +229,7 @@ class MPCResult:
     phases: list[dict] = field(default_factory=list)  # solver phase seconds, per update
     interrupted: bool = False  # stopped by Ctrl+C before the end
     past_deadline: int = 0  # updates whose line search mpc.deadline cut short
+    saturated_fraction: float = 0.0  # commands clipped at an effort limit (of all commands)
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -264,6 +265,7 @@ class MPCResult:
             "deadline_fraction": self.settings.deadline,
             "updates_past_deadline": self.past_deadline,
             "feedback_scale": self.settings.feedback_scale,
+            "saturated_fraction": self.saturated_fraction,
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
@@ -492,6 +494,9 @@ class Controller:
         return X
 
 
+SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (as playback)
+
+
 class Truth:
     """The simulated plant being controlled (its own Drake context), with external pushes."""
 
@@ -506,6 +511,8 @@ class Truth:
             )
         self.plant = self.dyn.plant
         self.limits = self.dyn.effort_limits
+        self.commands = 0  # actuator commands applied (steps × actuators)
+        self.saturated = 0  # of them, beyond an effort limit (clipped)
         self.port = self.plant.get_applied_spatial_force_input_port()
         self._pushing = None
         self._set_force(())
@@ -539,6 +546,8 @@ class Truth:
             if k0 <= k < k0 + max(1, int(round(p.duration / dt))):
                 active.append(p)
         self._set_force(tuple(active))
+        self.commands += len(u)
+        self.saturated += int(np.count_nonzero(np.abs(u) > self.limits))
         u = np.clip(u, -self.limits, self.limits)
         return self.dyn.step(x, u), u
 
@@ -714,6 +723,7 @@ class ClosedLoop:
             ctrl.phases[1:],
             self.interrupted,
             ctrl.past_deadline,
+            self.truth.saturated / max(1, self.truth.commands),
         )
 
 

@@ -30,6 +30,7 @@ saturated commands is reported.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import time
@@ -83,6 +84,12 @@ class PlaybackSettings:
     clip_torques: bool = True  # saturate at the actuators' effort limits
     scale_velocity_reference: bool = True  # v̄_J = s · v_plan (pd policy)
     object: str | None = None  # state block compared planned vs actual (None: automatic)
+    # After the plan's end the robot holds its last reference until the object is at rest:
+    # its speed below rest_speed (m/s or rad/s) for rest_time seconds, or rest_max seconds
+    # passed (0: stop at the plan's end, no resting measurement).
+    rest_speed: float = 0.005
+    rest_time: float = 0.2
+    rest_max: float = 3.0
 
     def check_against(self, task, plan_duration: float | None = None) -> None:
         """Settings that cannot fit ``task``'s plan (ConfigError); with ``plan_duration`` (s),
@@ -133,7 +140,7 @@ class PlaybackSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"playback {name.replace('_', '-')}: must be positive, got {v}")
-        for name in ("kp", "kd"):
+        for name in ("kp", "kd", "rest_speed", "rest_time", "rest_max"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"playback {name}: must be non-negative, got {v}")
@@ -168,6 +175,39 @@ class ObjectSpec:
     coords: tuple[int, ...]  # indices into x
     orientation: tuple[int, ...] = ()  # quaternion coords of a floating body
     unit: str = "m"
+    velocity: tuple[int, ...] = ()  # indices into x of its velocity (rest detection)
+
+
+@dataclass
+class HoldPhase:
+    """After the plan's end, on the truth time grid: t: [M] playback time (s), continuing the
+    playback's; X: [M, nx] actual states; U: [M, nu] applied inputs; X_plan: [M, nx] the
+    planning model's extension (settle_plan) at the same times since the plan's end. Its own
+    states: X_settle: [P+1, nx] at the planner's time step. rested / rested_plan: whether the
+    object came to rest before rest_max (else it was still moving when measured)."""
+
+    t: np.ndarray
+    X: np.ndarray
+    U: np.ndarray
+    X_plan: np.ndarray
+    X_settle: np.ndarray
+    rested: bool
+    rested_plan: bool
+
+    def summary(self) -> dict:
+        dt_plan = (self.X_settle.shape[0] - 1) if len(self.X_settle) else 0
+        return {
+            "actual": {"rested": bool(self.rested), "hold_s": self.seconds},
+            "planned": {"rested": bool(self.rested_plan), "hold_steps": int(dt_plan)},
+        }
+
+    @property
+    def seconds(self) -> float:
+        return float(self.t[-1] - self.t[0]) + self.step if len(self.t) else 0.0
+
+    @property
+    def step(self) -> float:
+        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else 0.0
 
 
 @dataclass
@@ -192,6 +232,9 @@ class PlaybackResult:
     metrics: dict
     wall_seconds: float
     U_plan: np.ndarray | None = None  # [T, nu] the plan's input at plan time speed·t
+    # After the plan's end: the robot holding its last reference until the object rests, and
+    # the planning model extended the same way (None with rest_max 0).
+    hold: HoldPhase | None = None
 
 
 # ------------------------------------------------------------------------------------------
@@ -297,7 +340,19 @@ def choose_object(
     dyn: Dynamics, requested: str | None = None, X_plan: np.ndarray | None = None
 ) -> ObjectSpec:
     """The floating body if any (ball, quadruped body), else the unactuated joint that moves
-    most in the plan X_plan: [N+1, nx] (the first one without a plan), else the first joint."""
+    most in the plan X_plan: [N+1, nx] (the first one without a plan), else the first joint;
+    with the indices of its velocity (``velocity``: the tangent of its position coordinates)."""
+    obj = _choose_object(dyn, requested, X_plan)
+    layout = dyn.layout
+    b = layout.block(obj.name, "playback object")
+    nq, nv = dyn.nq, dyn.nv
+    vel = tuple(nq + t for t in b.tangent if t < nv)
+    return dataclasses.replace(obj, velocity=vel)
+
+
+def _choose_object(
+    dyn: Dynamics, requested: str | None = None, X_plan: np.ndarray | None = None
+) -> ObjectSpec:
     layout, plant = dyn.layout, dyn.plant
     if requested:
         b = layout.block(requested, "playback object")
@@ -483,6 +538,22 @@ def playback(
     t = np.arange(n + 1) * dt
     X_plan = np.array([plan.state(s * tk) for tk in t])
     U_plan = np.array([plan.input(s * tk) for tk in t[:-1]])
+    hold = None
+    if settings.rest_max > 0:
+        # Where things come to rest: the robot holds its last reference, the planning model
+        # is extended the same way (settle_plan), both until the object rests or rest_max.
+        ref = hold_reference(truth, plan.X[-1], qi)
+        Xh, Uh, sat_h, ctl_h, rested = _hold(truth, X[-1], ref, qi, vi, limits, obj, settings)
+        saturated += sat_h
+        controls += ctl_h
+        Xs, rested_plan = settle_plan(planner, plan.X[-1], obj, settings)
+        ext = PlanSampler(
+            _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt),
+            truth.layout.quaternions,
+        )
+        th = t[-1] + dt * np.arange(1, len(Xh) + 1)
+        Xp = np.array([ext.state(tk - t[-1]) for tk in th]).reshape(len(th), truth.nx)
+        hold = HoldPhase(th, Xh, Uh, Xp, Xs, rested, rested_plan)
     reference = Reference(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
@@ -508,6 +579,7 @@ def playback(
         obj=obj,
         metrics={},
         wall_seconds=0.0,
+        hold=hold,
     )
     result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
     result.metrics["warnings"] = advisories(truth.plant, settings)
@@ -525,30 +597,190 @@ def playback(
     return result
 
 
+class _Trajectory(NamedTuple):
+    """A state sequence on a uniform grid, as PlanSampler reads a Solution."""
+
+    X: np.ndarray
+    U: np.ndarray
+    dt: float
+
+    @property
+    def K(self):
+        return np.zeros((len(self.U), 0, 0))
+
+    @property
+    def t(self):
+        return self.dt * np.arange(len(self.X))
+
+
+class Hold(NamedTuple):
+    """The reference a robot holds after the plan's end: its last joint positions, zero joint
+    velocity, and the torque that holds that posture against gravity."""
+
+    q: np.ndarray  # [nu] q̄_J of the plan's last state
+    u: np.ndarray  # [nu] gravity compensation at the plan's last state
+
+
+def hold_reference(dyn: Dynamics, x_end: np.ndarray, q_indices) -> Hold:
+    """The hold reference of ``dyn`` at the plan's last state x_end: [nx]."""
+    return Hold(np.asarray(x_end)[q_indices].copy(), dyn.gravity_compensation(x_end))
+
+
+def _object_speed(x: np.ndarray, obj: ObjectSpec) -> float:
+    return float(np.linalg.norm(x[list(obj.velocity)])) if obj.velocity else 0.0
+
+
+def _hold(truth: Dynamics, x, hold: Hold, qi, vi, limits, obj, st: PlaybackSettings):
+    """The robot after the plan: PD+ on the hold reference (paper gains of ``st``, its
+    control period; clipped at the effort limits) until the object's speed has stayed below
+    rest_speed for rest_time seconds, or rest_max seconds. Returns (states [M, nx] after x,
+    inputs [M, nu], saturated commands, control updates, rested)."""
+    dt = float(st.truth_time_step)
+    need = max(1, int(math.ceil(st.rest_time / dt - 1e-9)))
+    steps = int(round(st.rest_max / dt))
+    every = max(1, int(round(pd_period(st) / dt)))
+    X, U = [], []
+    still = 1 if _object_speed(x, obj) < st.rest_speed else 0
+    saturated = controls = 0
+    u = hold.u
+    for k in range(steps):
+        if still >= need:
+            return (
+                np.array(X).reshape(-1, len(x)),
+                np.array(U).reshape(-1, len(u)),
+                saturated,
+                controls,
+                True,
+            )
+        if k % every == 0:
+            u = hold.u - st.kp * (x[qi] - hold.q) - st.kd * x[vi]
+            controls += 1
+            if st.clip_torques:
+                saturated += int(np.count_nonzero(np.abs(u) > limits))
+                u = np.clip(u, -limits, limits)
+        try:
+            x = truth.step(x, u)
+        except SimulationError as e:
+            raise SimulationError(f"real system, holding after the plan: {e}") from None
+        if truth.layout.quaternions:
+            x = truth.layout.normalize(x)
+        X.append(x)
+        U.append(u)
+        still = still + 1 if _object_speed(x, obj) < st.rest_speed else 0
+    rested = still >= need
+    return (
+        np.array(X).reshape(-1, len(x)),
+        np.array(U).reshape(-1, len(u)),
+        saturated,
+        controls,
+        rested,
+    )
+
+
+def settle_plan(dyn: Dynamics, x_end: np.ndarray, obj: ObjectSpec, st: PlaybackSettings):
+    """The planning model's extension past the plan's end: the robot holds its last planned
+    posture exactly (its actuated joints locked there at zero velocity before and after
+    every step, gravity-compensating torques; an explicit PD+ hold at the planner's coarse
+    step would not be stable), everything else moves on under the planner's own contact
+    model and time step, until the object rests (``st``'s rest_speed / rest_time) or
+    rest_max seconds. Returns (states [M+1, nx] from x_end, rested)."""
+    qi, vi = _actuated_indices(dyn.plant)
+    x = np.array(x_end, dtype=float)
+    q_hold = x[qi].copy()
+    x[vi] = 0.0
+    u = dyn.gravity_compensation(x)
+    dt = dyn.dt
+    need = max(1, int(math.ceil(st.rest_time / dt - 1e-9)))
+    steps = int(round(st.rest_max / dt))
+    X = [np.array(x_end, dtype=float)]
+    still = 1 if _object_speed(X[0], obj) < st.rest_speed else 0
+    for _ in range(steps):
+        if still >= need:
+            return np.array(X), True
+        try:
+            x = dyn.step(x, u)
+        except SimulationError as e:
+            raise SimulationError(f"planning model, holding after the plan: {e}") from None
+        if dyn.layout.quaternions:
+            x = dyn.layout.normalize(x)
+        x[qi], x[vi] = q_hold, 0.0
+        X.append(x.copy())
+        still = still + 1 if _object_speed(x, obj) < st.rest_speed else 0
+    return np.array(X), still >= need
+
+
+def _actuated_indices(plant) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into x of the actuated joints' positions and velocities (any joint type)."""
+    qi, vi = [], []
+    for i in plant.GetJointActuatorIndices():
+        j = plant.get_joint_actuator(i).joint()
+        qi += range(j.position_start(), j.position_start() + j.num_positions())
+        vi += range(
+            plant.num_positions() + j.velocity_start(),
+            plant.num_positions() + j.velocity_start() + j.num_velocities(),
+        )
+    return np.array(qi, int), np.array(vi, int)
+
+
 def _pd_check(truth: Dynamics, x0, joints, v_indices, st: PlaybackSettings) -> dict:
-    """Discrete-time stability of the explicit damping term: with control period h and a
-    joint's own inertia M_ii (others held), Kd·h/M_ii ≥ 2 makes the velocity error grow
-    each control step (chatter, torques pinned at the limits); stiffness adds to it
-    (the criterion (Kd·h + Kp·h²)/M_ii < 2 used here is approximate). ``joints``,
-    ``v_indices``: the actuated joints and their velocities' indices into x (actuated_joints)."""
+    """Discrete-time stability of the explicit PD+ loop. With control period h and the same
+    gains on every actuated joint, one control step scales a velocity error along each mode
+    of the actuated joints' inverse inertia (the actuated block of M⁻¹, all joints free) by
+    about 1 − (Kd·h + Kp·h²)·λ: a mode with (Kd·h + Kp·h²)·λ ≥ 2 grows each step (chatter,
+    torques pinned at the limits). M is the plant's mass matrix, which includes each
+    actuator's reflected (rotor) inertia ρ·G² on its joint's diagonal, so a geared joint with
+    a light link is not flagged. The warning names the joint that dominates an unstable mode.
+    Per joint, ``inertia`` is M_ii, ``reflected_inertia`` its actuator's share and
+    ``damping_per_step`` the joint's own ratio (Kd·h + Kp·h²)/M_ii (others held).
+    ``joints``, ``v_indices``: the actuated joints and their velocities' indices into x
+    (actuated_joints)."""
     plant = truth.plant
     ctx = plant.CreateDefaultContext()
     plant.SetPositionsAndVelocities(ctx, x0)
     M = plant.CalcMassMatrix(ctx)
     h = pd_period(st)
+    c = st.kd * h + st.kp * h * h
+    cols = np.asarray(v_indices) - plant.num_positions()
+    reflected = {}
+    for i in plant.GetJointActuatorIndices():
+        a = plant.get_joint_actuator(i)
+        reflected[a.joint().name()] = float(a.default_reflected_inertia())
     per = {}
-    warnings = []
-    for name, j in zip(joints, np.asarray(v_indices) - plant.num_positions()):
+    for name, j in zip(joints, cols):
         m = float(M[j, j])
-        ratio = (st.kd * h + st.kp * h * h) / m if m > 0 else math.inf
-        per[name] = {"inertia": m, "damping_per_step": ratio}
+        per[name] = {
+            "inertia": m,
+            "reflected_inertia": reflected.get(name, 0.0),
+            "damping_per_step": c / m if m > 0 else math.inf,
+        }
+    warnings = []
+    modes: list[float] = []
+    try:
+        Minv = np.linalg.inv(M)[np.ix_(cols, cols)]
+        lam, vec = np.linalg.eigh(0.5 * (Minv + Minv.T))
+    except np.linalg.LinAlgError:
+        lam, vec = np.array([]), np.zeros((len(cols), 0))
+    flagged: dict[str, float] = {}
+    for k in range(len(lam)):
+        ratio = float(c * lam[k])
+        modes.append(ratio)
         if ratio >= 2.0:
-            warnings.append(
-                f"{name}: (Kd·h + Kp·h²)/M = {ratio:.2f} ≥ 2 at {1.0 / h:g} Hz (inertia {m:.3g}): "
-                "the PD+ loop is unstable on this joint; lower --kd/--kp or raise --rate "
-                "(at most 1/--truth-time-step)"
-            )
-    return {"pd_loop": per, "pd_loop_rate_hz": 1.0 / h, "warnings": warnings}
+            name = joints[int(np.argmax(np.abs(vec[:, k])))]
+            flagged[name] = max(ratio, flagged.get(name, 0.0))
+    for name, ratio in flagged.items():
+        m = per[name]["inertia"]
+        warnings.append(
+            f"{name}: (Kd·h + Kp·h²)·λ = {ratio:.2f} ≥ 2 at {1.0 / h:g} Hz (joint inertia "
+            f"{m:.3g}, of it reflected {per[name]['reflected_inertia']:.3g}): the PD+ loop is "
+            "unstable on this joint; lower --kd/--kp or raise --rate (at most "
+            "1/--truth-time-step), or give its actuator its rotor inertia (task actuators:)"
+        )
+    return {
+        "pd_loop": per,
+        "pd_loop_modes": sorted(modes, reverse=True),
+        "pd_loop_rate_hz": 1.0 / h,
+        "warnings": warnings,
+    }
 
 
 def pd_period(st: PlaybackSettings) -> float:
@@ -601,13 +833,19 @@ def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
 
 
+def _gap_key(name: str, unit: str) -> str:
+    """``resting_gap_m`` for an object measured in metres (``_rad`` in radians)."""
+    return f"{name}_{unit}" if unit else name
+
+
 def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_plan_final) -> dict:
     o = r.obj
     c = list(o.coords)
+    e = len(r.t) - 1
     actual, planned = r.X[:, c], r.X_plan[:, c]
     err = np.linalg.norm(actual - planned, axis=1)
     kmax = int(np.argmax(err))
-    planned_final, actual_final = x_plan_final[c], r.X[-1, c]
+    planned_final, actual_final = x_plan_final[c], r.X[e, c]
     planned_disp = planned_final - r.X[0, c]
     actual_disp = actual_final - r.X[0, c]
     pd2 = float(planned_disp @ planned_disp)
@@ -627,15 +865,35 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
         # Fraction of the planned displacement achieved along its direction.
         "progress_ratio": float(actual_disp @ planned_disp / pd2) if pd2 > 1e-12 else None,
     }
+    h = r.hold
+    if h is not None:
+        # Where the object came to rest (the robot holding its last reference), against where
+        # the planning model, extended the same way, puts it to rest.
+        planned_rest = h.X_settle[-1, c]
+        actual_rest = h.X[-1, c] if len(h.X) else r.X[-1, c]
+        rest_disp = actual_rest - r.X[0, c]
+        obj.update(
+            {
+                "planned_resting": planned_rest,
+                "actual_resting": actual_rest,
+                "resting_error": actual_rest - planned_rest,
+                "resting_gap": float(np.linalg.norm(actual_rest - planned_rest)),
+                "planned_rest_drift": float(np.linalg.norm(planned_rest - planned_final)),
+                "resting_progress_ratio": (
+                    float(rest_disp @ planned_disp / pd2) if pd2 > 1e-12 else None
+                ),
+                "rest": h.summary(),
+            }
+        )
     if o.orientation:
         oc = list(o.orientation)
         ang = _angle_between(r.X[:, oc], r.X_plan[:, oc])
         obj["final_orientation_error_deg"] = float(
-            np.degrees(_angle_between(r.X[-1, oc], x_plan_final[oc]))
+            np.degrees(_angle_between(r.X[e, oc], x_plan_final[oc]))
         )
         obj["max_orientation_deviation_deg"] = float(np.degrees(ang.max()))
-    q_err = r.X[:, qi] - r.X_plan[:, qi]
-    v_err = r.X[:, vi] - vscale * r.X_plan[:, vi]
+    q_err = r.X[: e + 1, qi] - r.X_plan[: e + 1, qi]  # tracking: while the plan runs
+    v_err = r.X[: e + 1, vi] - vscale * r.X_plan[: e + 1, vi]
     joints = {
         name: {
             "unit": unit,
@@ -663,9 +921,15 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
             "overrides": list(st.truth_overrides),
         },
         "planner": {"time_step": r.planner_time_step, "contact_approximation": r.planner_contact},
-        "plan_duration_s": float(r.t[-1] * st.speed),
-        "playback_duration_s": float(r.t[-1]),
+        "plan_duration_s": float(r.t[e] * st.speed),
+        "playback_duration_s": float(r.t[e]),
+        "hold_duration_s": h.seconds if h is not None else 0.0,
         "truth_steps": int(len(r.U)),
+        "hold_truth_steps": int(len(h.U)) if h is not None else 0,
+        # the headline: where the object rests against where the plan puts it to rest (None
+        # without a resting measurement, rest_max 0); final_gap: at the plan's last instant
+        _gap_key("resting_gap", o.unit): obj.get("resting_gap"),
+        _gap_key("final_gap", o.unit): obj["final_gap"],
         "control_updates": int(controls),
         "reference_updates": int(len(r.reference.t)),
         "object": obj,
@@ -710,6 +974,11 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     from hydroilqr.output.plots import savefig
 
     c = list(r.obj.coords)
+    t, X, X_plan = r.t, r.X, r.X_plan
+    if r.hold is not None and len(r.hold.t):  # the hold after the plan, on the same axes
+        t = np.concatenate([t, r.hold.t])
+        X = np.concatenate([X, r.hold.X])
+        X_plan = np.concatenate([X_plan, r.hold.X_plan])
     labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
     if len(c) != len(labels):
         labels = [f"{r.obj.name}[{i}]" for i in range(len(c))]
@@ -718,8 +987,8 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     for i, ax in enumerate(axes[:-1]):
         stretched = abs(r.settings.speed - 1.0) > 1e-12
         plan_label = "planned (time-stretched)" if stretched else "planned"
-        ax.plot(r.t, r.X_plan[:, c[i]], "--", color="0.4", label=plan_label)
-        ax.plot(r.t, r.X[:, c[i]], color="C0", label="actual")
+        ax.plot(t, X_plan[:, c[i]], "--", color="0.4", label=plan_label)
+        ax.plot(t, X[:, c[i]], color="C0", label="actual")
         ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, loc="best")
@@ -727,7 +996,7 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     m = r.metrics
     qi = r.q_indices
     for i, name in enumerate(r.joints):
-        ax.plot(r.t, r.X[:, qi[i]] - r.X_plan[:, qi[i]], lw=1, label=name)
+        ax.plot(t, X[:, qi[i]] - X_plan[:, qi[i]], lw=1, label=name)
     units = set(r.joint_units)
     unit = f" [{units.pop()}]" if len(units) == 1 else " [m or rad]"
     ax.set_ylabel(f"joint error{unit}\n(actual − plan)")
@@ -736,13 +1005,18 @@ def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
     if len(r.joints) <= 12:  # one joint too: which one it is (the cart-pole's cart)
         ax.legend(fontsize=6, ncol=4, loc="best")
     ob = m["object"]
+    gaps = f"final gap {ob['final_gap']:.3g} {r.obj.unit}"
+    if ob.get("resting_gap") is not None:
+        gaps = f"resting gap {ob['resting_gap']:.3g} {r.obj.unit} (at the plan's end {gaps[6:]})"
     fig.suptitle(
         f"{title}: {m['policy']} playback at speed {r.settings.speed:g}, truth plant "
-        f"{r.truth_contact} contact, dt={r.settings.truth_time_step:g} s\nfinal gap "
-        f"{ob['final_gap']:.3g} {r.obj.unit}, max deviation "
+        f"{r.truth_contact} contact, dt={r.settings.truth_time_step:g} s\n{gaps}, max deviation "
         f"{ob['max_deviation']:.3g} {r.obj.unit}",
         fontsize=9,
     )
+    if len(t) > len(r.t):
+        for ax in axes:  # the plan's end; after it the robot holds its last reference
+            ax.axvline(r.t[-1], color="0.6", lw=0.8, ls=":")
     savefig(fig, path)
 
 
@@ -785,6 +1059,16 @@ def write_outputs(
         ref_q=r.reference.q,
         ref_v=r.reference.v,
         ref_u=r.reference.u,
+        **(
+            {
+                "hold_t": r.hold.t,
+                "hold_X": r.hold.X,
+                "hold_U": r.hold.U,
+                "hold_X_plan": r.hold.X_plan,
+            }
+            if r.hold is not None
+            else {}
+        ),
     )
     plot_playback(r, out / "playback.png", task.name)
     if replay:

@@ -313,6 +313,31 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
     return instances
 
 
+def apply_actuators(task: TaskConfig, plant) -> None:
+    """The task's ``actuators`` section on the (unfinalized) plant's JointActuators: effort
+    limit, rotor inertia and gear ratio (Drake adds the reflected inertia ρ·G² to the joint's
+    diagonal of the mass matrix). An unknown actuator name is a ConfigError naming the valid
+    ones."""
+    if not task.actuators:
+        return
+    acts = {}
+    for i in plant.GetJointActuatorIndices():
+        a = plant.get_joint_actuator(i)
+        acts[a.name()] = a
+    from hydroilqr.problem.config import unknown_key
+
+    for name, cfg in task.actuators.items():
+        a = acts.get(name)
+        if a is None:
+            raise ConfigError(f"actuators.{name}: {unknown_key(name, list(acts), 'actuator')}")
+        if cfg.effort_limit is not None:
+            a.set_effort_limit(float(cfg.effort_limit))
+        if cfg.rotor_inertia is not None:
+            a.set_default_rotor_inertia(float(cfg.rotor_inertia))
+        if cfg.gear_ratio is not None:
+            a.set_default_gear_ratio(float(cfg.gear_ratio))
+
+
 def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = True) -> Scene:
     """Builds the task's diagram. With ``meshcat``, adds MeshcatVisualizer + ContactVisualizer."""
     builder = DiagramBuilder()
@@ -402,6 +427,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                 scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
 
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
+    apply_actuators(task, plant)
     plant.Finalize()
     _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
     check_contact_pairs(task, plant, scene_graph)

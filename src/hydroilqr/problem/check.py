@@ -311,8 +311,16 @@ def _actuators(dyn) -> list[dict]:
     actuators = []
     for k, i in enumerate(dyn.plant.GetJointActuatorIndices()):
         a = dyn.plant.get_joint_actuator(i)
-        lim = float(dyn.effort_limits[k])
-        actuators.append({"name": a.name(), "joint": a.joint().name(), "effort_limit": lim})
+        actuators.append(
+            {
+                "name": a.name(),
+                "joint": a.joint().name(),
+                "effort_limit": float(dyn.effort_limits[k]),
+                "rotor_inertia": float(a.default_rotor_inertia()),
+                "gear_ratio": float(a.default_gear_ratio()),
+                "reflected_inertia": float(a.default_reflected_inertia()),
+            }
+        )
     return actuators
 
 

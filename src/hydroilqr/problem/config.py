@@ -18,6 +18,11 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       tip: {hydroelastic_modulus: 2e6}      # by body name, collision name (every geometry
                                             # of that name) or BODY/COLLISION_NAME
     plant: {time_step: 0.01, contact_approximation: sap}   # also contact_model, gravity
+    actuators:                    # per actuator (names as in `hydroilqr check`); each key optional
+      joint_7: {effort_limit: 9, rotor_inertia: 4.0e-6, gear_ratio: 100}
+                                  # N·m or N (replaces the model's), kg·m², output/motor speed;
+                                  # the reflected inertia rotor_inertia·gear_ratio² is added to
+                                  # the joint's mass-matrix diagonal (Drake JointActuator)
     horizon: 1.0                  # seconds (or num_steps: N)
     blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
     initial_state: {pole_angle: 3.64}
@@ -143,6 +148,15 @@ class PlantConfig:
     contact_model: str = "hydroelastic_with_fallback"
     contact_surface_representation: str = "polygon"  # polygon | triangle
     gravity: list[float] = field(default_factory=lambda: [0.0, 0.0, -9.81])
+
+
+@dataclass
+class ActuatorConfig:
+    """One actuator's drive (None = keep the model's; Drake's JointActuator defaults)."""
+
+    effort_limit: float | None = None  # N·m (revolute) or N (prismatic): commands clip here
+    rotor_inertia: float | None = None  # kg·m² (or kg), of the motor's rotor
+    gear_ratio: float | None = None  # joint speed = motor speed / gear_ratio
 
 
 NOMINAL_TIMES = ("step", "horizon_end")
@@ -345,6 +359,7 @@ class TaskConfig:
     scene: list[SceneObject] = field(default_factory=list)
     geometry: dict[str, ContactProperties] = field(default_factory=dict)
     plant: PlantConfig = field(default_factory=PlantConfig)
+    actuators: dict[str, ActuatorConfig] = field(default_factory=dict)
     horizon: float = 1.0
     num_steps: int = 0  # if > 0, overrides horizon
     blocks: dict[str, list[str]] = field(default_factory=dict)
@@ -604,7 +619,7 @@ def parse_override(text: str) -> tuple[str, Any]:
 
 
 # What a "real" (simulated) system may differ in from the controller's model: --truth-set.
-TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant")
+TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant", "actuators")
 
 
 def check_truth_overrides(overrides: list[str]) -> None:
@@ -1150,6 +1165,17 @@ def validate(cfg: TaskConfig) -> None:
             _check_length(w.xyz, 3, f"{wkey}.xyz")
             _check_length(w.rpy, 3, f"{wkey}.rpy")
     _check_length(cfg.plant.gravity, 3, "plant.gravity")
+    for name, a in cfg.actuators.items():
+        if a.effort_limit is not None and not a.effort_limit > 0:
+            raise ConfigError(
+                f"actuators.{name}.effort_limit: must be positive, got {a.effort_limit}"
+            )
+        if a.rotor_inertia is not None and not a.rotor_inertia >= 0:
+            raise ConfigError(
+                f"actuators.{name}.rotor_inertia: must be non-negative, got {a.rotor_inertia}"
+            )
+        if a.gear_ratio is not None and not a.gear_ratio > 0:
+            raise ConfigError(f"actuators.{name}.gear_ratio: must be positive, got {a.gear_ratio}")
     if cfg.plant.time_step <= 0:
         raise ConfigError(f"plant.time_step: must be positive, got {cfg.plant.time_step}")
     if cfg.plant.contact_approximation not in APPROXIMATIONS:
