@@ -445,11 +445,15 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
         del d["solver"]["fd_forces"]
         for o in d["scene"]:
             del o["no_contact_with"]
+        for key in ("goal", "smoke_run", "actuators"):  # keys added since
+            del d[key]
+        for m in d["models"]:
+            del m["name"]
         text = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
-    assert fingerprint(task.config) == before(task.config)
+    assert fingerprint(task.config, legacy=True) == before(task.config)
     other = Task.load(
         "cheetah-trot-1.0", overrides=["receding_horizon.warm_start_tail=guess"], smoke=True
     )

@@ -7,6 +7,7 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.cli import main
+from hydroilqr.cli.common import GOAL_NOT_MET
 from hydroilqr.control.mpc import MPCSettings, Push, run_mpc
 from hydroilqr.problem.config import ConfigError
 
@@ -58,11 +59,12 @@ def test_mpc_cli(tmp_path):
                 "0.1:cart:50,0,0",
             ]
         )
-        == 0
+        == GOAL_NOT_MET  # 0.2 s of a 2 s task: the pole is not up yet, and the exit says so
     )
     data = json.loads((out / "mpc.json").read_text())
     for key in ("achieved_rate_hz", "realtime_factor", "solve_seconds", "metrics"):
         assert key in data
+    assert data["goal"]["met"] is False and data["goal"]["checks"][0]["value"] > 0.05
     assert (out / "mpc.png").exists() and (out / "mpc.html").exists()
     assert (
         main(
@@ -257,7 +259,8 @@ def test_pushes_last_whole_steps_add_up_and_leave_the_task_alone():
 def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
     out = tmp_path / "m"
     argv = ["mpc", "cartpole-wall", "--duration", "0.5", "--out", str(out), "--no-replay"]
-    assert main([*argv, "--truth-set", "wall.xyz=[-0.42, 0, 0]"]) == 0
+    # 0.5 s of a 2 s task: the wall is used, the pole not yet up (goal: FAIL, exit code 4)
+    assert main([*argv, "--truth-set", "wall.xyz=[-0.42, 0, 0]"]) == GOAL_NOT_MET
     metrics = json.loads((out / "mpc.json").read_text())["metrics"]
     assert metrics["wall_contact_steps"] > 0  # the controller's own wall is never touched
 

@@ -59,3 +59,24 @@ def load_task_from_args(args, extra_overrides: list[str] | None = None):
 def command_line(args) -> str | None:
     """The command line that is running (recorded as ``environment.command`` in results)."""
     return getattr(args, "command_line", None)
+
+
+#: Exit code of a command whose results were written but whose task goal was not met.
+GOAL_NOT_MET = 4
+
+
+def print_goal(goal: dict | None, smoke: bool, what: str = "") -> int:
+    """The PASS/FAIL line of a task's goal (``hydroilqr.metrics.goals``) and the exit code it
+    gives: GOAL_NOT_MET when a declared goal is not met. A smoke-sized run is reported but not
+    judged (its goal is the full task's)."""
+    from hydroilqr.metrics.goals import verdict_line
+
+    if not goal or goal.get("met") is None:
+        return 0
+    line = verdict_line(goal) + (f" ({what})" if what else "")
+    if smoke:
+        console.print(f"{line} (smoke-sized run: not judged)", soft_wrap=True)
+        return 0
+    colour = "green" if goal["met"] else "red"
+    console.print(f"[{colour}]{line}[/{colour}]", soft_wrap=True)
+    return 0 if goal["met"] else GOAL_NOT_MET

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
-from hydroilqr.cli.common import add_task_args, command_line, console, load_task_from_args, warn
+from hydroilqr.cli.common import (
+    add_task_args,
+    command_line,
+    console,
+    load_task_from_args,
+    print_goal,
+    warn,
+)
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 HELP = "closed-loop MPC over hydroelastic contact"
@@ -87,7 +94,7 @@ def run(args) -> int:
         raise SimulationError(
             f"the controlled plant failed at {res.failure} (results up to then are in {out})"
         )
-    return 0
+    return print_goal(data.get("goal"), args.smoke, "on the closed loop")
 
 
 def _settings(args):

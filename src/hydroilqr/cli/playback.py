@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hydroilqr.cli.common import command_line, console, warn
+from hydroilqr.cli.common import command_line, console, print_goal, warn
 from hydroilqr.control.playback import POLICIES
 from hydroilqr.problem.config import APPROXIMATIONS, ConfigError
 
@@ -83,7 +83,7 @@ def run(args) -> int:
     from hydroilqr.output.report import deferred_interrupt, read_lock
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
-    task, sol, settings = _settings(args)
+    task, sol, settings, summary = _settings(args)
     out = _output_dir(task, args)
     _print_header(task, settings, out)
     early = advisories(task.dynamics.plant, settings)
@@ -98,6 +98,7 @@ def run(args) -> int:
             replay=not args.no_replay,
             run_dir=args.dir,
             command=command_line(args),
+            plan=sol,
         )
     _print_result(data, r.wall_seconds)
     for w in data.get("warnings", []):
@@ -107,7 +108,8 @@ def run(args) -> int:
         f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
         + ("" if args.no_replay else ", playback.html")
     )
-    return 0
+    smoke = bool(summary.get("smoke"))  # a smoke-sized plan: its goal is the full task's
+    return print_goal(data.get("goal"), smoke, "on the executed motion, at rest")
 
 
 def _settings(args):
@@ -120,7 +122,7 @@ def _settings(args):
             f"{', '.join('--' + k for k in pd_loop)}: options of the PD+ loop; --policy ilqr "
             "applies the plan's own gains K once per plan step"
         )
-    task, sol, _ = load_run(args.dir)
+    task, sol, summary = load_run(args.dir)
     settings = PlaybackSettings(
         speed=args.speed,
         **pd_loop,  # the rest: PlaybackSettings' defaults
@@ -136,7 +138,7 @@ def _settings(args):
     )
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
-    return task, sol, settings
+    return task, sol, settings, summary
 
 
 def _output_dir(task, args) -> Path:

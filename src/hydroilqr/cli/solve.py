@@ -5,7 +5,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from hydroilqr.cli.common import add_task_args, command_line, console, load_task_from_args, warn
+from hydroilqr.cli.common import (
+    GOAL_NOT_MET,  # noqa: F401 - the exit code of an unmet goal (tests read it here)
+    add_task_args,
+    command_line,
+    console,
+    load_task_from_args,
+    print_goal,
+    warn,
+)
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 HELP = "solve a task and write its results"
@@ -59,10 +67,6 @@ def setup(p) -> None:
     )
 
 
-#: Exit code of a solve whose results were written but whose task goal was not met.
-GOAL_NOT_MET = 4
-
-
 def run(args) -> int:
     from hydroilqr.output import report
 
@@ -89,7 +93,7 @@ def run(args) -> int:
     if sol.reason == "interrupted":
         _print_interrupted(sol, out)
         return 130
-    code = _print_goal(summary["goal"], args.smoke)
+    code = print_goal(summary["goal"], args.smoke)
     if args.view:
         _serve_view(task, sol, out, args.no_replay)
     return code
@@ -152,22 +156,6 @@ def _solve_many(task, args):
         "results": [r.record() for r in results],
     }
     return results[best].solution, {"multistart": entry}
-
-
-def _print_goal(goal: dict, smoke: bool) -> int:
-    """The PASS/FAIL line of the task's goal; the exit code it gives (a smoke-sized run is
-    not judged: its goal is the full task's)."""
-    from hydroilqr.metrics.goals import verdict_line
-
-    line = verdict_line(goal)
-    if goal.get("met") is None:
-        return 0
-    if smoke:
-        console.print(f"{line} (smoke-sized run: not judged)", soft_wrap=True)
-        return 0
-    colour = "green" if goal["met"] else "red"
-    console.print(f"[{colour}]{line}[/{colour}]", soft_wrap=True)
-    return 0 if goal["met"] else GOAL_NOT_MET
 
 
 def _solver_overrides(args) -> list[str]:

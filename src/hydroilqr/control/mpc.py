@@ -813,9 +813,8 @@ def write_outputs(
 ) -> dict:
     """mpc.npz, mpc.png, mpc.html (unless ``replay`` is false) and mpc.json in ``out``;
     returns the mpc.json dict (``res.stats()``, the task's metrics on the simulated plant and
-    the environment, ``command`` its command line). An earlier run's files go first; mpc.json,
-    written last, marks a complete set (an interrupted write never leaves this run's files
-    beside an earlier run's)."""
+    the environment, the task's ``goal`` judged on them; ``command`` its command line). The
+    files replace an earlier run's as one set (``output/rundir.py``)."""
     from hydroilqr import metrics
     from hydroilqr.output import report
 
@@ -829,27 +828,31 @@ def write_outputs(
         task_metrics = metrics.compute(sim_task, sol)
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
+    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.output import rundir
+
     data = {
         "task": task.name,
         **stats,
+        "goal": evaluate(task.config.goal, task_metrics),
         "metrics": task_metrics,
         "environment": report.environment(command),
     }
-    with report.deferred_interrupt():  # Ctrl+C here: after the set is complete
-        for name in ("mpc.json", "mpc.npz", "mpc.png", "mpc.html"):
-            (out / name).unlink(missing_ok=True)
+    retire = ["mpc.json", "mpc.npz", "mpc.png", "mpc.html"]
+    with report.deferred_interrupt(), rundir.result_set(out, retire) as stage:
+        # (the earlier run's set stays whole until this one is complete: output/rundir.py)
         atomic_savez(
-            out / "mpc.npz",
+            stage / "mpc.npz",
             X=res.X,
             U=res.U,
             t=res.t,
             update_times=np.array(res.update_times),
             solve_seconds=np.array(res.solve_seconds),
         )
-        plot_mpc(task, res, out / "mpc.png")
+        plot_mpc(task, res, stage / "mpc.png")
         if replay:
             from hydroilqr.output.replay import write_replay
 
-            write_replay(task, res.X, res.t, out / "mpc.html", inputs=res.U)
-        report.write_json(out / "mpc.json", data)
+            write_replay(task, res.X, res.t, stage / "mpc.html", inputs=res.U)
+        report.write_json(stage / "mpc.json", data)
     return data

@@ -1028,6 +1028,35 @@ def write_replay(task, r: PlaybackResult, path: Path) -> None:
     replay.write_replay(task, [r.X, r.X_plan], r.t, path, inputs=[r.U, r.U_plan])
 
 
+def executed(task, sol, r: PlaybackResult):
+    """The executed motion as a plan-shaped trajectory, for the task's metrics and goal: the
+    actual state at each plan time (playback time (t_k - t_0) / speed), except that the last
+    state is where the robot left things at rest (the end of the hold, when there is one).
+    t: [N+1], X: [N+1, nx], U: [N, nu] (the plan's inputs)."""
+    from types import SimpleNamespace
+
+    tau = (np.asarray(sol.t, float) - float(sol.t[0])) / r.settings.speed
+    idx = np.clip(np.searchsorted(r.t, tau - 1e-9), 0, len(r.t) - 1)
+    X = np.array(r.X[idx], float)
+    if r.hold is not None and len(r.hold.X):
+        X[-1] = r.hold.X[-1]
+    return SimpleNamespace(t=np.asarray(sol.t, float), X=X, U=np.asarray(sol.U, float))
+
+
+def executed_goal(task, sol, r: PlaybackResult) -> dict:
+    """The task's metrics on the executed motion (``executed``) and its goal judged on them:
+    {"metrics": ..., "goal": {met, checks}}; a metric the truth state cannot give is an
+    error entry (and fails the checks that need it)."""
+    from hydroilqr import metrics
+    from hydroilqr.metrics.goals import evaluate
+
+    try:
+        m = metrics.compute(task, executed(task, sol, r))
+    except (RuntimeError, SimulationError, ValueError) as e:
+        m = {"error": str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__}
+    return {"metrics": m, "goal": evaluate(task.config.goal, m)}
+
+
 def write_outputs(
     task,
     r: PlaybackResult,
@@ -1035,18 +1064,32 @@ def write_outputs(
     replay: bool = True,
     run_dir: str | Path | None = None,
     command: str | None = None,
+    plan=None,
 ) -> dict:
     """playback.json, playback.png, reference.csv, playback.npz and (optionally)
-    playback.html in ``out``. Returns the JSON dict (``command``: the command line that ran
-    the playback, recorded as ``environment.command``)."""
-    from hydroilqr.output.report import write_json
+    playback.html in ``out``, replacing an earlier playback's set whole (output/rundir.py).
+    Returns the JSON dict (``command``: the command line that ran the playback, recorded as
+    ``environment.command``; ``plan``: the played Solution, whose task metrics and goal are
+    then judged on the executed motion: ``executed_metrics``, ``goal``)."""
+    from hydroilqr.output import rundir
+    from hydroilqr.output.report import environment
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from hydroilqr.output.report import environment
-
     data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
+    if plan is not None:
+        judged = executed_goal(task, plan, r)
+        data["goal"], data["executed_metrics"] = judged["goal"], judged["metrics"]
     data["environment"] = environment(command)
+    names = ["playback.json", "reference.csv", "playback.npz", "playback.png", "playback.html"]
+    with rundir.result_set(out, names) as stage:
+        _write_set(task, r, stage, data, replay)
+    return data
+
+
+def _write_set(task, r: PlaybackResult, out: Path, data: dict, replay: bool) -> None:
+    from hydroilqr.output.report import write_json
+
     write_json(out / "playback.json", data)
     write_reference_csv(r, out / "reference.csv")
     atomic_savez(
@@ -1073,6 +1116,3 @@ def write_outputs(
     plot_playback(r, out / "playback.png", task.name)
     if replay:
         write_replay(task, r, out / "playback.html")
-    else:  # an earlier playback's replay would sit beside this one's results
-        (out / "playback.html").unlink(missing_ok=True)
-    return data

@@ -37,6 +37,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from hydroilqr.model.state import StateLayout
 from hydroilqr.problem.config import (
+    ActuatorConfig,
     ConfigError,
     ContactProperties,
     ModelConfig,
@@ -470,6 +471,7 @@ class PlantSpec:
     scene: list[SceneObject] = field(default_factory=list)
     geometry: dict[str, ContactProperties] = field(default_factory=dict)
     plant: PlantConfig = field(default_factory=PlantConfig)
+    actuators: dict[str, ActuatorConfig] = field(default_factory=dict)
     blocks: dict[str, list[str]] = field(default_factory=dict)
     initial_state: dict[str, Any] = field(default_factory=dict)
     base_dir: str = ""

@@ -99,6 +99,7 @@ def write_outputs(
         "task": task.name,
         **sol.stats(),
         "goal": evaluate(task.config.goal, metrics),
+        "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
         "metrics": metrics,
         **(extra_summary or {}),
         "extra": sol.extra,

@@ -382,6 +382,8 @@ class TaskConfig:
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
     base_dir: str = ""
+    # Set by the loader: the task was shrunk by --smoke (its goal is the full task's).
+    smoke_run: bool = False
 
     @property
     def steps(self) -> int:
@@ -400,6 +402,7 @@ class TaskConfig:
         trajectory length is given once, as num_steps when set, else as horizon)."""
         d = dataclasses.asdict(self)
         d.pop("base_dir", None)
+        d.pop("smoke_run", None)
         d["mpc"].pop("pushes", None)  # not a task-file key
         if d.get("num_steps"):
             d.pop("horizon", None)
@@ -495,14 +498,17 @@ def unknown_key(name: Any, valid: list[str], what: str) -> str:
     return f"unknown {what} ({hint}expected one of: {', '.join(valid)})"
 
 
+LOADER_KEYS = ("base_dir", "smoke_run")  # TaskConfig fields the loader sets, never a file
+
+
 def _build_dataclass(cls: Any, data: dict[str, Any], prefix: str) -> Any:
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init and f.metadata.get("task_file", 1)}
     kwargs = {}
     for k, v in data.items():
         key = f"{prefix}.{k}" if prefix else str(k)
-        if k not in names or k == "base_dir":
-            valid = sorted(n for n in names if n != "base_dir")
+        if k not in names or k in LOADER_KEYS:
+            valid = sorted(n for n in names if n not in LOADER_KEYS)
             raise ConfigError(f"{key}: {unknown_key(k, valid, 'key')}")
         kwargs[k] = _coerce(v, hints[k], key)
     obj = cls(**kwargs)
@@ -994,10 +1000,12 @@ def build_task(
     except ConfigError as e:
         raise ConfigError(f"smoke: {e}") from None
     try:
-        return finish(shrunk)
+        cfg = finish(shrunk)
     except ConfigError as e:
         finish(data)  # raises the task's own mistake unprefixed
         raise ConfigError(f"smoke: {e}") from None
+    cfg.smoke_run = True
+    return cfg
 
 
 def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:

@@ -258,7 +258,8 @@ def load_checkpoint(task, directory: str | Path, solver: SolverConfig | None = N
         raise ConfigError(
             f"{ck}: not a readable checkpoint ({type(e).__name__}); remove it to start over"
         ) from None
-    if st.fingerprint and st.fingerprint != fingerprint(task.config, solver):
+    known = (fingerprint(task.config, solver), fingerprint(task.config, solver, legacy=True))
+    if st.fingerprint and st.fingerprint not in known:
         raise ConfigError(
             f"{directory}: its checkpoint is from a different run (task, --set or --smoke "
             "differ); repeat that run's arguments or choose another --out"
@@ -301,10 +302,12 @@ def finished_run(directory: str | Path) -> bool:
     return summary.exists() and (not ck.exists() or summary.stat().st_mtime >= ck.stat().st_mtime)
 
 
-def fingerprint(cfg, solver: SolverConfig | None = None) -> str:
+def fingerprint(cfg, solver: SolverConfig | None = None, legacy: bool = False) -> str:
     """What makes two runs the same computation: the resolved task (with ``solver`` for its
     solver section, if given) minus the settings that only change speed (threads, worker
-    processes) or other commands (mpc)."""
+    processes), other commands (mpc) or the report (metrics, their params, the goal).
+    ``legacy``: as checkpoints written before the report's keys were left out computed it
+    (they still resume)."""
     if solver is not None:
         cfg = dataclasses.replace(cfg, solver=solver)
     d = dataclasses.asdict(cfg)  # (not to_dict: checkpoints keep their fingerprints)
@@ -313,6 +316,16 @@ def fingerprint(cfg, solver: SolverConfig | None = None) -> str:
         d.get("solver", {}).pop(key, None)
     d.pop("mpc", None)
     d.pop("base_dir", None)
+    # What only the report reads: a run that failed while reporting (a bad metric parameter,
+    # say) is finished or re-reported from its checkpoint with the reporting corrected.
+    report_keys = ("metrics", "metric_params", "description", "smoke")
+    for key in ("goal", "smoke_run", *(() if legacy else report_keys)):
+        d.pop(key, None)
+    if not d.get("actuators"):
+        d.pop("actuators", None)
+    for m in d.get("models", []):
+        if not m.get("name"):
+            m.pop("name", None)
     # Keys added after checkpoints existed leave a fingerprint unchanged at their defaults.
     if (d.get("receding_horizon") or {}).get("warm_start_tail") == "last":
         del d["receding_horizon"]["warm_start_tail"]
