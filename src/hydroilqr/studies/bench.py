@@ -633,7 +633,7 @@ def print_table(rows: list[dict]) -> None:
             lin = ", ".join(f"{k} {v:.3f}" for k, v in lim["linearization_all_steps_s"].items())
             console.print(
                 f"{r['task']} limit: rollout {lim['rollout_s']:.4f} s; exact partials of all "
-                f"{lim['steps']} steps [s]: {lin}; backward pass {lim['backward_pass_s']:.4f} s; "
+                f"{lim['steps']} steps in s: {lin}; backward pass {lim['backward_pass_s']:.4f} s; "
                 f"fastest iteration on {lim['cores']} cores {lim['limit_s']:.4f} s "
                 f"({lim['keypoints']} keypoints, {lim['cheapest_path']}); (b) reaches "
                 f"{lim['fast_share_of_limit']:.0%} of it",
