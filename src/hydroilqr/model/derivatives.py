@@ -128,7 +128,8 @@ class Linearizer:
     Broyden's rank-one update ``J += (Δf − J Δz) Δzᵀ / (Δzᵀ Δz)`` (Δz: the step's change of
     (x, u), Δf: of its next state) instead of differentiating; then exact partials again. A
     call without a rollout, or with another N, is exact (and the next one after a call without
-    a rollout too).
+    a rollout too). ``last_secant``: the last call's partials were secant updates (``exact``
+    recomputes them).
 
     ``last_computed``: how many steps the last call differentiated.
     """
@@ -150,6 +151,7 @@ class Linearizer:
         self.autodiff_workers = autodiff_workers
         self.secant_updates = secant_updates
         self._secant: tuple | None = None  # (J [N, nx, nz], Z [N, nz], F [N, nx], updates done)
+        self.last_secant = False  # the last call's partials were secant updates
         self.method = DerivativeMethod(method)
         self.eps, self.threads = eps, threads
         self.interval, self.adaptive = interval, adaptive
@@ -204,10 +206,21 @@ class Linearizer:
         B: [N, nx, nu]. Raises SimulationError if a step fails."""
         N = U.shape[0]
         rollout = rollout and X.shape[0] == N + 1
+        self.last_secant = False
         if self.secant_updates > 0 and rollout:
             out = self._secant_step(X, U)
             if out is not None:
+                self.last_secant = True
                 return out
+        return self.exact(X, U, rollout)
+
+    def exact(self, X: np.ndarray, U: np.ndarray, rollout: bool = False):
+        """Like a call, but exact partials (of the keypoints) whatever ``secant_updates`` says;
+        secant updates, if any, count again from here. The solver calls it when a secant
+        iteration found no step."""
+        N = U.shape[0]
+        rollout = rollout and X.shape[0] == N + 1
+        self.last_secant = False
         A, B = self._exact(X, U, rollout)
         self._secant = None  # without a rollout there is no next state to update from
         if self.secant_updates > 0 and rollout:

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -44,6 +44,8 @@ from hydroilqr.solver.solution import PHASES, Solution
 
 # Iterations over which small progress from shortened steps counts as convergence.
 STALL_WINDOW = 5
+# Line-search trials (ε = 1, f, f², ...) along secant partials before exact ones are taken.
+SECANT_TRIALS = 4
 
 
 @dataclass
@@ -330,6 +332,22 @@ def solve(
         derivative_steps.append(lin.last_computed)
         return out
 
+    # Along secant partials a search tries only the longer steps: if none is accepted, exact
+    # partials are cheaper than the rest of the search.
+    s_secant = replace(s, line_search_max_steps=min(SECANT_TRIALS, s.line_search_max_steps))
+
+    def exact_partials(X, U, A, B, ph):
+        """Exact partials in place of secant ones (which found no step); the secant ones if
+        differentiation fails (the search then goes on with them, μ growing)."""
+        t = time.perf_counter()
+        try:
+            A, B = lin.exact(X, U, rollout=True)
+            derivative_steps[-1] += lin.last_computed
+        except SimulationError:
+            lin.last_secant = False
+        ph["derivatives"] += time.perf_counter() - t
+        return A, B
+
     interrupted = False
     partials_current = False
     try:
@@ -362,6 +380,9 @@ def solve(
                 t = time.perf_counter()
                 bp = backward_pass(A, B, quad, mu)
                 ph["backward_pass"] += time.perf_counter() - t
+                if not bp.ok and getattr(lin, "last_secant", False):
+                    A, B = exact_partials(X, U, A, B, ph)  # secant partials failed: exact ones
+                    continue
                 if not bp.ok:
                     mu, raised = _increase(mu, s), True
                     if mu > s.regularization_max:
@@ -371,13 +392,21 @@ def solve(
                 if first_gains is None:
                     first_gains = (K, kappa)
                 expected_full = expected_decrease(bp.dV, 1.0)
+                if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)) and getattr(
+                    lin, "last_secant", False
+                ):
+                    A, B = exact_partials(X, U, A, B, ph)  # stationary by exact partials?
+                    first_gains = None
+                    continue
                 if expected_full < s.expected_decrease_tolerance * max(1.0, abs(J)):
                     # Stationary only if μ was not raised to get here: a large μ makes any
                     # predicted decrease small.
                     expected = expected_full
                     break
                 t = time.perf_counter()
-                ls = line_search(problem, X, U, J, K, kappa, bp.dV, s, deadline)
+                secant = getattr(lin, "last_secant", False)
+                s_ls = s_secant if secant else s
+                ls = line_search(problem, X, U, J, K, kappa, bp.dV, s_ls, deadline)
                 ph["line_search"] += time.perf_counter() - t
                 if ls.tried:
                     eps, expected = ls.eps, ls.expected
@@ -386,6 +415,11 @@ def solve(
                     Xn, Un, Jn = ls.X, ls.U, ls.J
                 if accepted or late:
                     break
+                if getattr(lin, "last_secant", False):
+                    # no step along secant partials: the same μ again with exact ones
+                    A, B = exact_partials(X, U, A, B, ph)
+                    first_gains = None
+                    continue
                 searches += 1
                 mu, raised = _increase(mu, s), True
                 if mu > s.regularization_max or searches > s.line_search_retries:
