@@ -235,3 +235,17 @@ def test_secant_updates_between_exact_partials(cartpole):
     assert lin.last_computed == 0
     lin(X2, U2, rollout=True)
     assert lin.last_computed == 30
+
+
+def test_solver_with_secant_partials_differentiates_less_and_still_descends():
+    """solver.derivative_secant_updates: iterations without differentiation (0 steps, or all
+    steps when the secant partials found no step and exact ones were taken), costs decrease."""
+    task = Task.load("cartpole-wall", ["num_steps=40", "solver.derivative_secant_updates=2"])
+    s = task.config.solver
+    U0 = task.initial_guess(task.steps)
+    sol = solve(task.problem(), U0, s, max_iterations=6, final_gains=False)
+    steps = sol.extra["derivative_steps"]
+    assert steps[0] == 40 and 0 in steps
+    assert all(n in (0, 40) for n in steps)
+    assert sol.costs[-1] < sol.costs[0]
+    assert all(b <= a for a, b in zip(sol.costs, sol.costs[1:]))
