@@ -56,6 +56,7 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     cfg = " ".join(r["configs"]["paper_same_solver"])
     assert "tamsi" not in cfg and "plant.contact_approximation=sap" in cfg
     assert "solver.derivatives=autodiff" in cfg and "solver.autodiff_workers=1" in cfg
+    assert "solver.derivative_secant_updates=0" in cfg and "solver.derivative_interval=1" in cfg
     assert r["speedup_same_solver_median"] == same["median_s"] / r["fast"]["median_s"]
     assert "speedup_same_solver_total" in r and "cost_rel_diff_same_solver" in r
     # the limit analysis: one rollout, exact partials on each path, backward pass, the bound

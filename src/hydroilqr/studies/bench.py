@@ -46,6 +46,7 @@ PAPER = [
     "solver.autodiff_workers=1",  # serial, one step after another
     "solver.line_search_workers=1",  # one trial after another
     "solver.derivative_reuse_tolerance=0",
+    "solver.derivative_secant_updates=0",  # exact partials every iteration
 ]
 # (a'): the paper's method on the fast configuration's contact solver (its
 # plant.contact_approximation is appended per task by ``bench_tasks``).
@@ -54,7 +55,8 @@ PAPER_SAME_SOLVER = [c for c in PAPER if not c.startswith("plant.contact_approxi
 # of AutoDiff (in one worker process per core) and batched forward differences (on threads),
 # chosen per task by a short probe
 # (``probe_derivatives``; ``--fast solver.derivatives=...`` skips it); exact derivatives at
-# every other step and on both sides of every contact event, interpolated in between.
+# every other step and on both sides of every contact event, interpolated in between; the
+# task's own solver.derivative_secant_updates (Kinova: secant partials between exact ones).
 # (``--fast solver.fd_forces=true``: finite differences over generalized forces, see
 # docs/performance.md.)
 FAST = [
