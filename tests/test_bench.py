@@ -48,6 +48,25 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     si = r["same_iterates"]
     assert si["iterations"] == r["fast"]["iterations"] and not si["errors"]
     assert si["speedup_median"] > 0 and len(si["paper_max_faces"]) == si["iterations"]
+    # (a'): the paper's method on (b)'s contact solver, side by side with (a) and (b)
+    assert "paper_same_solver" in doc
+    same = r["paper_same_solver"]
+    assert 1 <= same["iterations"] <= 2 and same["final_cost"] < same["initial_cost"]
+    assert same["p10_s"] <= same["median_s"] <= same["p90_s"]
+    cfg = " ".join(r["configs"]["paper_same_solver"])
+    assert "tamsi" not in cfg and "plant.contact_approximation=sap" in cfg
+    assert "solver.derivatives=autodiff" in cfg and "solver.autodiff_workers=1" in cfg
+    assert "solver.derivative_secant_updates=0" in cfg and "solver.derivative_interval=1" in cfg
+    assert r["speedup_same_solver_median"] == same["median_s"] / r["fast"]["median_s"]
+    assert "speedup_same_solver_total" in r and "cost_rel_diff_same_solver" in r
+    # the limit analysis: one rollout, exact partials on each path, backward pass, the bound
+    lim = r["limits"]
+    assert lim["rollout_s"] > 0 and lim["backward_pass_s"] > 0
+    assert {"autodiff_serial", "forward_threads"} <= set(lim["linearization_all_steps_s"])
+    assert 1 <= lim["keypoints"] <= lim["steps"] == r["steps"]
+    assert lim["cheapest_path"] in lim["linearization_per_step_s"]
+    assert 0 < lim["limit_s"] <= lim["limit_all_steps_s"]
+    assert lim["fast_share_of_limit"] == lim["limit_s"] / r["fast"]["median_s"]
 
 
 def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
@@ -105,6 +124,33 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     assert st["fast_median_s"] == pytest.approx(0.1)  # only the pair where both ran
     assert st["speedup_median"] == pytest.approx(same.seconds[0] / 0.1)
     assert task.config.solver.regularization_init != 1e-3  # the task's own settings unchanged
+
+
+def test_three_runners_take_turns_and_a_finished_one_is_skipped(monkeypatch):
+    """(a), (b), (a') in turn; a runner that stops early never blocks the other two."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hydroilqr.solver import ilqr
+    from hydroilqr.studies import bench
+
+    order = []
+
+    def fake_solve(problem, U0, settings, callbacks, max_iterations, final_gains):
+        for _ in range(2 if problem == 1 else max_iterations):  # (b) stops after 2
+            order.append(problem)
+            for cb in callbacks:
+                cb(None)
+        return problem
+
+    monkeypatch.setattr(ilqr, "solve", fake_solve)
+    tasks = [
+        SimpleNamespace(problem=lambda i=i: i, config=SimpleNamespace(solver=None))
+        for i in (0, 1, 2)
+    ]
+    assert bench.run_alternating(tasks, np.zeros(1), 3) == [0, 1, 2]
+    assert order == [0, 1, 2, 0, 1, 2, 0, 2]
 
 
 def test_fast_derivative_paths_match_exact_ones():

@@ -207,3 +207,45 @@ def test_batched_finite_differences_equal_a_per_step_per_column_reference(method
         np.testing.assert_allclose(A, A_ref, rtol=1e-12, atol=1e-9)
         np.testing.assert_allclose(B, B_ref, rtol=1e-12, atol=1e-9)
     assert np.abs(A[1] - A[0]).max() > 1e-3  # the contact step's partials differ (the wall)
+
+
+def test_secant_updates_between_exact_partials(cartpole):
+    """derivative_secant_updates: exact partials, then Broyden updates (no differentiation):
+    rank-one changes that satisfy each step's secant equation; then exact again."""
+    task, X, U = cartpole
+    dyn = task.dynamics
+    lin = Linearizer(dyn, "central", threads=1, secant_updates=2)
+    A0, B0 = lin(X, U, rollout=True)
+    assert lin.last_computed == 30
+    U2 = U + 0.05
+    X2 = dyn.rollout(task.x0, U2)
+    A1, B1 = lin(X2, U2, rollout=True)
+    assert lin.last_computed == 0
+    dz = np.c_[X2[:30], U2] - np.c_[X[:30], U]
+    J1 = np.concatenate([A1, B1], axis=2)
+    np.testing.assert_allclose(np.einsum("kij,kj->ki", J1, dz), X2[1:] - X[1:], atol=1e-10)
+    J0 = np.concatenate([A0, B0], axis=2)
+    assert all(np.linalg.matrix_rank(d, tol=1e-9) <= 1 for d in J1 - J0)  # rank-one change
+    lin(X2, U2 + 0.01, rollout=False)  # not a rollout: exact, and no next states to update
+    assert lin.last_computed == 30
+    lin(X, U, rollout=True)
+    assert lin.last_computed == 30
+    lin(X2, U2, rollout=True)  # secant 1 of 2
+    lin(X, U, rollout=True)  # secant 2 of 2
+    assert lin.last_computed == 0
+    lin(X2, U2, rollout=True)
+    assert lin.last_computed == 30
+
+
+def test_solver_with_secant_partials_differentiates_less_and_still_descends():
+    """solver.derivative_secant_updates: iterations without differentiation (0 steps, or all
+    steps when the secant partials found no step and exact ones were taken), costs decrease."""
+    task = Task.load("cartpole-wall", ["num_steps=40", "solver.derivative_secant_updates=2"])
+    s = task.config.solver
+    U0 = task.initial_guess(task.steps)
+    sol = solve(task.problem(), U0, s, max_iterations=6, final_gains=False)
+    steps = sol.extra["derivative_steps"]
+    assert steps[0] == 40 and 0 in steps
+    assert all(n in (0, 40) for n in steps)
+    assert sol.costs[-1] < sol.costs[0]
+    assert all(b <= a for a, b in zip(sol.costs, sol.costs[1:]))

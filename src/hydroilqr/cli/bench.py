@@ -92,6 +92,7 @@ class _NoTamsiNotice(logging.Filter):
 def print_table(rows: list[dict]) -> None:
     """bench's report: the table of iteration times, then notes per task."""
     _print_times(rows)
+    _print_limits(rows)
     _print_short_runs(rows)
     _print_same_iterates(rows)
     _print_accuracy(rows)
@@ -101,9 +102,15 @@ def _print_times(rows: list[dict]) -> None:
     head = (
         f"{'task':<18} {'N':>4} {'(a) paper s/it (p10-p90)':>26} "
         f"{'(b) fast s/it (p10-p90)':>26} {'a/b':>6} {'deriv a/b':>9} "
-        f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9}"
+        f"{'cost a':>10} {'cost b':>10} {'diff':>7} {'faces a/b':>9} "
+        + " ".join(
+            f"{h:>{w}}" for h, w in (("(a') s/it", 9), ("a'/b", 6), ("cost a'", 10), ("diff a'", 7))
+        )
     )
-    console.print("iLQR iteration time: (a) paper method vs (b) fast configuration")
+    console.print(
+        "iLQR iteration time: (a) paper method vs (b) fast configuration; (a') the paper's "
+        "method on (b)'s contact solver"
+    )
     console.print(head, style="bold", soft_wrap=True)
     for r in rows:
         a, b = r.get("paper", {}), r.get("fast", {})
@@ -120,9 +127,36 @@ def _print_times(rows: list[dict]) -> None:
         console.print(
             f"{r['task']:<18} {r['steps']:>4} {ra:>26} {rb:>26} {r['speedup_median']:>5.1f}x "
             f"{da:>9} {a['final_cost']:>10.5g} {b['final_cost']:>10.5g} "
-            f"{r['cost_rel_diff']:>+7.2%} {fa:>9}",
+            f"{r['cost_rel_diff']:>+7.2%} {fa:>9} {_same_solver_cells(r)}",
             soft_wrap=True,
         )
+
+
+def _same_solver_cells(r: dict) -> str:
+    """The (a') columns of a table row ('-' where (a') did not run or failed)."""
+    c = r.get("paper_same_solver", {})
+    if "median_s" not in c or "speedup_same_solver_median" not in r:
+        return f"{'-':>9} {'-':>6} {'-':>10} {'-':>7}"
+    return (
+        f"{c['median_s']:>9.4f} {r['speedup_same_solver_median']:>5.1f}x "
+        f"{c['final_cost']:>10.5g} {r['cost_rel_diff_same_solver']:>+7.2%}"
+    )
+
+
+def _print_limits(rows: list[dict]) -> None:
+    """Per task: where the fastest possible iteration on this machine lies (limit analysis)."""
+    for r in rows:
+        lim = r.get("limits")
+        if lim and "fast_share_of_limit" in lim:
+            lin = ", ".join(f"{k} {v:.3f}" for k, v in lim["linearization_all_steps_s"].items())
+            console.print(
+                f"{r['task']} limit: rollout {lim['rollout_s']:.4f} s; exact partials of all "
+                f"{lim['steps']} steps in s: {lin}; backward pass {lim['backward_pass_s']:.4f} s; "
+                f"fastest iteration on {lim['cores']} cores {lim['limit_s']:.4f} s "
+                f"({lim['keypoints']} keypoints, {lim['cheapest_path']}); (b) reaches "
+                f"{lim['fast_share_of_limit']:.0%} of it",
+                soft_wrap=True,
+            )
 
 
 def _print_short_runs(rows: list[dict]) -> None:
@@ -130,7 +164,7 @@ def _print_short_runs(rows: list[dict]) -> None:
         a, b = r.get("paper", {}), r.get("fast", {})
         short = [
             f"{m} stopped after {x['iterations']} ({x['reason']})"
-            for m, x in (("(a)", a), ("(b)", b))
+            for m, x in (("(a)", a), ("(b)", b), ("(a')", r.get("paper_same_solver", {})))
             if "iterations" in x and x["iterations"] < r.get("requested_iterations", 0)
         ]
         if short:

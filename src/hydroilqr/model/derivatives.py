@@ -131,6 +131,14 @@ class Linearizer:
     forward in time, so partials of the previous plan serve the next one (the derivatives of a
     step are a function of its (x, u) only, not of time).
 
+    ``secant_updates > 0``: after a call with exact partials, that many calls (each with a
+    rollout: X[k+1] = f(X[k], U[k])) correct the previous call's partials of every step with
+    Broyden's rank-one update ``J += (Δf − J Δz) Δzᵀ / (Δzᵀ Δz)`` (Δz: the step's change of
+    (x, u), Δf: of its next state) instead of differentiating; then exact partials again. A
+    call without a rollout, or with another N, is exact (and the next one after a call without
+    a rollout too). ``last_secant``: the last call's partials were secant updates (``exact``
+    recomputes them).
+
     ``last_computed``: how many steps the last call differentiated.
     """
 
@@ -146,10 +154,14 @@ class Linearizer:
         max_steps: int = 0,
         autodiff_workers: int = 1,
         fd_forces: bool = False,
+        secant_updates: int = 0,
     ):
         self.dyn = dyn
         self.autodiff_workers = autodiff_workers
         self.fd_forces = fd_forces
+        self.secant_updates = secant_updates
+        self._secant: tuple | None = None  # (J [N, nx, nz], Z [N, nz], F [N, nx], updates done)
+        self.last_secant = False  # the last call's partials were secant updates
         self.method = DerivativeMethod(method)
         self.eps, self.threads = eps, threads
         self.interval, self.adaptive = interval, adaptive
@@ -171,6 +183,7 @@ class Linearizer:
             s.derivative_reuse_tolerance,
             autodiff_workers=s.autodiff_workers,
             fd_forces=s.fd_forces,
+            secant_updates=s.derivative_secant_updates,
         )
 
     def shift(self, steps: int) -> None:
@@ -181,6 +194,7 @@ class Linearizer:
     def clear(self) -> None:
         """Forget every cached partial (the next call differentiates all keypoints)."""
         self.Z = self.A = self.B = None
+        self._secant = None
 
     def _resize(self, N: int) -> None:
         dyn = self.dyn
@@ -202,6 +216,54 @@ class Linearizer:
         """X: [N+1, nx] (a rollout of U if ``rollout``), U: [N, nu] -> A: [N, nx, nx],
         B: [N, nx, nu]. Raises SimulationError if a step fails."""
         N = U.shape[0]
+        rollout = rollout and X.shape[0] == N + 1
+        self.last_secant = False
+        if self.secant_updates > 0 and rollout:
+            out = self._secant_step(X, U)
+            if out is not None:
+                self.last_secant = True
+                return out
+        return self.exact(X, U, rollout)
+
+    def exact(self, X: np.ndarray, U: np.ndarray, rollout: bool = False):
+        """Like a call, but exact partials (of the keypoints) whatever ``secant_updates`` says;
+        secant updates, if any, count again from here. The solver calls it when a secant
+        iteration found no step."""
+        N = U.shape[0]
+        rollout = rollout and X.shape[0] == N + 1
+        self.last_secant = False
+        A, B = self._exact(X, U, rollout)
+        self._secant = None  # without a rollout there is no next state to update from
+        if self.secant_updates > 0 and rollout:
+            J = np.concatenate([A, B], axis=2)
+            self._secant = (J, np.concatenate([X[:N], U], axis=1), X[1 : N + 1].copy(), 0)
+        return A, B
+
+    def _secant_step(self, X: np.ndarray, U: np.ndarray):
+        """Broyden-updated partials, or None when exact ones are due."""
+        N, nx = U.shape[0], self.dyn.nx
+        if self._secant is None:
+            return None
+        J, Z0, F0, done = self._secant
+        if done >= self.secant_updates or J.shape[0] != N:
+            return None
+        Z = np.concatenate([X[:N], U], axis=1)
+        F = X[1 : N + 1]
+        dZ, dF = Z - Z0, F - F0
+        den = np.einsum("ki,ki->k", dZ, dZ)
+        moved = den > 0.0
+        if moved.any():
+            r = dF[moved] - np.einsum("kij,kj->ki", J[moved], dZ[moved])
+            J = J.copy()
+            J[moved] += r[:, :, None] * dZ[moved][:, None, :] / den[moved][:, None, None]
+        if not np.all(np.isfinite(J)):
+            return None
+        self._secant = (J, Z, F.copy(), done + 1)
+        self.last_computed = 0
+        return np.ascontiguousarray(J[:, :, :nx]), np.ascontiguousarray(J[:, :, nx:])
+
+    def _exact(self, X: np.ndarray, U: np.ndarray, rollout: bool):
+        N = U.shape[0]
         self._resize(N)
         keys = np.array(keypoints(self.dyn, X, N, self.interval, self.adaptive))
         Z = np.concatenate([X[:N], U], axis=1)
@@ -215,7 +277,6 @@ class Linearizer:
             order = np.argsort(-moved[moved > self.reuse_tolerance], kind="stable")
             todo = np.sort(todo[order[: self.max_steps]])
         if todo.size:
-            rollout = rollout and X.shape[0] == N + 1
             nxt = X[todo + 1] if rollout else None
             A, B = _fd_or_ad(
                 self.dyn,

@@ -239,6 +239,11 @@ class SolverConfig:
     # > 0: reuse a step's partials while its (x, u) has moved less than this (scaled max norm,
     # |Δz_i| / max(1, |z_i|)) since they were taken; 0 = recompute every iteration.
     derivative_reuse_tolerance: float = 0.0
+    # > 0: after an iteration with exact partials, this many iterations update each step's
+    # partials with a secant (Broyden rank-one) correction from the step's own change of
+    # (x, u) and of its next state, both known from the rollouts, instead of differentiating;
+    # then exact partials again. 0 = exact partials every iteration.
+    derivative_secant_updates: int = 0
 
 
 @dataclass
@@ -1080,6 +1085,8 @@ def validate_solver(sv: SolverConfig) -> None:
     for key in ("autodiff_workers", "line_search_workers"):
         if getattr(sv, key) < 0:
             raise ConfigError(f"solver.{key}: must be >= 0 (0 = one per core)")
+    if sv.derivative_secant_updates < 0:
+        raise ConfigError("solver.derivative_secant_updates: must be >= 0")
     if not sv.derivative_reuse_tolerance >= 0:
         raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
     if sv.derivative_interval < 1:

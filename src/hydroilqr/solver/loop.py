@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,6 +35,10 @@ from hydroilqr.solver.ilqr import (
     line_search,
 )
 from hydroilqr.solver.solution import PHASES, Solution
+
+# Line-search trials (ε = 1, f, f², ...) along secant partials before exact ones are taken:
+# if none of the longer steps is accepted, exact partials are cheaper than the rest.
+SECANT_TRIALS = 4
 
 
 def callback_list(callbacks) -> list:
@@ -284,10 +288,29 @@ def _partials(st: State, X, U):
     return out
 
 
+def _secant(st: State) -> bool:
+    """The current partials are secant (Broyden) updates, not exact ones."""
+    return bool(getattr(st.lin, "last_secant", False))
+
+
+def _exact_partials(st: State, ph: dict) -> None:
+    """Exact partials in place of secant ones (which failed or found no step); the secant
+    ones stay if differentiation fails (the search then goes on with them, μ growing)."""
+    t = time.perf_counter()
+    try:
+        st.A, st.B = st.lin.exact(st.X, st.U, rollout=True)
+        st.derivative_steps[-1] += st.lin.last_computed
+    except SimulationError:
+        st.lin.last_secant = False
+    ph["derivatives"] += time.perf_counter() - t
+
+
 def descend(st: State, ph: dict, deadline: float | None) -> Step:
     """Backward pass and line search, raising μ after an indefinite Q_uu or a failed search
-    (at most ``line_search_retries`` times, μ up to ``regularization_max``). Leaves the gains
-    of the least-regularized pass in ``st`` if no step was accepted."""
+    (at most ``line_search_retries`` times, μ up to ``regularization_max``). Along secant
+    partials, a failed pass, an apparently stationary point or a failed (shortened) search
+    is retried at the same μ with exact partials first. Leaves the gains of the
+    least-regularized pass in ``st`` if no step was accepted."""
     s = st.s
     step = Step()
     searches = 0
@@ -297,6 +320,9 @@ def descend(st: State, ph: dict, deadline: float | None) -> Step:
         bp = backward_pass(st.A, st.B, st.quad, st.mu)
         ph["backward_pass"] += time.perf_counter() - t
         step.pd = bp.ok
+        if not bp.ok and _secant(st):
+            _exact_partials(st, ph)
+            continue
         if not bp.ok:
             st.mu, step.raised = regularization.increase(st.mu, s), True
             if regularization.too_large(st.mu, s):
@@ -306,13 +332,19 @@ def descend(st: State, ph: dict, deadline: float | None) -> Step:
         if first_gains is None:
             first_gains = (st.K, st.kappa)
         step.expected_full = expected_decrease(bp.dV, 1.0)
+        if stopping.stationary(step.expected_full, st.J, s) and _secant(st):
+            _exact_partials(st, ph)  # stationary by exact partials too?
+            first_gains = None
+            continue
         if stopping.stationary(step.expected_full, st.J, s):
             # Stationary only if μ was not raised to get here: a large μ makes any
             # predicted decrease small.
             step.expected = step.expected_full
             break
         t = time.perf_counter()
-        ls = line_search(st.problem, st.X, st.U, st.J, st.K, st.kappa, bp.dV, s, deadline)
+        s_ls = replace(s, line_search_max_steps=min(SECANT_TRIALS, s.line_search_max_steps))
+        s_ls = s_ls if _secant(st) else s
+        ls = line_search(st.problem, st.X, st.U, st.J, st.K, st.kappa, bp.dV, s_ls, deadline)
         ph["line_search"] += time.perf_counter() - t
         if ls.tried:
             step.eps, step.expected = ls.eps, ls.expected
@@ -321,6 +353,10 @@ def descend(st: State, ph: dict, deadline: float | None) -> Step:
             step.Xn, step.Un, step.Jn = ls.X, ls.U, ls.J
         if step.accepted or step.late:
             break
+        if _secant(st):  # no step along secant partials: the same μ again with exact ones
+            _exact_partials(st, ph)
+            first_gains = None
+            continue
         searches += 1
         st.mu, step.raised = regularization.increase(st.mu, s), True
         if regularization.too_large(st.mu, s) or searches > s.line_search_retries:

@@ -5,16 +5,20 @@ of iLQR iterations *in the same process, alternating* (a block of iterations of 
 the other), so that load from other processes hits both alike:
 
 (a) the paper's method: TAMSI contact, AutoDiffXd derivatives, one time step after another;
+(a') the paper's method on (b)'s contact solver (``PAPER_SAME_SOLVER``: AutoDiffXd, serial,
+     every step, no interpolation, and (b)'s ``plant.contact_approximation``), so that the
+     ratio a'/b is what hydroilqr's derivatives and solver gain, not what Drake's SAP gains;
 (b) the fast configuration (``FAST``, or ``--fast KEY=VALUE`` overrides).
 
-The two solves run in two Python threads that hand a baton to each other from the solver's
-per-iteration callback; only the holder of the baton computes, and iteration times are taken
-inside the solver (the wait is outside them). Receding-horizon tasks are benchmarked on their
+The solves run in Python threads (in the order (a), (b), (a')) that hand a baton on from the
+solver's per-iteration callback; only the holder of the baton computes, and iteration times are
+taken inside the solver (the wait is outside them). Receding-horizon tasks are benchmarked on their
 first window (``window_steps``).
 
 Outputs in ``--out``: ``bench.json`` (per task: per-iteration median and p10/p90, phase shares,
-speed-up a/b, final costs and their relative difference, contact polygons, derivative accuracy
-against AutoDiff, FD thread scaling) and ``iterations.png`` (box plots, paper Fig. 8).
+speed-ups a/b and a'/b, final costs and their relative differences, contact polygons,
+derivative accuracy against AutoDiff, FD thread scaling, and the limit analysis of
+``limit_analysis``) and ``iterations.png`` (box plots, paper Fig. 8).
 """
 
 from __future__ import annotations
@@ -40,12 +44,18 @@ PAPER = [
     "solver.derivative_interval=1",
     "solver.autodiff_workers=1",  # serial, one step after another
     "solver.line_search_workers=1",  # one trial after another
+    "solver.derivative_reuse_tolerance=0",
+    "solver.derivative_secant_updates=0",  # exact partials every iteration
 ]
+# (a'): the paper's method on the fast configuration's contact solver (its
+# plant.contact_approximation is appended per task by ``bench_tasks``).
+PAPER_SAME_SOLVER = [c for c in PAPER if not c.startswith("plant.contact_approximation=")]
 # The fastest configuration measured on this machine (docs/performance.md): SAP; the cheaper
 # of AutoDiff (in one worker process per core) and batched forward differences (on threads),
 # chosen per task by a short probe
 # (``probe_derivatives``; ``--fast solver.derivatives=...`` skips it); exact derivatives at
-# every other step and on both sides of every contact event, interpolated in between.
+# every other step and on both sides of every contact event, interpolated in between; the
+# task's own solver.derivative_secant_updates (Kinova: secant partials between exact ones).
 # (``--fast solver.fd_forces=true``: finite differences over generalized forces, see
 # docs/performance.md.)
 FAST = [
@@ -62,32 +72,42 @@ FAST = [
 
 
 class _Baton:
-    """Two runners take turns; a finished runner never blocks the other."""
+    """Runners take turns in order (0, 1, ..., n-1, 0, ...); a finished runner is skipped and
+    never blocks the others."""
 
-    def __init__(self):
+    def __init__(self, n: int = 2):
         self.cond = threading.Condition()
         self.turn = 0
-        self.done = [False, False]
+        self.done = [False] * n
+
+    def _next(self, i: int) -> int:
+        n = len(self.done)
+        for j in range(1, n + 1):
+            if not self.done[(i + j) % n]:
+                return (i + j) % n
+        return i
 
     def wait(self, i: int) -> None:
         with self.cond:
-            self.cond.wait_for(lambda: self.turn == i or self.done[1 - i])
+            self.cond.wait_for(lambda: self.turn == i)
 
     def give(self, i: int) -> None:
         with self.cond:
-            self.turn = 1 - i
+            self.turn = self._next(i)
             self.cond.notify_all()
 
     def finish(self, i: int) -> None:
         with self.cond:
             self.done[i] = True
-            self.turn = 1 - i
+            if self.turn == i:
+                self.turn = self._next(i)
             self.cond.notify_all()
 
 
 def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> list:
-    """Solves ``tasks[0]`` and ``tasks[1]`` from U0 for ``iterations`` iterations each,
-    alternating blocks of ``block`` iterations. Returns [Solution or Exception, ...].
+    """Solves each of ``tasks`` (two or more) from U0 for ``iterations`` iterations, taking
+    turns in blocks of ``block`` iterations (tasks[0], tasks[1], ...). Returns [Solution or
+    Exception, ...] in the order of ``tasks``.
 
     ``shadow(U, mu)``, if given, is called in (b)'s turn after each of (b)'s iterations with the
     nominal controls U: [N, nu] that iteration started from (U0, then (b)'s iterates) and the μ
@@ -95,8 +115,8 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
     iteration (b) ran, also when (b) stops early."""
     from hydroilqr.solver.ilqr import solve
 
-    baton = _Baton()
-    results: list = [None, None]
+    baton = _Baton(len(tasks))
+    results: list = [None] * len(tasks)
 
     def runner(i: int) -> None:
         task = tasks[i]
@@ -130,7 +150,7 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
         finally:
             baton.finish(i)
 
-    threads = [threading.Thread(target=runner, args=(i,), daemon=True) for i in (0, 1)]
+    threads = [threading.Thread(target=runner, args=(i,), daemon=True) for i in range(len(tasks))]
     for t in threads:
         t.start()
     for t in threads:
@@ -360,6 +380,94 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
     return {"seconds_per_step": best, "choice": min(best, key=best.get)}
 
 
+def limit_analysis(task, sol, row: dict | None = None, threads: int = 0, repeats: int = 1) -> dict:
+    """Where the limit of one iteration is, for ``task`` (the fast configuration) at the
+    trajectory of its Solution ``sol`` (X: [N+1, nx], U: [N, nu]).
+
+    Times (seconds, best of ``repeats``): one rollout; one exact linearization of all N steps
+    on each path (AutoDiff serial in this process, AutoDiff in one worker process per core,
+    batched forward differences on C++ threads, the same over generalized forces where the
+    model allows it); one backward pass. The fastest possible iteration on this machine's
+    cores with today's Drake is then the exact partials of only the keypoints the fast
+    configuration needs (``derivatives.keypoints``) on the cheapest path (serial AutoDiff
+    counted as perfectly split over the cores), plus the backward pass, plus a line search
+    that accepts its first trial (one rollout). ``row`` (bench_task's result so far) adds the
+    measured medians of (b) and (a') and how close (b) comes (``limit_s / fast_median_s``)."""
+    from hydroilqr.model.derivatives import (
+        _finite_differences,
+        _force_differences,
+        autodiff_serial,
+        keypoints,
+    )
+    from hydroilqr.solver.ilqr import backward_pass
+
+    dyn, s = task.dynamics, task.config.solver
+    X, U = np.asarray(sol.X, float), np.asarray(sol.U, float)
+    N = U.shape[0]
+    cores = workers.cores()
+
+    def best(fn) -> float:
+        t_best = np.inf
+        for _ in range(max(1, repeats)):
+            t = time.perf_counter()
+            fn()
+            t_best = min(t_best, time.perf_counter() - t)
+        return float(t_best)
+
+    out: dict = {"steps": int(N), "cores": int(cores)}
+    out["rollout_s"] = best(lambda: dyn.rollout(task.x0, U))
+    dyn.autodiff()  # one-time conversion, not part of a linearization
+    lin = {"autodiff_serial": best(lambda: autodiff_serial(dyn, X[:N], U))}
+    n_workers = workers.resolve(0)
+    if n_workers > 1 and N >= 2 * n_workers:
+        try:
+            workers.warm_up(dyn, n_workers)
+            lin["autodiff_workers"] = best(lambda: workers.autodiff(dyn, X[:N], U, n_workers))
+        except workers.Unavailable:
+            pass
+    nxt = X[1 : N + 1]
+
+    def fd():
+        _finite_differences(dyn, X[:N], U, False, s.fd_epsilon, threads, nxt, forces=False)
+
+    lin["forward_threads"] = best(fd)
+    if dyn.force_path() is not None:
+        lin["fd_forces_threads"] = best(
+            lambda: _force_differences(dyn, X[:N], U, False, s.fd_epsilon, threads, nxt)
+        )
+    out["linearization_all_steps_s"] = lin
+    per_step = {k: v / N for k, v in lin.items()}
+    # the cheapest per step on all cores: serial AutoDiff ideally split over the cores
+    on_cores = dict(per_step)
+    on_cores["autodiff_serial"] = per_step["autodiff_serial"] / cores
+    cheapest = min(on_cores, key=on_cores.get)
+    out["linearization_per_step_s"] = per_step
+    out["cheapest_path"] = cheapest
+    keys = keypoints(dyn, X, N, s.derivative_interval, s.derivative_adaptive)
+    out["keypoints"] = len(keys)
+    A, B = autodiff_serial(dyn, X[:N], U)
+    quad = task.problem().cost.quadratize(X, U, task.problem().t0)
+    out["backward_pass_s"] = best(lambda: backward_pass(A, B, quad, s.regularization_init))
+    out["line_search_one_trial_s"] = out["rollout_s"]
+    out["limit_all_steps_s"] = (
+        N * on_cores[cheapest] + out["backward_pass_s"] + out["line_search_one_trial_s"]
+    )
+    out["limit_s"] = (
+        len(keys) * on_cores[cheapest] + out["backward_pass_s"] + out["line_search_one_trial_s"]
+    )
+    for key in ("fast", "paper_same_solver"):
+        m = (row or {}).get(key, {})
+        if "median_s" in m:
+            out[f"{key}_median_s"] = m["median_s"]
+            out[f"{key}_phase_median_s"] = m["phase_median_s"]
+    if "fast_median_s" in out:
+        out["fast_share_of_limit"] = out["limit_s"] / out["fast_median_s"]
+    if "paper_same_solver_median_s" in out:
+        # the most any configuration could gain per iteration over (a') at this trajectory
+        out["max_speedup_same_solver"] = out["paper_same_solver_median_s"] / out["limit_s"]
+    return out
+
+
 # ------------------------------------------------------------------------------------------
 # One task
 # ------------------------------------------------------------------------------------------
@@ -388,18 +496,22 @@ def _stats(sol) -> dict:
 
 
 def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict, list]:
-    """The configurations ({"paper": [...], "fast": [...]}) and the two validated Tasks of
-    one benchmark; ConfigError if ``fast`` changes the problem being timed (its length or
-    time step: both runs share one initial guess and are compared per iteration)."""
+    """The configurations ({"paper": [...], "fast": [...], "paper_same_solver": [...]}) and
+    the validated Tasks of one benchmark in the order (a), (b), (a'); ConfigError if ``fast``
+    changes the problem being timed (its length or time step: the runs share one initial guess
+    and are compared per iteration). (a') takes (b)'s contact approximation."""
     from hydroilqr.problem.task import Task
 
     sets = list(sets or [])
     th = [f"solver.threads={threads}"]
     cfgs = {"paper": PAPER + th, "fast": FAST + th + list(fast or [])}
     tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
+    approx = tasks[1].config.plant.contact_approximation
+    cfgs["paper_same_solver"] = PAPER_SAME_SOLVER + [f"plant.contact_approximation={approx}"] + th
+    tasks.append(Task.load(name, sets + cfgs["paper_same_solver"], smoke=smoke))
     for t in tasks:
         t.validate()
-    a, b = tasks
+    a, b = tasks[:2]
     if a.steps != b.steps or a.config.plant.time_step != b.config.plant.time_step:
         raise ConfigError(
             f"--fast: {a.name}'s fast configuration has {b.steps} steps of "
@@ -436,7 +548,7 @@ def bench_task(
     name = tasks[0].name  # the task's own name, also when given as a file
     (on_message or _ignore)(
         f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
-        f"nu={tasks[0].dynamics.nu}, {iterations} iterations each, alternating"
+        f"nu={tasks[0].dynamics.nu}, {iterations} iterations each of (a), (b), (a'), alternating"
     )
     for t in tasks:  # worker processes (if any) start here, not inside a timed iteration
         s = t.config.solver
@@ -460,7 +572,7 @@ def bench_task(
     }
     X0 = tasks[1].dynamics.rollout(tasks[1].x0, U0)
     out["initial_polygons"] = polygons(tasks[1].dynamics, X0)
-    for key, task, r in zip(("paper", "fast"), tasks, res):
+    for key, task, r in zip(("paper", "fast", "paper_same_solver"), tasks, res):
         if isinstance(r, Exception):
             out[key] = {"error": f"{type(r).__name__}: {str(r).strip().splitlines()[0]}"}
             continue
@@ -474,6 +586,16 @@ def bench_task(
         out["cost_rel_diff"] = (b["final_cost"] - a["final_cost"]) / max(
             abs(a["final_cost"]), 1e-12
         )
+    if all("median_s" in out.get(k, {}) for k in ("paper_same_solver", "fast")):
+        a, b = out["paper_same_solver"], out["fast"]
+        out["speedup_same_solver_median"] = a["median_s"] / b["median_s"]
+        out["speedup_same_solver_total"] = a["total_s"] / b["total_s"]
+        out["cost_rel_diff_same_solver"] = (b["final_cost"] - a["final_cost"]) / max(
+            abs(a["final_cost"]), 1e-12
+        )
+    if "median_s" in out["fast"]:
+        out["limits"] = limit_analysis(tasks[1], res[1], out, threads)
+    if all("median_s" in out[k] for k in ("paper", "fast")):
         if accuracy:
             sol_b = res[1]
             out["accuracy"] = derivative_accuracy(tasks[1], sol_b.X, sol_b.U, threads)
@@ -611,6 +733,7 @@ def _write(out: Path, rows, iterations, threads, command: str | None = None) -> 
         "cpu_count": os.cpu_count(),
         "load_average_end": list(os.getloadavg()),
         "paper": PAPER,
+        "paper_same_solver": PAPER_SAME_SOLVER,
         "fast": FAST,
         "tasks": {r["task"]: r for r in rows},
         "environment": environment(command),
