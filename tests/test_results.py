@@ -31,3 +31,33 @@ def test_results_command(tmp_path, capsys):
     md = (out / "results.md").read_text()
     assert f"hydroilqr results cartpole-wall --smoke --out {out}" in md
     json.loads((out / "results.json").read_text())
+
+
+def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
+    bench = {
+        "environment": {"command": "hydroilqr bench kinova-forward", "load_average": 0.4},
+        "tasks": [
+            {
+                "task": "kinova-forward",
+                "paper": {"median_s": 0.52, "final_cost": 43.9},
+                "fast": {"median_s": 0.38, "final_cost": 44.3},
+                "paper_same_solver": {"median_s": 0.53, "final_cost": 44.3},
+                "speedup_median": 1.4,
+                "speedup_same_solver_median": 1.4,
+                "cost_rel_diff_same_solver": 0.0003,
+                "limits": {"limit_s": 0.11, "fast_share_of_limit": 0.3},
+            }
+        ],
+    }
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "bench.json").write_text(json.dumps(bench))
+    results.generate(["kinova-forward"], out=tmp_path, smoke=True)
+    md = (tmp_path / "results.md").read_text()
+    page = json.loads((tmp_path / "results.json").read_text())
+    (solved,) = page["sections"]["solves"]
+    assert solved["status"] and solved["goal"]["checks"][0]["metric"] == "target_error_m"
+    (moved,) = page["sections"]["transfer"]
+    assert moved["task"] == "kinova-forward" and moved["final_gap_m"] >= 0
+    assert "## Transfer (open-loop playback)" in md and "## Speed per iteration" in md
+    assert "| `kinova-forward` | 0.520 | 0.530 | 0.380 | 1.4x | 1.4x |" in md
+    assert "(load 0.4)" in md

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -399,6 +400,8 @@ def environment(command: str | None = None) -> dict:
         "cpu_features": simd,
         "blas_core": blas_core(),
         "cores": cores(),
+        # 1-minute load average when the result was written: timings mean little on a busy host
+        "load_average": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
         # the command line that produced the result (None from Python)
         "command": command,
     }

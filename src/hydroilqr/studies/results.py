@@ -67,6 +67,7 @@ class Context:
     command: str
     smoke: bool
     overrides: list[str] = field(default_factory=list)
+    out: str = "docs"
 
 
 # ------------------------------------------------------------------------------ the columns
@@ -108,10 +109,25 @@ COLUMNS: list[Column] = [
     Column("task", lambda r: f"`{r.name}`"),
     Column("iterations", lambda r: str(r.sol.iterations)),
     Column("final cost", lambda r: f"{r.sol.final_cost:.4g}"),
-    Column("converged", lambda r: "yes" if r.sol.converged else f"no ({r.sol.reason})"),
+    Column("status", lambda r: f"{r.sol.status} ({r.sol.reason})"),
+    Column("goal", lambda r: _goal_cell(r.task, r.metrics)),
     Column("solve s", lambda r: f"{r.solve_seconds:.1f}"),
     Column("headline metrics", lambda r: headline(r.metrics)),
 ]
+
+
+def _goal_cell(task, metrics: dict) -> str:
+    """PASS / FAIL with the failed checks ('' for a task without a goal)."""
+    from hydroilqr.metrics.goals import evaluate
+
+    g = evaluate(task.config.goal, metrics)
+    if g["met"] is None:
+        return ""
+    if g["met"]:
+        return "PASS"
+    return "FAIL: " + "; ".join(
+        f"{c['metric']} {c.get('why', '')}" for c in g["checks"] if not c["passed"]
+    )
 
 
 def _cell(text: str) -> str:
@@ -131,7 +147,9 @@ def solve_table(results: Sequence[TaskResult], context: Context) -> Section:
         {
             "task": r.name,
             "converged": bool(r.sol.converged),
+            "status": r.sol.status,
             "reason": r.sol.reason,
+            "goal": _goal_json(r.task, r.metrics),
             "iterations": int(r.sol.iterations),
             "final_cost": float(r.sol.final_cost),
             "solve_seconds": float(r.solve_seconds),
@@ -142,7 +160,116 @@ def solve_table(results: Sequence[TaskResult], context: Context) -> Section:
     return Section("solves", "Solves", "\n".join([head, rule, *rows, "", note]), data)
 
 
-SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [solve_table]
+def _goal_json(task, metrics: dict) -> dict:
+    from hydroilqr.metrics.goals import evaluate
+
+    return evaluate(task.config.goal, metrics)
+
+
+#: How the transfer section plays each plan back: PD+ at the paper's gains, half speed.
+TRANSFER_PLAYBACK = {"speed": 0.5}
+
+
+def _moves_an_object(task) -> bool:
+    return any(m in ("object", "kinova") for m in task.config.metrics)
+
+
+def transfer_table(results: Sequence[TaskResult], context: Context) -> Section | None:
+    """Open-loop playback (``hydroilqr playback RUN --speed 0.5``) of every task that moves an
+    object: where the object comes to rest against where the plan puts it to rest, the gap at
+    the plan's end, and the task's goal judged on the executed motion."""
+    from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+
+    rows, data = [], []
+    for r in results:
+        if not _moves_an_object(r.task):
+            continue
+        pb = playback(r.task, r.sol, PlaybackSettings(**TRANSFER_PLAYBACK))
+        ob = pb.metrics["object"]
+        judged = executed_goal(r.task, r.sol, pb)
+        g = judged["goal"]
+        verdict = "" if g["met"] is None else ("PASS" if g["met"] else "FAIL")
+        rest = ob.get("resting_gap")
+        rows.append(
+            f"| `{r.name}` | {'' if rest is None else f'{100 * rest:.1f}'} | "
+            f"{100 * ob['final_gap']:.1f} | {100 * pb.metrics['saturated_fraction']:.1f} | "
+            f"{len(pb.metrics.get('warnings', []))} | {verdict} |"
+        )
+        data.append(
+            {
+                "task": r.name,
+                "resting_gap_m": rest,
+                "final_gap_m": ob["final_gap"],
+                "saturated_fraction": pb.metrics["saturated_fraction"],
+                "warnings": pb.metrics.get("warnings", []),
+                "goal_on_executed_motion": g,
+            }
+        )
+    if not rows:
+        return None
+    head = (
+        "| task | resting gap cm | gap at plan end cm | saturated % | warnings | goal |\n"
+        "|---|---|---|---|---|---|"
+    )
+    note = (
+        "PD+ (eq. 11) at the paper's gains, plan played at half speed on the finer simulation "
+        "with the other contact approximation (`hydroilqr playback RUN --speed 0.5`); after the "
+        "plan the robot holds its last reference until the object rests (or 3 s). `goal`: the "
+        "task's goal judged on the executed motion, at rest."
+    )
+    return Section(
+        "transfer", "Transfer (open-loop playback)", "\n".join([head, *rows, "", note]), data
+    )
+
+
+def bench_table(results: Sequence[TaskResult], context: Context) -> Section | None:
+    """The latest ``hydroilqr bench ... --out OUT/bench`` (its own command and load), if one
+    was run into the results directory: per-iteration time of (a) the paper's method, (a')
+    the paper's method on the fast path's contact solver and (b) the fast path, the ratios,
+    final costs, and the limit analysis."""
+    path = Path(context.out) / "bench" / "bench.json"
+    if not path.is_file():
+        return None
+    doc = json.loads(path.read_text())
+    rows = []
+    for r in doc.get("tasks", []):
+        a, b, a2 = r.get("paper", {}), r.get("fast", {}), r.get("paper_same_solver", {})
+        if not all("median_s" in x for x in (a, b, a2)):
+            continue
+        lim = r.get("limits", {})
+        rows.append(
+            f"| `{r['task']}` | {a['median_s']:.3f} | {a2['median_s']:.3f} | {b['median_s']:.3f} "
+            f"| {r['speedup_median']:.1f}x | {r['speedup_same_solver_median']:.1f}x | "
+            f"{a2['final_cost']:.4g} / {b['final_cost']:.4g} "
+            f"({r['cost_rel_diff_same_solver']:+.1%}) | "
+            + (
+                f"{lim['limit_s']:.3f} ({lim['fast_share_of_limit']:.0%}) |"
+                if "fast_share_of_limit" in lim
+                else " |"
+            )
+        )
+    env = doc.get("environment", {})
+    load = env.get("load_average") or env.get("load")
+    head = (
+        "| task | (a) s/it | (a') s/it | (b) s/it | a/b | a'/b | cost a' / b | "
+        "fastest possible s/it (b reaches) |\n|---|---|---|---|---|---|---|---|"
+    )
+    note = (
+        f"From `{env.get('command', 'hydroilqr bench')}` (load {load or 'not recorded'}), "
+        "median seconds per iteration measured side by side in one process. (a): TAMSI, "
+        "AutoDiff at every step, serial (the paper's method); (a'): the same on (b)'s contact "
+        "solver; (b): the fast path. The fastest possible iteration: one rollout, exact "
+        "partials of the needed keypoints on the cheapest path on this machine's cores, "
+        "backward pass and line search."
+    )
+    return Section("bench", "Speed per iteration", "\n".join([head, *rows, "", note]), doc)
+
+
+SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [
+    solve_table,
+    transfer_table,
+    bench_table,
+]
 
 
 # ------------------------------------------------------------------------------ the page
@@ -246,6 +373,7 @@ def generate(
         command=command or command_line(tasks, out, smoke, overrides),
         smoke=smoke,
         overrides=list(overrides),
+        out=str(out),
     )
     results = solve_tasks(tasks, overrides, smoke, progress)
     env = dict(environment())
