@@ -174,8 +174,6 @@ def _run(args) -> int:
 def _exit_code(e: BaseException) -> int | None:
     """Prints the one line that reports ``e`` on stderr and returns the exit code; None for
     what is raised on (SystemExit, and any error under HYDROILQR_DEBUG=1)."""
-    from hydroilqr.model.plant import SimulationError
-
     if isinstance(e, KeyboardInterrupt):
         detail = f": {e}" if str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
@@ -183,31 +181,40 @@ def _exit_code(e: BaseException) -> int | None:
     if os.environ.get("HYDROILQR_DEBUG"):
         return None
     if isinstance(e, SystemExit):  # e.g. from pydrake: its message, as one line
-        if isinstance(e.code, int) or e.code is None:
-            return None
-        print(f"hydroilqr: error: {_first_line(e.code)}", file=sys.stderr)
-        return 1
+        return _system_exit_code(e)
     if not isinstance(e, Exception):
         return None
+    code, line = _error_line(e)
+    print(line, file=sys.stderr)
+    return code
+
+
+def _system_exit_code(e: SystemExit) -> int | None:
+    """None for a SystemExit that carries an exit code; 1 (after its message, as one line)
+    for one that carries a message."""
+    if isinstance(e.code, int) or e.code is None:
+        return None
+    print(f"hydroilqr: error: {_first_line(e.code)}", file=sys.stderr)
+    return 1
+
+
+def _error_line(e: Exception) -> tuple[int, str]:
+    """The exit code for ``e`` and the one line that reports it."""
+    from hydroilqr.model.plant import SimulationError
+
     if isinstance(e, ConfigError):
-        print(f"hydroilqr: error: {e}", file=sys.stderr)
-        return 2
+        return 2, f"hydroilqr: error: {e}"
     if isinstance(e, SimulationError):
-        print(f"hydroilqr: simulation failed: {e}", file=sys.stderr)
-        return 3
+        return 3, f"hydroilqr: simulation failed: {e}"
     if isinstance(e, OSError):  # e.g. a full disk or a directory made read-only during the run
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-        print(f"hydroilqr: error: {where}{e.strerror or e}", file=sys.stderr)
-        return 1
+        return 1, f"hydroilqr: error: {where}{e.strerror or e}"
     if isinstance(e, RuntimeError) and str(e).lstrip().startswith("Failure at "):
-        print(f"hydroilqr: Drake failure: {_first_line(e)}", file=sys.stderr)
-        return 3
-    print(
+        return 3, f"hydroilqr: Drake failure: {_first_line(e)}"
+    return 1, (
         f"hydroilqr: internal error: {type(e).__name__}: {_first_line(e)} "
-        "(set HYDROILQR_DEBUG=1 for a traceback)",
-        file=sys.stderr,
+        "(set HYDROILQR_DEBUG=1 for a traceback)"
     )
-    return 1
 
 
 if __name__ == "__main__":

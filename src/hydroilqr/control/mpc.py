@@ -81,13 +81,24 @@ MPCSettings = MPCConfig
 
 def check_settings(settings: MPCSettings, task) -> None:
     """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``)."""
+    dt = task.config.plant.time_step
+    _check_timing(settings, dt)
+    _check_iteration(settings)
+    validate_mpc(settings)  # the checks shared with a task file's mpc: section
+    if settings.warm_start_plan:
+        settings.plan_controls(task)
+    _check_pushes(settings, task.dynamics.plant)
+    _check_truth(settings, task, dt)
+
+
+def _check_timing(settings: MPCSettings, dt: float) -> None:
+    """Rate, horizon and duration: positive, within MAX_STEPS, whole time steps of ``dt``."""
     if not all(
         math.isfinite(v) and v > 0 for v in (settings.rate, settings.horizon, settings.duration)
     ):
         raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
     if settings.threads < 0:
         raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
-    dt = task.config.plant.time_step
     for what, seconds in (("horizon", settings.horizon), ("duration", settings.duration)):
         if seconds / dt > MAX_STEPS:
             raise ConfigError(
@@ -114,16 +125,20 @@ def check_settings(settings: MPCSettings, task) -> None:
         raise ConfigError(
             f"mpc duration {settings.duration:g} s: shorter than one time step ({dt:g} s)"
         )
+
+
+def _check_iteration(settings: MPCSettings) -> None:
+    """Iterations per update, feedback scale and line search of each update."""
     if settings.iterations_per_update < 1:
         raise ConfigError("mpc iterations per update: at least 1")
     if not (math.isfinite(settings.feedback_scale) and settings.feedback_scale >= 0):
         raise ConfigError(f"--feedback-scale {settings.feedback_scale:g}: must be finite and >= 0")
     if settings.line_search_steps < 1 or settings.line_search_retries < 0:
         raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
-    validate_mpc(settings)  # the checks shared with a task file's mpc: section
-    if settings.warm_start_plan:
-        settings.plan_controls(task)
-    plant = task.dynamics.plant
+
+
+def _check_pushes(settings: MPCSettings, plant) -> None:
+    """Each push: on a movable body of ``plant``, of positive duration, within the run."""
     welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
     for p in settings.pushes:
         if not plant.HasBodyNamed(p.body) or p.body in welded:
@@ -138,6 +153,10 @@ def check_settings(settings: MPCSettings, task) -> None:
             raise ConfigError(
                 f"--push at {p.time:g} s: outside the run (0 to {settings.duration:g} s)"
             )
+
+
+def _check_truth(settings: MPCSettings, task, dt: float) -> None:
+    """The simulated plant's overrides, and a shrinking horizon that ends with the task."""
     if settings.truth_overrides:
         check_truth_overrides(settings.truth_overrides)
         truth = with_overrides(task.config, settings.truth_overrides)

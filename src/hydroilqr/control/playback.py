@@ -445,121 +445,21 @@ def playback(
     wall0 = time.perf_counter()
     planner = task.dynamics
     truth = Dynamics(truth_config(task, settings))
-    if truth.nx != planner.nx or truth.nu != planner.nu:
-        raise ConfigError("playback: the truth model's state/input size differs from the plan's")
-    if sol.X.shape[1] != truth.nx or sol.U.shape[1] != truth.nu:
-        raise ConfigError(
-            f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
-            f"but the task has nx={truth.nx}, nu={truth.nu}"
-        )
-    if settings.policy == "ilqr" and np.shape(sol.K) != (sol.U.shape[0], truth.nu, truth.nx):
-        raise ConfigError(
-            "playback --policy ilqr: the plan has no feedback gains K (saved without them); "
-            "use --policy pd"
-        )
-    plant = truth.plant
-    act_names, joint_names, units, qi, vi, limits = actuated_joints(plant)
+    _check_sizes(truth, planner, sol, settings)
+    act_names, joint_names, units, qi, vi, limits = actuated_joints(truth.plant)
     obj = choose_object(truth, settings.object, sol.X)
     plan = PlanSampler(sol, truth.layout.quaternions)
+    clock = _PlayClock.of(plan, settings)
+    ctl = _Controller(task, plan, settings, clock, qi, vi, limits, np.zeros(truth.nu))
+    X, U = _simulate(truth, plan.X[0], ctl, clock, progress)
+    reference = _reference(task, plan, ctl, clock, qi, vi)
 
-    s = float(settings.speed)
-    dt = float(settings.truth_time_step)
-    T_play = plan.duration / s
-    n = max(1, int(round(T_play / dt)))
-    tol = 1e-9 * max(1.0, T_play)
-    ctrl_period = pd_period(settings)  # whole truth steps, as _pd_check assumes
-    if settings.policy == "ilqr":
-        ctrl_period = float(plan.t[1] - plan.t[0]) / s if plan.N > 0 else dt
-    vscale = s if settings.scale_velocity_reference else 1.0
-
-    X = np.empty((n + 1, truth.nx))
-    U = np.empty((n, truth.nu))
-    X[0] = plan.X[0]
-    ref_t, ref_q, ref_v, ref_u = [], [], [], []
-    next_update, next_ctrl = 0.0, 0.0
-    u = np.zeros(truth.nu)
-    qbar = vbar = ubar = None
-    saturated = 0
-    controls = 0
-    for k in range(n):
-        tau = k * dt
-        x = X[k]
-        if settings.policy == "pd":
-            if tau >= next_update - tol:
-                while next_update + settings.update_period <= tau + tol:
-                    next_update += settings.update_period  # update period < truth step
-                xr = plan.state(s * next_update)
-                qbar, vbar = xr[qi], vscale * xr[vi]
-                # the torque that acted in the plan (its commands beyond a limit acted at it)
-                ubar = task.dynamics.clip_to_limits(plan.input(s * next_update))
-                ref_t.append(next_update)
-                ref_q.append(qbar)
-                ref_v.append(vbar)
-                ref_u.append(ubar)
-                next_update += settings.update_period
-            if tau >= next_ctrl - tol:
-                u = ubar - settings.kp * (x[qi] - qbar) - settings.kd * (x[vi] - vbar)
-                while next_ctrl <= tau + tol:
-                    next_ctrl += ctrl_period
-                controls += 1
-                if settings.clip_torques:
-                    sat = np.abs(u) > limits
-                    saturated += int(np.count_nonzero(sat))
-                    u = np.clip(u, -limits, limits)
-        else:
-            if tau >= next_ctrl - tol:
-                j = plan.index(s * tau)
-                u = plan.U[j] - plan.K[j] @ (x - plan.X[j])
-                while next_ctrl <= tau + tol:
-                    next_ctrl += ctrl_period
-                controls += 1
-                if settings.clip_torques:
-                    saturated += int(np.count_nonzero(np.abs(u) > limits))
-                    u = np.clip(u, -limits, limits)
-        U[k] = u
-        try:
-            X[k + 1] = truth.step(x, u)
-        except SimulationError as e:
-            raise SimulationError(f"real system, t={tau:.3f} s: {e}") from None
-        if truth.layout.quaternions:
-            X[k + 1] = truth.layout.normalize(X[k + 1])
-        if progress is not None and k % 100 == 0:
-            progress(k, n)
-    if settings.policy == "ilqr" or not ref_t:
-        # The exported reference is the PD+ one in any case (what a robot would be sent).
-        # the updates the pd policy makes: every period while a step is left (tau < T_play)
-        ref_t = list(np.arange(0.0, (n - 1) * dt + tol, settings.update_period))
-        for tr in ref_t:
-            xr = plan.state(s * tr)
-            ref_q.append(xr[qi])
-            ref_v.append(vscale * xr[vi])
-            ref_u.append(task.dynamics.clip_to_limits(plan.input(s * tr)))  # as acted
-
-    t = np.arange(n + 1) * dt
-    X_plan = np.array([plan.state(s * tk) for tk in t])
-    U_plan = np.array([plan.input(s * tk) for tk in t[:-1]])
+    t = np.arange(clock.n + 1) * clock.dt
+    X_plan = np.array([plan.state(clock.s * tk) for tk in t])
+    U_plan = np.array([plan.input(clock.s * tk) for tk in t[:-1]])
     hold = None
     if settings.rest_max > 0:
-        # Where things come to rest: the robot holds its last reference, the planning model
-        # is extended the same way (settle_plan), both until the object rests or rest_max.
-        ref = hold_reference(truth, plan.X[-1], qi)
-        Xh, Uh, sat_h, ctl_h, rested = _hold(truth, X[-1], ref, qi, vi, limits, obj, settings)
-        saturated += sat_h
-        controls += ctl_h
-        Xs, rested_plan = settle_plan(planner, plan.X[-1], obj, settings)
-        ext = PlanSampler(
-            _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt),
-            truth.layout.quaternions,
-        )
-        th = t[-1] + dt * np.arange(1, len(Xh) + 1)
-        Xp = np.array([ext.state(tk - t[-1]) for tk in th]).reshape(len(th), truth.nx)
-        hold = HoldPhase(th, Xh, Uh, Xp, Xs, rested, rested_plan)
-    reference = Reference(
-        np.array(ref_t),
-        np.array(ref_q).reshape(len(ref_t), -1),
-        np.array(ref_v).reshape(len(ref_t), -1),
-        np.array(ref_u).reshape(len(ref_t), -1),  # clipped where sampled
-    )
+        hold = _hold_phase(truth, planner, plan, X[-1], t, qi, vi, limits, obj, settings, ctl)
     result = PlaybackResult(
         settings=settings,
         planner_contact=task.config.plant.contact_approximation,
@@ -581,7 +481,184 @@ def playback(
         wall_seconds=0.0,
         hold=hold,
     )
-    result.metrics = _metrics(result, qi, vi, limits, vscale, saturated, controls, plan.X[-1])
+    m = _metrics(result, qi, vi, limits, clock.vscale, ctl.saturated, ctl.controls, plan.X[-1])
+    result.metrics = m
+    _add_warnings(result, truth, plan, joint_names, vi, settings)
+    result.wall_seconds = time.perf_counter() - wall0
+    result.metrics["wall_seconds"] = result.wall_seconds
+    return result
+
+
+def _check_sizes(truth: Dynamics, planner: Dynamics, sol: Solution, st: PlaybackSettings):
+    """ConfigError when the truth model, the plan or its gains do not fit one another."""
+    if truth.nx != planner.nx or truth.nu != planner.nu:
+        raise ConfigError("playback: the truth model's state/input size differs from the plan's")
+    if sol.X.shape[1] != truth.nx or sol.U.shape[1] != truth.nu:
+        raise ConfigError(
+            f"playback: solution has nx={sol.X.shape[1]}, nu={sol.U.shape[1]} "
+            f"but the task has nx={truth.nx}, nu={truth.nu}"
+        )
+    if st.policy == "ilqr" and np.shape(sol.K) != (sol.U.shape[0], truth.nu, truth.nx):
+        raise ConfigError(
+            "playback --policy ilqr: the plan has no feedback gains K (saved without them); "
+            "use --policy pd"
+        )
+
+
+@dataclass
+class _PlayClock:
+    """The playback's timing: speed ``s``, truth step ``dt``, ``n`` steps, the control
+    period in playback time and the scale of the velocity reference."""
+
+    s: float
+    dt: float
+    n: int
+    tol: float
+    ctrl_period: float
+    vscale: float
+
+    @classmethod
+    def of(cls, plan: PlanSampler, settings: PlaybackSettings) -> _PlayClock:
+        s = float(settings.speed)
+        dt = float(settings.truth_time_step)
+        T_play = plan.duration / s
+        n = max(1, int(round(T_play / dt)))
+        tol = 1e-9 * max(1.0, T_play)
+        ctrl_period = pd_period(settings)  # whole truth steps, as _pd_check assumes
+        if settings.policy == "ilqr":
+            ctrl_period = float(plan.t[1] - plan.t[0]) / s if plan.N > 0 else dt
+        vscale = s if settings.scale_velocity_reference else 1.0
+        return cls(s, dt, n, tol, ctrl_period, vscale)
+
+
+@dataclass
+class _Controller:
+    """The policy's command at each truth step (held between control instants), the PD+
+    references it sent, and how many commands it made and clipped."""
+
+    task: Any
+    plan: PlanSampler
+    settings: PlaybackSettings
+    clock: _PlayClock
+    qi: np.ndarray
+    vi: np.ndarray
+    limits: np.ndarray
+    u: np.ndarray
+    next_update: float = 0.0
+    next_ctrl: float = 0.0
+    qbar: Any = None
+    vbar: Any = None
+    ubar: Any = None
+    saturated: int = 0
+    controls: int = 0
+    ref_t: list = field(default_factory=list)
+    ref_q: list = field(default_factory=list)
+    ref_v: list = field(default_factory=list)
+    ref_u: list = field(default_factory=list)
+
+    def command(self, tau: float, x: np.ndarray) -> np.ndarray:
+        if self.settings.policy == "pd":
+            self._pd(tau, x)
+        else:
+            self._ilqr(tau, x)
+        return self.u
+
+    def _pd(self, tau: float, x: np.ndarray) -> None:
+        st, c, tol = self.settings, self.clock, self.clock.tol
+        if tau >= self.next_update - tol:
+            while self.next_update + st.update_period <= tau + tol:
+                self.next_update += st.update_period  # update period < truth step
+            xr = self.plan.state(c.s * self.next_update)
+            self.qbar, self.vbar = xr[self.qi], c.vscale * xr[self.vi]
+            # the torque that acted in the plan (its commands beyond a limit acted at it)
+            self.ubar = self.task.dynamics.clip_to_limits(self.plan.input(c.s * self.next_update))
+            self.ref_t.append(self.next_update)
+            self.ref_q.append(self.qbar)
+            self.ref_v.append(self.vbar)
+            self.ref_u.append(self.ubar)
+            self.next_update += st.update_period
+        if tau >= self.next_ctrl - tol:
+            self.u = self.ubar - st.kp * (x[self.qi] - self.qbar) - st.kd * (x[self.vi] - self.vbar)
+            self._count_and_clip(tau)
+
+    def _ilqr(self, tau: float, x: np.ndarray) -> None:
+        if tau >= self.next_ctrl - self.clock.tol:
+            plan = self.plan
+            j = plan.index(self.clock.s * tau)
+            self.u = plan.U[j] - plan.K[j] @ (x - plan.X[j])
+            self._count_and_clip(tau)
+
+    def _count_and_clip(self, tau: float) -> None:
+        while self.next_ctrl <= tau + self.clock.tol:
+            self.next_ctrl += self.clock.ctrl_period
+        self.controls += 1
+        if self.settings.clip_torques:
+            self.saturated += int(np.count_nonzero(np.abs(self.u) > self.limits))
+            self.u = np.clip(self.u, -self.limits, self.limits)
+
+
+def _simulate(truth: Dynamics, x0, ctl: _Controller, clock: _PlayClock, progress):
+    """X: [n+1, nx] and U: [n, nu] of the real system under ``ctl``, from ``x0``."""
+    n, dt = clock.n, clock.dt
+    X = np.empty((n + 1, truth.nx))
+    U = np.empty((n, truth.nu))
+    X[0] = x0
+    for k in range(n):
+        tau = k * dt
+        x = X[k]
+        u = ctl.command(tau, x)
+        U[k] = u
+        try:
+            X[k + 1] = truth.step(x, u)
+        except SimulationError as e:
+            raise SimulationError(f"real system, t={tau:.3f} s: {e}") from None
+        if truth.layout.quaternions:
+            X[k + 1] = truth.layout.normalize(X[k + 1])
+        if progress is not None and k % 100 == 0:
+            progress(k, n)
+    return X, U
+
+
+def _reference(task, plan: PlanSampler, ctl: _Controller, clock: _PlayClock, qi, vi):
+    """The exported reference: the PD+ one in any case (what a robot would be sent)."""
+    ref_t, ref_q, ref_v, ref_u = ctl.ref_t, ctl.ref_q, ctl.ref_v, ctl.ref_u
+    if ctl.settings.policy == "ilqr" or not ref_t:
+        # the updates the pd policy makes: every period while a step is left (tau < T_play)
+        s, dt, tol = clock.s, clock.dt, clock.tol
+        ref_t = list(np.arange(0.0, (clock.n - 1) * dt + tol, ctl.settings.update_period))
+        for tr in ref_t:
+            xr = plan.state(s * tr)
+            ref_q.append(xr[qi])
+            ref_v.append(clock.vscale * xr[vi])
+            ref_u.append(task.dynamics.clip_to_limits(plan.input(s * tr)))  # as acted
+    return Reference(
+        np.array(ref_t),
+        np.array(ref_q).reshape(len(ref_t), -1),
+        np.array(ref_v).reshape(len(ref_t), -1),
+        np.array(ref_u).reshape(len(ref_t), -1),  # clipped where sampled
+    )
+
+
+def _hold_phase(truth, planner, plan, x_end, t, qi, vi, limits, obj, settings, ctl):
+    """Where things come to rest: the robot holds its last reference, the planning model
+    is extended the same way (settle_plan), both until the object rests or rest_max. The
+    hold's commands are counted in ``ctl``."""
+    ref = hold_reference(truth, plan.X[-1], qi)
+    Xh, Uh, sat_h, ctl_h, rested = _hold(truth, x_end, ref, qi, vi, limits, obj, settings)
+    ctl.saturated += sat_h
+    ctl.controls += ctl_h
+    Xs, rested_plan = settle_plan(planner, plan.X[-1], obj, settings)
+    ext = PlanSampler(
+        _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt),
+        truth.layout.quaternions,
+    )
+    th = t[-1] + ctl.clock.dt * np.arange(1, len(Xh) + 1)
+    Xp = np.array([ext.state(tk - t[-1]) for tk in th]).reshape(len(th), truth.nx)
+    return HoldPhase(th, Xh, Uh, Xp, Xs, rested, rested_plan)
+
+
+def _add_warnings(result: PlaybackResult, truth, plan, joint_names, vi, settings) -> None:
+    """The advisories, the PD check (pd policy) and the saturation warning, in the metrics."""
     result.metrics["warnings"] = advisories(truth.plant, settings)
     if settings.policy == "pd":
         pd = _pd_check(truth, plan.X[0], joint_names, vi, settings)
@@ -592,9 +669,6 @@ def playback(
             f"{100 * sat:.0f}% of the commands hit the effort limits: the playback cannot apply "
             "what the controller asks (lower --kp/--kd, or a slower --speed for PD+)"
         )
-    result.wall_seconds = time.perf_counter() - wall0
-    result.metrics["wall_seconds"] = result.wall_seconds
-    return result
 
 
 class _Trajectory(NamedTuple):

@@ -76,10 +76,28 @@ class QuadraticCost:
         (the task's model files) must match the reference run's, when its summary names them."""
         q = layout.tangent_vector(cfg.Q, "cost.Q")
         qf = layout.tangent_vector(cfg.Qf, "cost.Qf")
+        r = QuadraticCost._control_weights(layout, cfg.R)
+        if not np.all(np.isfinite(r)) or np.any(r < 0):
+            raise ConfigError("cost.R: weights must be finite and non-negative")
+        x_nom = layout.coordinate_vector(cfg.nominal, "cost.nominal", layout.default_nominal())
+        rate = QuadraticCost._nominal_rate(layout, cfg.nominal_rate)
+        if cfg.running_cost_dt:
+            q, r = q * dt, r * dt
+        terms = QuadraticCost._terms(layout, cfg)
+        cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
+        if cfg.reference:
+            cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
+        elif cfg.reference_blocks:
+            raise ConfigError("cost.reference_blocks: given without cost.reference")
+        return cost
+
+    @staticmethod
+    def _control_weights(layout: StateLayout, R) -> np.ndarray:
+        """r: [nu] from cost.R: a number, one per actuator, or a mapping actuator -> weight."""
         nu = len(layout.actuators)
-        if isinstance(cfg.R, dict):
+        if isinstance(R, dict):
             r = np.zeros(nu)
-            for name, w in cfg.R.items():
+            for name, w in R.items():
                 if name not in layout.actuators:
                     raise ConfigError(
                         f"cost.R.{name}: unknown actuator (known: {', '.join(layout.actuators)})"
@@ -88,22 +106,23 @@ class QuadraticCost:
                     r[layout.actuators.index(name)] = float(w)
                 except (TypeError, ValueError):
                     raise ConfigError(f"cost.R.{name}: expected a number, got {w!r}") from None
-        else:
-            try:
-                vals = np.asarray(cfg.R, dtype=float).reshape(-1)
-            except (TypeError, ValueError):
-                raise ConfigError(f"cost.R: expected numbers, got {cfg.R!r}") from None
-            if np.ndim(cfg.R) == 0:  # a number applies to every actuator
-                vals = np.full(nu, vals[0])
-            if vals.size != nu:
-                want = "1 value" if nu == 1 else f"a number or {nu} values (one per actuator)"
-                raise ConfigError(f"cost.R: expected {want}, got a list of {vals.size}")
-            r = vals
-        if not np.all(np.isfinite(r)) or np.any(r < 0):
-            raise ConfigError("cost.R: weights must be finite and non-negative")
-        x_nom = layout.coordinate_vector(cfg.nominal, "cost.nominal", layout.default_nominal())
+            return r
+        try:
+            vals = np.asarray(R, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ConfigError(f"cost.R: expected numbers, got {R!r}") from None
+        if np.ndim(R) == 0:  # a number applies to every actuator
+            vals = np.full(nu, vals[0])
+        if vals.size != nu:
+            want = "1 value" if nu == 1 else f"a number or {nu} values (one per actuator)"
+            raise ConfigError(f"cost.R: expected {want}, got a list of {vals.size}")
+        return vals
+
+    @staticmethod
+    def _nominal_rate(layout: StateLayout, nominal_rate: dict) -> np.ndarray:
+        """rate: [nx], the nominal's rate of change per block of cost.nominal_rate."""
         rate = np.zeros(layout.nx)
-        for name, v in cfg.nominal_rate.items():
+        for name, v in nominal_rate.items():
             b = layout.block(name, f"cost.nominal_rate.{name}")
             if b.kind == "quaternion":
                 raise ConfigError(f"cost.nominal_rate.{name}: not supported for orientations")
@@ -116,8 +135,11 @@ class QuadraticCost:
                     f"got a list of {vals.size}"
                 )
             rate[list(b.coords)] = vals
-        if cfg.running_cost_dt:
-            q, r = q * dt, r * dt
+        return rate
+
+    @staticmethod
+    def _terms(layout: StateLayout, cfg: CostConfig) -> dict:
+        """Term name ("Q.<block>", "Qf.<block>") -> (section, the tangent indices it weights)."""
         terms = {}
         for section in ("Q", "Qf"):
             # Each coordinate belongs to the last named block that set its weight (the weight
@@ -128,12 +150,7 @@ class QuadraticCost:
             for name in getattr(cfg, section):
                 idx = tuple(i for i in layout.block(name).tangent if owner[i] == name)
                 terms[f"{section}.{name}"] = (section, idx)
-        cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
-        if cfg.reference:
-            cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
-        elif cfg.reference_blocks:
-            raise ConfigError("cost.reference_blocks: given without cost.reference")
-        return cost
+        return terms
 
     def set_reference(self, t: np.ndarray, X: np.ndarray, blocks: list[str]) -> None:
         """Track X: [M, nx] at times t: [M] on ``blocks`` (all if empty)."""

@@ -102,40 +102,46 @@ def _proximity_props(
     p: ContactProperties, old: ProximityProperties | None, shape: str = ""
 ) -> ProximityProperties:
     """New ProximityProperties: the old material/hydroelastic values overridden by ``p``."""
-
-    def old_value(group, name, default=None):
-        if old is not None and old.HasProperty(group, name):
-            return old.GetProperty(group, name)
-        return default
-
     props = ProximityProperties()
-    friction = old_value("material", "coulomb_friction")
+    _add_material(props, p, old)
+    _add_hydroelastic(props, p, old, shape)
+    return props
+
+
+def _old_value(old: ProximityProperties | None, group: str, name: str, default=None):
+    """``old``'s value of ``group.name``, ``default`` if it has none."""
+    if old is not None and old.HasProperty(group, name):
+        return old.GetProperty(group, name)
+    return default
+
+
+def _add_material(props, p: ContactProperties, old: ProximityProperties | None) -> None:
+    """Friction, dissipation, point stiffness and relaxation time: ``p``'s, else ``old``'s."""
+    friction = _old_value(old, "material", "coulomb_friction")
     if p.friction is not None:
         friction = CoulombFriction(p.friction, p.friction)
     dissipation = p.dissipation
     if dissipation is None:
-        dissipation = old_value("material", "hunt_crossley_dissipation")
-    stiffness = old_value("material", "point_contact_stiffness")
+        dissipation = _old_value(old, "material", "hunt_crossley_dissipation")
+    stiffness = _old_value(old, "material", "point_contact_stiffness")
     AddContactMaterial(
         dissipation=dissipation, point_stiffness=stiffness, friction=friction, properties=props
     )
     relaxation = p.relaxation_time
     if relaxation is None:
-        relaxation = old_value("material", "relaxation_time")
+        relaxation = _old_value(old, "material", "relaxation_time")
     if relaxation is not None:
         props.AddProperty("material", "relaxation_time", relaxation)
 
-    old_modulus = old_value("hydroelastic", "hydroelastic_modulus")
-    compliance = p.compliance
-    if compliance is None:
-        if p.hydroelastic_modulus is not None or old_modulus is not None:
-            compliance = "compliant"
-        elif (old is not None and old.HasGroup("hydroelastic")) or (old is None and shape):
-            compliance = "rigid"
+
+def _add_hydroelastic(props, p: ContactProperties, old, shape: str) -> None:
+    """The hydroelastic group (compliant, rigid or none) and its margin."""
+    old_modulus = _old_value(old, "hydroelastic", "hydroelastic_modulus")
+    compliance = _compliance(p, old, shape, old_modulus)
     hint = (
         p.resolution_hint
         if p.resolution_hint is not None
-        else old_value("hydroelastic", "resolution_hint")
+        else _old_value(old, "hydroelastic", "resolution_hint")
     )
     if compliance is not None and hint is None and shape in NEEDS_RESOLUTION_HINT:
         raise ConfigError(
@@ -147,7 +153,7 @@ def _proximity_props(
         if modulus is None:
             raise ConfigError("compliant geometry needs hydroelastic_modulus")
         if shape == "halfspace":
-            slab = p.slab_thickness or old_value("hydroelastic", "slab_thickness", 1.0)
+            slab = p.slab_thickness or _old_value(old, "hydroelastic", "slab_thickness", 1.0)
             AddCompliantHydroelasticPropertiesForHalfSpace(slab, modulus, props)
         else:
             AddCompliantHydroelasticProperties(hint if hint else 0.1, modulus, props)  # box: unused
@@ -156,10 +162,21 @@ def _proximity_props(
             AddRigidHydroelasticProperties(props)
         else:
             AddRigidHydroelasticProperties(hint, props)
-    margin = p.margin if p.margin is not None else old_value("hydroelastic", "margin")
+    margin = p.margin if p.margin is not None else _old_value(old, "hydroelastic", "margin")
     if margin is not None and compliance is not None:
         props.AddProperty("hydroelastic", "margin", margin)
-    return props
+
+
+def _compliance(p: ContactProperties, old, shape: str, old_modulus) -> str | None:
+    """The compliance ("compliant", "rigid", or None: no hydroelastic group): ``p``'s, else
+    inferred from the modulus and the old properties."""
+    if p.compliance is not None:
+        return p.compliance
+    if p.hydroelastic_modulus is not None or old_modulus is not None:
+        return "compliant"
+    if (old is not None and old.HasGroup("hydroelastic")) or (old is None and shape):
+        return "rigid"
+    return None
 
 
 _POSITION_UNITS = {"prismatic": "m", "revolute": "rad", "quaternion_floating": "m"}
@@ -353,6 +370,29 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         plant, scene_graph = AddMultibodyPlant(config, builder)
     except Exception as e:  # Drake rejects bad enum strings with a long message
         raise ConfigError(f"plant: {str(e).splitlines()[0]}") from None
+    _add_models(task, plant, scene_graph)
+    scene_ids = _add_scene(task, plant)
+    _override_geometry(task, plant, scene_graph)
+    plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
+    apply_actuators(task, plant)
+    plant.Finalize()
+    _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
+    check_contact_pairs(task, plant, scene_graph)
+    if plant.num_actuated_dofs() == 0:
+        raise ConfigError("models: the model has no actuated joints")
+    port = builder.ExportInput(plant.get_actuation_input_port(), "actuation")
+    # Unfixed (so zero) except in the finite differences over generalized forces (derivatives).
+    force_port = builder.ExportInput(
+        plant.get_applied_generalized_force_input_port(), "generalized_force"
+    )
+
+    visualizers = _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer)
+    diagram = builder.Build()
+    return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
+
+
+def _add_models(task: TaskConfig, plant, scene_graph) -> None:
+    """The task's model files (packages from its package_map) and their welds."""
     parser = Parser(plant)
     for name, path in task.package_map.items():
         where = task.resolve_path(path)
@@ -364,40 +404,37 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
         for wkey, w in welds:
-            try:
-                parent = (
-                    plant.world_frame() if w.parent == "world" else plant.GetFrameByName(w.parent)
-                )
-                child = None
-                for inst in instances:  # the child is a frame of this model, not another's
-                    if plant.HasFrameNamed(w.child, inst):
-                        child = plant.GetFrameByName(w.child, inst)
-                if child is None:
-                    raise KeyError(w.child)
-            except Exception:
-                bad = (
-                    "parent"
-                    if w.parent != "world" and not plant.HasFrameNamed(w.parent)
-                    else "child"
-                )
-                frames = sorted(
-                    {
-                        plant.get_frame(f).name()
-                        for inst in instances
-                        for f in plant.GetFrameIndices(inst)
-                    }
-                )
-                raise ConfigError(
-                    f"{wkey}.{bad}: unknown frame {getattr(w, bad)!r} "
-                    f"(frames of the model: {', '.join(frames)})"
-                ) from None
-            X = RigidTransform(RollPitchYaw(w.rpy), np.asarray(w.xyz, dtype=float))
-            try:
-                plant.WeldFrames(parent, child, X)
-            except Exception as e:
-                raise ConfigError(f"{wkey}: {str(e).strip().splitlines()[0]}") from None
+            _weld(plant, instances, wkey, w)
 
-    # Static scene geometry.
+
+def _weld(plant, instances, wkey: str, w) -> None:
+    """Welds ``w.child`` (a frame of ``instances``) to ``w.parent`` at (xyz, rpy)."""
+    try:
+        parent = plant.world_frame() if w.parent == "world" else plant.GetFrameByName(w.parent)
+        child = None
+        for inst in instances:  # the child is a frame of this model, not another's
+            if plant.HasFrameNamed(w.child, inst):
+                child = plant.GetFrameByName(w.child, inst)
+        if child is None:
+            raise KeyError(w.child)
+    except Exception:
+        bad = "parent" if w.parent != "world" and not plant.HasFrameNamed(w.parent) else "child"
+        frames = sorted(
+            {plant.get_frame(f).name() for inst in instances for f in plant.GetFrameIndices(inst)}
+        )
+        raise ConfigError(
+            f"{wkey}.{bad}: unknown frame {getattr(w, bad)!r} "
+            f"(frames of the model: {', '.join(frames)})"
+        ) from None
+    X = RigidTransform(RollPitchYaw(w.rpy), np.asarray(w.xyz, dtype=float))
+    try:
+        plant.WeldFrames(parent, child, X)
+    except Exception as e:
+        raise ConfigError(f"{wkey}: {str(e).strip().splitlines()[0]}") from None
+
+
+def _add_scene(task: TaskConfig, plant) -> list:
+    """Static scene geometry, welded to the world; its collision geometry ids."""
     world = plant.world_body()
     scene_ids = []
     for i, o in enumerate(task.scene):
@@ -412,8 +449,11 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
             plant.RegisterVisualGeometry(
                 world, X, _shape(o), name + "_visual", np.asarray([*o.color, 1.0][:4], dtype=float)
             )
+    return scene_ids
 
-    # Overrides of the models' collision properties.
+
+def _override_geometry(task: TaskConfig, plant, scene_graph) -> None:
+    """Overrides of the models' collision properties (the task's geometry section)."""
     if task.geometry:
         geoms = collision_geometries(plant, scene_graph)
         inspector = scene_graph.model_inspector()
@@ -427,19 +467,9 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
                     raise ConfigError(f"geometry.{key}: {e}") from None
                 scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
 
-    plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
-    apply_actuators(task, plant)
-    plant.Finalize()
-    _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
-    check_contact_pairs(task, plant, scene_graph)
-    if plant.num_actuated_dofs() == 0:
-        raise ConfigError("models: the model has no actuated joints")
-    port = builder.ExportInput(plant.get_actuation_input_port(), "actuation")
-    # Unfixed (so zero) except in the finite differences over generalized forces (derivatives).
-    force_port = builder.ExportInput(
-        plant.get_applied_generalized_force_input_port(), "generalized_force"
-    )
 
+def _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer: bool) -> tuple:
+    """MeshcatVisualizer (and ContactVisualizer) on ``meshcat``; none without it."""
     visualizers = ()
     if meshcat is not None:
         from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
@@ -455,8 +485,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
             cparams.newton_meters_per_meter = 1.0
             cvis = ContactVisualizer.AddToBuilder(builder, plant, meshcat, cparams)
             visualizers += (cvis,)
-    diagram = builder.Build()
-    return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
+    return visualizers
 
 
 @dataclass

@@ -195,13 +195,7 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
     out["geometry_overrides"] = _geometry_overrides(dyn, task.config.geometry)
     done("geometries")
-    if not geoms:
-        warn("no collision geometry: the task has no contact at all")
-    props = [(f"geometry.{k}", p) for k, p in cfg.geometry.items()]
-    props += [(f"scene {o.name}", o) for o in cfg.scene]
-    for key, p in props:
-        if p.compliance == "rigid" and p.hydroelastic_modulus is not None:
-            warn(f"{key}: compliance rigid, so its hydroelastic_modulus is not used")
+    _geometry_warnings(cfg, geoms, warn)
 
     pairs = candidate_pairs(dyn, x0, geoms)
     out["pairs"] = pairs
@@ -226,6 +220,25 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
 
     _simulation(task, pairs, rollout_steps, out)
     done("simulation")
+    _rollout_warnings(pairs, out, warn)
+    done("warnings")
+    return out
+
+
+def _geometry_warnings(cfg, geoms: list, warn) -> None:
+    """No collision geometry at all; rigid geometry given a hydroelastic modulus."""
+    if not geoms:
+        warn("no collision geometry: the task has no contact at all")
+    props = [(f"geometry.{k}", p) for k, p in cfg.geometry.items()]
+    props += [(f"scene {o.name}", o) for o in cfg.scene]
+    for key, p in props:
+        if p.compliance == "rigid" and p.hydroelastic_modulus is not None:
+            warn(f"{key}: compliance rigid, so its hydroelastic_modulus is not used")
+
+
+def _rollout_warnings(pairs: list, out: dict, warn) -> None:
+    """What the start and the guess's rollout show: a deep overlap or a rollout that blows
+    up, contact that misses the tracked objects, too many contact polygons."""
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
@@ -237,8 +250,6 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "
             "resolution_hint (the polygon count dominates the cost of derivatives)"
         )
-    done("warnings")
-    return out
 
 
 def _untracked_contact_warning(touched: list[dict], tracked: set[str]) -> str:

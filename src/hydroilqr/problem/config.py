@@ -430,70 +430,102 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if tp is Any:
         return value
     if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(value, a, key)
-            except ConfigError as e:
-                errors.append(str(e))
-        raise ConfigError(errors[0] if errors else f"{key}: invalid value {value!r}")
+        return _coerce_union(value, args, key)
     if dataclasses.is_dataclass(tp):
-        if value is None:
-            value = {}
-        if not isinstance(value, dict):
-            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
-        return _build_dataclass(tp, value, key)
+        return _coerce_dataclass(value, tp, key)
     if origin is list:
-        if value is None:
-            return []
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list, got {value!r}")
-        return [_coerce(v, args[0], f"{key}[{i}]") for i, v in enumerate(value)]
+        return _coerce_list(value, args[0], key)
     if origin is dict:
-        if value is None:
-            return {}
-        if not isinstance(value, dict):
-            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
-        return {str(k): _coerce(v, args[1], f"{key}.{k}") for k, v in value.items()}
-    if tp is float:
-        if isinstance(value, bool):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        if isinstance(value, str):
-            try:
-                value = float(value)
-            except ValueError:
-                raise ConfigError(f"{key}: expected a number, got {value!r}") from None
-        if not isinstance(value, (int, float)):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
-        return float(value)
-    if tp is int:
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if isinstance(value, str):
-            try:
-                value = int(value)
-            except ValueError:
-                raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        return value
-    if tp is bool:
-        if isinstance(value, str) and value.lower() in ("true", "false", "yes", "no", "1", "0"):
-            return value.lower() in ("true", "yes", "1")
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: expected true/false, got {value!r}")
-        return value
-    if tp is str:
-        if isinstance(value, (dict, list)) or value is None:
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
-        return str(value)
+        return _coerce_dict(value, args[1], key)
+    scalar = _SCALARS.get(tp)
+    if scalar is not None:
+        return scalar(value, key)
     raise ConfigError(f"{key}: unsupported type {_type_name(tp)}")
+
+
+def _coerce_union(value: Any, args: tuple, key: str) -> Any:
+    """The first of ``args`` that ``value`` converts to (None for None when allowed)."""
+    if value is None and type(None) in args:
+        return None
+    errors = []
+    for a in args:
+        if a is type(None):
+            continue
+        try:
+            return _coerce(value, a, key)
+        except ConfigError as e:
+            errors.append(str(e))
+    raise ConfigError(errors[0] if errors else f"{key}: invalid value {value!r}")
+
+
+def _coerce_dataclass(value: Any, tp: Any, key: str) -> Any:
+    if value is None:
+        value = {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+    return _build_dataclass(tp, value, key)
+
+
+def _coerce_list(value: Any, item: Any, key: str) -> list:
+    if value is None:
+        return []
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{key}: expected a list, got {value!r}")
+    return [_coerce(v, item, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+def _coerce_dict(value: Any, item: Any, key: str) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+    return {str(k): _coerce(v, item, f"{key}.{k}") for k, v in value.items()}
+
+
+def _coerce_float(value: Any, key: str) -> float:
+    if isinstance(value, bool):
+        raise ConfigError(f"{key}: expected a number, got {value!r}")
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise ConfigError(f"{key}: expected a number, got {value!r}") from None
+    if not isinstance(value, (int, float)):
+        raise ConfigError(f"{key}: expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{key}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def _coerce_int(value: Any, key: str) -> int:
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, str):
+        try:
+            value = int(value)
+        except ValueError:
+            raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise ConfigError(f"{key}: expected an integer, got {value!r}")
+    return value
+
+
+def _coerce_bool(value: Any, key: str) -> bool:
+    if isinstance(value, str) and value.lower() in ("true", "false", "yes", "no", "1", "0"):
+        return value.lower() in ("true", "yes", "1")
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}: expected true/false, got {value!r}")
+    return value
+
+
+def _coerce_str(value: Any, key: str) -> str:
+    if isinstance(value, (dict, list)) or value is None:
+        raise ConfigError(f"{key}: expected a string, got {value!r}")
+    return str(value)
+
+
+#: The converters of the scalar types a task file's fields have.
+_SCALARS = {float: _coerce_float, int: _coerce_int, bool: _coerce_bool, str: _coerce_str}
 
 
 def unknown_key(name: Any, valid: list[str], what: str) -> str:
@@ -980,6 +1012,19 @@ def build_task(
 
     if not smoke:
         return finish(data)
+    shrunk = _shrunk(data, _smoke_section(data, items))
+    try:
+        cfg = finish(shrunk)
+    except ConfigError as e:
+        finish(data)  # raises the task's own mistake unprefixed
+        raise ConfigError(f"smoke: {e}") from None
+    cfg.smoke_run = True
+    return cfg
+
+
+def _smoke_section(data: dict[str, Any], items: list) -> dict[str, Any]:
+    """The overrides --smoke applies: the task's smoke section (or generic ones), changed by
+    --set smoke[.KEY]=... items."""
     shrink = data.get("smoke") or _generic_smoke(data)
     keys = {k for k, _ in items}
     if {"smoke.horizon", "smoke.num_steps"} <= keys:
@@ -996,6 +1041,11 @@ def build_task(
             shrink = {**_without_other_length(shrink, {rest: value}), rest: value}
     if not isinstance(shrink, dict):
         raise ConfigError("smoke: expected a mapping of dotted keys to values")
+    return shrink
+
+
+def _shrunk(data: dict[str, Any], shrink: dict[str, Any]) -> dict[str, Any]:
+    """A copy of ``data`` with the smoke overrides ``shrink`` applied."""
     shrunk = _without_other_length(copy.deepcopy(data), shrink)
     try:
         for key, value in list(shrink.items()):
@@ -1004,13 +1054,7 @@ def build_task(
             _set_dotted(shrunk, key, value)
     except ConfigError as e:
         raise ConfigError(f"smoke: {e}") from None
-    try:
-        cfg = finish(shrunk)
-    except ConfigError as e:
-        finish(data)  # raises the task's own mistake unprefixed
-        raise ConfigError(f"smoke: {e}") from None
-    cfg.smoke_run = True
-    return cfg
+    return shrunk
 
 
 def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
@@ -1137,6 +1181,32 @@ def _has_cost_terms(cost: CostConfig) -> bool:
 
 def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
+    _validate_continuation(cfg)
+    if not cfg.models:
+        raise ConfigError("models: at least one model file is required")
+    _validate_names(cfg)
+    _validate_models(cfg)
+    _check_length(cfg.plant.gravity, 3, "plant.gravity")
+    _validate_actuators(cfg.actuators)
+    _validate_plant(cfg.plant)
+    if cfg.horizon <= 0 and cfg.num_steps <= 0:
+        raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
+    validate_solver(cfg.solver)
+    validate_mpc(cfg.mpc)
+    from hydroilqr.metrics.goals import validate_goal
+
+    validate_goal(cfg.goal)
+    _validate_steps(cfg)
+    for name, p in cfg.geometry.items():
+        _check_contact(p, f"geometry.{name}")
+    for i, o in enumerate(cfg.scene):
+        _check_scene_object(o, f"scene[{i}]")
+    _validate_cost(cfg.cost)
+    _validate_receding_horizon(cfg.receding_horizon)
+
+
+def _validate_continuation(cfg: TaskConfig) -> None:
+    """Each stage: a mapping of dotted keys that leave the time grid and start alone."""
     for i, stage in enumerate(cfg.continuation):
         if not isinstance(stage, dict) or not stage:
             raise ConfigError(
@@ -1153,8 +1223,10 @@ def validate(cfg: TaskConfig) -> None:
                 )
     if cfg.continuation and cfg.receding_horizon is not None:
         raise ConfigError("continuation: for single solves (not with receding_horizon)")
-    if not cfg.models:
-        raise ConfigError("models: at least one model file is required")
+
+
+def _validate_names(cfg: TaskConfig) -> None:
+    """The task's name (a directory name) and the scene objects' names (unique)."""
     if not all(c.isalnum() or c in "-_.@+" for c in cfg.name) or cfg.name.startswith("."):
         raise ConfigError(
             f"name: {cfg.name!r} is used as a directory name (runs/NAME): letters, digits "
@@ -1164,6 +1236,10 @@ def validate(cfg: TaskConfig) -> None:
     for n in scene_names:
         if scene_names.count(n) > 1:
             raise ConfigError(f"scene: two objects are named {n!r}")
+
+
+def _validate_models(cfg: TaskConfig) -> None:
+    """Model files that exist (within the size limit) and welds of 3 + 3 numbers."""
     for i, m in enumerate(cfg.models):
         if not m.file:
             raise ConfigError(f"models[{i}].file: required")
@@ -1179,8 +1255,10 @@ def validate(cfg: TaskConfig) -> None:
         for wkey, w in welds:
             _check_length(w.xyz, 3, f"{wkey}.xyz")
             _check_length(w.rpy, 3, f"{wkey}.rpy")
-    _check_length(cfg.plant.gravity, 3, "plant.gravity")
-    for name, a in cfg.actuators.items():
+
+
+def _validate_actuators(actuators: dict) -> None:
+    for name, a in actuators.items():
         if a.effort_limit is not None and not a.effort_limit > 0:
             raise ConfigError(
                 f"actuators.{name}.effort_limit: must be positive, got {a.effort_limit}"
@@ -1191,27 +1269,27 @@ def validate(cfg: TaskConfig) -> None:
             )
         if a.gear_ratio is not None and not a.gear_ratio > 0:
             raise ConfigError(f"actuators.{name}.gear_ratio: must be positive, got {a.gear_ratio}")
-    if cfg.plant.time_step <= 0:
-        raise ConfigError(f"plant.time_step: must be positive, got {cfg.plant.time_step}")
-    if cfg.plant.contact_approximation not in APPROXIMATIONS:
+
+
+def _validate_plant(plant: PlantConfig) -> None:
+    if plant.time_step <= 0:
+        raise ConfigError(f"plant.time_step: must be positive, got {plant.time_step}")
+    if plant.contact_approximation not in APPROXIMATIONS:
         raise ConfigError(
             f"plant.contact_approximation: expected one of {', '.join(APPROXIMATIONS)}, "
-            f"got {cfg.plant.contact_approximation!r}"
+            f"got {plant.contact_approximation!r}"
         )
-    if cfg.plant.contact_model not in CONTACT_MODELS:
+    if plant.contact_model not in CONTACT_MODELS:
         raise ConfigError(
             f"plant.contact_model: expected one of {', '.join(CONTACT_MODELS)}, "
-            f"got {cfg.plant.contact_model!r}"
+            f"got {plant.contact_model!r}"
         )
-    if cfg.plant.contact_surface_representation not in ("polygon", "triangle"):
+    if plant.contact_surface_representation not in ("polygon", "triangle"):
         raise ConfigError("plant.contact_surface_representation: expected polygon or triangle")
-    if cfg.horizon <= 0 and cfg.num_steps <= 0:
-        raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
-    validate_solver(cfg.solver)
-    validate_mpc(cfg.mpc)
-    from hydroilqr.metrics.goals import validate_goal
 
-    validate_goal(cfg.goal)
+
+def _validate_steps(cfg: TaskConfig) -> None:
+    """num_steps, or a horizon of whole time steps; at most MAX_STEPS of them."""
     if cfg.num_steps < 0:
         raise ConfigError(f"num_steps: must be positive (or 0: use horizon), got {cfg.num_steps}")
     steps = cfg.horizon / cfg.plant.time_step
@@ -1224,55 +1302,69 @@ def validate(cfg: TaskConfig) -> None:
     if n > MAX_STEPS:  # it would not fail, it would allocate and run for ever
         what = "num_steps" if cfg.num_steps else f"horizon: {cfg.horizon:g} s is"
         raise ConfigError(f"{what} {n} time steps; at most {MAX_STEPS} (a longer time step?)")
-    for name, p in cfg.geometry.items():
-        _check_contact(p, f"geometry.{name}")
-    for i, o in enumerate(cfg.scene):
-        _check_contact(o, f"scene[{i}]")
-        if o.shape == "box" and (len(o.size) != 3 or min(o.size) <= 0):
-            raise ConfigError(f"scene[{i}].size: expected three positive numbers")
-        _check_length(o.xyz, 3, f"scene[{i}].xyz")
-        _check_length(o.rpy, 3, f"scene[{i}].rpy")
-        if len(o.color) not in (3, 4) or not all(0 <= c <= 1 for c in o.color):
-            raise ConfigError(
-                f"scene[{i}].color: expected 3 or 4 numbers in [0, 1] (RGB or RGBA), got {o.color}"
-            )
-        if o.shape in ("sphere", "cylinder") and o.radius <= 0:
-            raise ConfigError(f"scene[{i}].radius: must be positive, got {o.radius}")
-        if o.shape == "cylinder" and o.length <= 0:
-            raise ConfigError(f"scene[{i}].length: must be positive, got {o.length}")
-    if cfg.cost.nominal_time not in NOMINAL_TIMES:
+
+
+def _check_scene_object(o: SceneObject, key: str) -> None:
+    """Contact properties, size, pose and color of the scene object at ``key``."""
+    _check_contact(o, key)
+    if o.shape == "box" and (len(o.size) != 3 or min(o.size) <= 0):
+        raise ConfigError(f"{key}.size: expected three positive numbers")
+    _check_length(o.xyz, 3, f"{key}.xyz")
+    _check_length(o.rpy, 3, f"{key}.rpy")
+    if len(o.color) not in (3, 4) or not all(0 <= c <= 1 for c in o.color):
+        raise ConfigError(
+            f"{key}.color: expected 3 or 4 numbers in [0, 1] (RGB or RGBA), got {o.color}"
+        )
+    if o.shape in ("sphere", "cylinder") and o.radius <= 0:
+        raise ConfigError(f"{key}.radius: must be positive, got {o.radius}")
+    if o.shape == "cylinder" and o.length <= 0:
+        raise ConfigError(f"{key}.length: must be positive, got {o.length}")
+
+
+def _validate_cost(cost: CostConfig) -> None:
+    """The nominal's time base; finite numbers in Q, Qf (non-negative) and nominal_rate."""
+    if cost.nominal_time not in NOMINAL_TIMES:
         raise ConfigError(
             f"cost.nominal_time: expected one of {', '.join(NOMINAL_TIMES)}, "
-            f"got {cfg.cost.nominal_time!r}"
+            f"got {cost.nominal_time!r}"
         )
     for section in ("Q", "Qf", "nominal_rate"):
-        for k, v in getattr(cfg.cost, section).items():
+        for k, v in getattr(cost, section).items():
             vals = v if isinstance(v, list) else [v]
             for x in vals:
-                if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
-                    try:
-                        bad = not math.isfinite(float(x))  # "inf", "nan" given as words
-                    except (TypeError, ValueError):
-                        bad = False
-                    what = "finite numbers" if bad or isinstance(x, float) else "numbers"
-                    raise ConfigError(f"cost.{section}.{k}: expected {what}, got {v!r}")
-                if section != "nominal_rate" and x < 0:
-                    raise ConfigError(f"cost.{section}.{k}: weights must be non-negative, got {x}")
-    rh = cfg.receding_horizon
-    if rh is not None and (rh.window_steps < 1 or rh.shift_steps < 1 or rh.resolves < 1):
+                _check_weight(x, v, f"cost.{section}.{k}", section != "nominal_rate")
+
+
+def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:
+    """``x`` (an entry of the value ``v`` at ``key``): a finite number, >= 0 for a weight."""
+    if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
+        try:
+            bad = not math.isfinite(float(x))  # "inf", "nan" given as words
+        except (TypeError, ValueError):
+            bad = False
+        what = "finite numbers" if bad or isinstance(x, float) else "numbers"
+        raise ConfigError(f"{key}: expected {what}, got {v!r}")
+    if weight and x < 0:
+        raise ConfigError(f"{key}: weights must be non-negative, got {x}")
+
+
+def _validate_receding_horizon(rh: RecedingHorizonConfig | None) -> None:
+    if rh is None:
+        return
+    if rh.window_steps < 1 or rh.shift_steps < 1 or rh.resolves < 1:
         raise ConfigError("receding_horizon: window_steps, shift_steps, resolves must be >= 1")
-    if rh is not None and rh.shift_steps > rh.window_steps:
+    if rh.shift_steps > rh.window_steps:
         raise ConfigError(
             f"receding_horizon.shift_steps: {rh.shift_steps} is more than the window's "
             f"{rh.window_steps} steps (each window keeps its first shift_steps)"
         )
-    if rh is not None and rh.max_iterations < 1:
+    if rh.max_iterations < 1:
         raise ConfigError("receding_horizon.max_iterations: must be >= 1")
-    if rh is not None and rh.warm_start_tail not in WARM_START_TAILS:
+    if rh.warm_start_tail not in WARM_START_TAILS:
         raise ConfigError(
             f"receding_horizon.warm_start_tail: expected last or guess, got {rh.warm_start_tail!r}"
         )
-    if rh is not None and rh.resolves * rh.shift_steps + rh.window_steps > MAX_STEPS:
+    if rh.resolves * rh.shift_steps + rh.window_steps > MAX_STEPS:
         raise ConfigError(
             f"receding_horizon: {rh.resolves} resolves of {rh.shift_steps} steps are more than "
             f"{MAX_STEPS} time steps"

@@ -178,6 +178,19 @@ class Task:
             except SimulationError as e:
                 raise ConfigError(f"initial_guess: hold torques failed: {e}") from None
         path = self.config.resolve_path(kind)
+        U = self._guess_file(path, dyn.nu)
+        if U.shape[0] == 1:  # one row: a constant control (e.g. standing torques)
+            return np.tile(U[0], (N, 1))
+        if start == 0 and U.shape[0] < N:
+            raise ConfigError(
+                f"initial_guess: {path} has {U.shape[0]} rows; the task needs {N} (one per time "
+                f"step) or 1 (a constant control)"
+            )
+        return U[np.minimum(np.arange(start, start + N), U.shape[0] - 1)].copy()
+
+    def _guess_file(self, path: Path, nu: int) -> np.ndarray:
+        """U: [rows, nu] read from the initial_guess file ``path`` (checked: size, shape,
+        finite values)."""
         if not path.exists():
             raise ConfigError(
                 f"initial_guess: expected zeros, gravity_compensation, hold or a file; "
@@ -188,7 +201,7 @@ class Task:
         # rows: at most the whole trajectory (a file may hold more: a generous floor)
         rh = self.config.receding_horizon
         rows = rh.resolves * rh.shift_steps + rh.window_steps if rh else self.config.steps
-        cap = inputs.table_cap(rows + 1, dyn.nu)
+        cap = inputs.table_cap(rows + 1, nu)
         if path.suffix == ".npz":
             inputs.check_npz(path, "initial_guess:", cap)
         else:
@@ -205,18 +218,11 @@ class Task:
             raise ConfigError(f"initial_guess: could not read {path}: {e}") from None
         if U.size == 0:
             raise ConfigError(f"initial_guess: {path} is empty")
-        if U.ndim != 2 or U.shape[1] != dyn.nu:
-            raise ConfigError(f"initial_guess: {path} must hold U with {dyn.nu} columns")
+        if U.ndim != 2 or U.shape[1] != nu:
+            raise ConfigError(f"initial_guess: {path} must hold U with {nu} columns")
         if not np.all(np.isfinite(U)):
             raise ConfigError(f"initial_guess: {path} holds NaN or infinite values")
-        if U.shape[0] == 1:  # one row: a constant control (e.g. standing torques)
-            return np.tile(U[0], (N, 1))
-        if start == 0 and U.shape[0] < N:
-            raise ConfigError(
-                f"initial_guess: {path} has {U.shape[0]} rows; the task needs {N} (one per time "
-                f"step) or 1 (a constant control)"
-            )
-        return U[np.minimum(np.arange(start, start + N), U.shape[0] - 1)].copy()
+        return U
 
     def problem(self, x0: np.ndarray | None = None, t0: float = 0.0) -> Problem:
         """The optimal control problem from x0: [nx] (default: the task's initial state; a

@@ -31,6 +31,7 @@ import os
 import time
 import warnings
 from concurrent.futures import CancelledError
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -701,52 +702,24 @@ def run_sweep(
     """Runs (or resumes) a sweep; returns {"rows", "computed", "skipped", "failed"}.
     ``command``: the command line, recorded in sweep_spec.json; ``monitor``: receives the
     progress (by default nothing is shown)."""
-    from hydroilqr.problem.task import Task
-
     monitor = monitor or SweepMonitor()
-
-    if not params:
-        raise ConfigError("give at least one --param KEY --values ...")
-    keys = [k for k, _ in params]
-    if len(set(keys)) != len(keys):
-        raise ConfigError("--param: the same key twice")
-    if len(params) > 2:
-        raise ConfigError("--param: at most two parameters (a grid)")
+    keys = _check_params(params)
     path = task_file(task)
     task_arg = task if path.parent.resolve() == TASKS_DIR.resolve() else str(path.resolve())
     cfg_arg = str(Path(config_file).resolve()) if config_file else None
-    overrides: dict[str, Any] = {}
-    for s in sets or []:
-        k, v = parse_override(s)
-        # a relative file path is the user's working directory's, here and on remote workers
-        overrides[k] = cwd_path(k, v)
-    user_set = sorted(f"{k}={v}" for k, v in overrides.items())
-    # One thread per solve: the cluster already runs one worker process per core.
-    if not any(k == "solver.threads" for k in overrides):
-        overrides["solver.threads"] = 1
-    n = math.prod(len(v) for _, v in params)
-    if n > MAX_POINTS:  # each point is a solve with its own directory and a row of the table
-        raise ConfigError(
-            f"--values: {n} points; at most {MAX_POINTS} in one sweep (fewer values, or split "
-            "the range over several sweeps into the same --out)"
-        )
-    points = grid(params)
-    # Fail fast on a bad key/value: build the first and last point here.
-    for p in (points[0], points[-1]):
-        t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
-        t.validate()
-    task_cfg = t.config
+    overrides, user_set = _sweep_overrides(sets)
+    points = _sweep_points(params)
+    task_cfg = _first_and_last(task_arg, overrides, cfg_arg, smoke, points)
     from hydroilqr import metrics as metrics_mod
 
     metric_cols = metrics_mod.sweep_columns(task_cfg.metrics)
     check_numeric_params(task_arg, overrides, cfg_arg, smoke, params)
 
     out = Path(out)
-    points_dir = out / "points"
     from hydroilqr.output.report import environment, output_dir
 
     output_dir(out, task_cfg.name)
-    points_dir.mkdir(parents=True, exist_ok=True)
+    (out / "points").mkdir(parents=True, exist_ok=True)
     spec = {
         "task": task_cfg.name,
         "task_arg": task_arg,
@@ -759,128 +732,25 @@ def run_sweep(
     _check_same_sweep(out, spec)
     atomic_write(out / "sweep_spec.json", json.dumps(spec, indent=1))
 
-    ids = [point_id(p) for p in points]
-    rows: dict[str, dict] = {}
-    todo: list[int] = []
-    for i, pid in enumerate(ids):
-        _adopt_older_point(points_dir, points[i], pid)
-        r = load_point(points_dir, pid)
-        if r is not None and not point_intact(points_dir, r):
-            monitor.message(
-                f"[yellow]note:[/yellow] point {pid}: its files are damaged; recomputed"
-            )
-            r = None
-        if r is not None and not (retry_failed and r.get("status") != "ok"):
-            rows[pid] = r
-        else:
-            todo.append(i)
-
-    # Points of earlier runs of this sweep with other values stay in the table (a sweep is
-    # extended, or re-run on a subset, without losing what it already computed).
-    earlier = {}
-    for f in sorted(points_dir.glob("*.json")):
-        if f.stem in ids or f.name.startswith("."):
-            continue
-        r = load_point(points_dir, f.stem)
-        if r is not None and all(f"param:{k}" in r for k in keys):
-            earlier[f.stem] = r
-    earlier_rows = sorted(earlier.values(), key=lambda r: [float(r[f"param:{k}"]) for k in keys])
-
-    def ordered() -> list[dict]:
-        return [rows[pid] for pid in ids if pid in rows] + earlier_rows
-
-    n_failed0 = sum(r.get("status") != "ok" for r in rows.values())
+    sw = _Sweep(task_arg, cfg_arg, bool(smoke), overrides, keys, points, out, spec, metric_cols)
+    todo = sw.load_done(retry_failed, monitor)
+    sw.load_earlier()
+    n_failed0 = sum(r.get("status") != "ok" for r in sw.rows.values())
     monitor.message(
         f"[bold]sweep[/bold] {task_cfg.name}: "
         + " x ".join(f"{k} ({len(v)})" for k, v in params)
-        + f" = {len(points)} points; {len(rows)} already done, {len(todo)} to compute"
+        + f" = {len(points)} points; {len(sw.rows)} already done, {len(todo)} to compute"
         + f" -> {out}"
     )
     computed = 0
     lost = 0  # points whose futures the scheduler cancelled or lost
-    log = out / "computed.log"
     from hydroilqr.output.report import code_version
 
     code = code_version()
     if todo:
-        if scheduler and workers:
-            monitor.message(
-                f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
-                "cluster's own workers run the points)"
-            )
-        client, cluster = open_client(scheduler, workers)
-        try:
-            nthreads = sum(client.nthreads().values())
-            where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
-            monitor.message(f"dask: {where}, {nthreads} threads")
-            from distributed import as_completed
-
-            monitor.begin(len(points), len(rows), n_failed0)
-            try:
-
-                def on_event(event):
-                    msg = event[1] if isinstance(event, tuple) else event
-                    if isinstance(msg, dict) and msg.get("state") == "running":
-                        monitor.started(msg.get("id"))
-
-                try:
-                    client.subscribe_topic(EVENT_TOPIC, on_event)
-                except Exception:  # noqa: BLE001 - running count is cosmetic
-                    pass
-                futures = {}
-                for i in todo:
-                    f = client.submit(
-                        solve_point,
-                        task_arg,
-                        cfg_arg,
-                        bool(smoke),
-                        overrides,
-                        points[i],
-                        ids[i],
-                        pure=False,
-                        key=f"hydroilqr-point-{ids[i]}-{os.getpid()}-{time.time_ns()}",
-                    )
-                    futures[f] = i
-                for fut in as_completed(list(futures)):
-                    i = futures[fut]
-                    try:
-                        result = fut.result()
-                    except CancelledError:
-                        # the scheduler went away (or cancelled it): the point was not computed,
-                        # so it stays missing and a plain rerun computes it
-                        lost += 1
-                        continue
-                    except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
-                        result = {
-                            "row": {
-                                "id": ids[i],
-                                **{f"param:{k}": v for k, v in points[i].items()},
-                                "status": "failed",
-                                "error": _error_text(e),
-                            },
-                            "arrays": {},
-                        }
-                    result["row"].setdefault("code", code)
-                    save_point(points_dir, result)
-                    row = result["row"]
-                    rows[ids[i]] = row
-                    computed += 1
-                    with open(log, "a") as fh:
-                        fh.write(f"{ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
-                    monitor.finished(ids[i], row, keys)
-                    write_tables(out, spec, keys, ordered(), len(points) - len(rows), metric_cols)
-                try:
-                    client.unsubscribe_topic(EVENT_TOPIC)
-                except Exception:  # noqa: BLE001
-                    pass
-            finally:
-                monitor.end()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    all_rows = ordered()  # this grid's points and those kept from earlier runs
-    write_tables(out, spec, keys, all_rows, len(points) - len(rows), metric_cols)
+        computed, lost = _compute(sw, todo, scheduler, workers, monitor, n_failed0, code)
+    all_rows = sw.ordered()  # this grid's points and those kept from earlier runs
+    sw.write_tables(all_rows)
     if lost:
         raise ConfigError(
             f"the Dask scheduler went away (or cancelled the work): {lost} point(s) not "
@@ -888,32 +758,255 @@ def run_sweep(
         )
     wrote = ["sweep.csv", "sweep.json"]
     if plots and all_rows:
-        grid_values = [
-            sorted({r[f"param:{k}"] for r in all_rows}, key=float) if earlier_rows else v
-            for k, v in params
-        ]
-        plot_sweep(out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
-        wrote.append("sweep.png")
-        if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
-            out / "snapshots.png", points_dir, task_cfg, keys, all_rows
-        ):
-            wrote.append("snapshots.png")
-    failed = sum(rows[pid].get("status") != "ok" for pid in ids if pid in rows)
+        wrote += _plot(sw, params, all_rows, task_cfg)
+    return _finish(sw, all_rows, computed, wrote, monitor)
+
+
+def _check_params(params: list[tuple[str, list]]) -> list[str]:
+    """The swept keys: one or two, each once."""
+    if not params:
+        raise ConfigError("give at least one --param KEY --values ...")
+    keys = [k for k, _ in params]
+    if len(set(keys)) != len(keys):
+        raise ConfigError("--param: the same key twice")
+    if len(params) > 2:
+        raise ConfigError("--param: at most two parameters (a grid)")
+    return keys
+
+
+def _sweep_overrides(sets: list[str] | None) -> tuple[dict[str, Any], list[str]]:
+    """The --set overrides every point gets (one solver thread unless set), and the user's
+    own, as recorded in sweep_spec.json."""
+    overrides: dict[str, Any] = {}
+    for s in sets or []:
+        k, v = parse_override(s)
+        # a relative file path is the user's working directory's, here and on remote workers
+        overrides[k] = cwd_path(k, v)
+    user_set = sorted(f"{k}={v}" for k, v in overrides.items())
+    # One thread per solve: the cluster already runs one worker process per core.
+    if not any(k == "solver.threads" for k in overrides):
+        overrides["solver.threads"] = 1
+    return overrides, user_set
+
+
+def _sweep_points(params: list[tuple[str, list]]) -> list[dict]:
+    """The grid's points (at most MAX_POINTS)."""
+    n = math.prod(len(v) for _, v in params)
+    if n > MAX_POINTS:  # each point is a solve with its own directory and a row of the table
+        raise ConfigError(
+            f"--values: {n} points; at most {MAX_POINTS} in one sweep (fewer values, or split "
+            "the range over several sweeps into the same --out)"
+        )
+    return grid(params)
+
+
+def _first_and_last(task_arg: str, overrides: dict, cfg_arg, smoke: bool, points: list):
+    """Fails fast on a bad key/value: builds the first and last point here; the last's
+    TaskConfig."""
+    from hydroilqr.problem.task import Task
+
+    for p in (points[0], points[-1]):
+        t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
+        t.validate()
+    return t.config
+
+
+@dataclass
+class _Sweep:
+    """One run of a sweep: what its points are solved from, their rows (this grid's, and
+    ``earlier_rows`` kept from earlier runs with other values) and where the tables go."""
+
+    task_arg: str
+    cfg_arg: str | None
+    smoke: bool
+    overrides: dict[str, Any]
+    keys: list[str]
+    points: list[dict]
+    out: Path
+    spec: dict
+    metric_cols: list
+    rows: dict[str, dict] = field(default_factory=dict)
+    earlier_rows: list[dict] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.points_dir = self.out / "points"
+        self.ids = [point_id(p) for p in self.points]
+
+    def load_done(self, retry_failed: bool, monitor: SweepMonitor) -> list[int]:
+        """Reads the points already computed into ``rows``; the indices of those to compute."""
+        todo: list[int] = []
+        for i, pid in enumerate(self.ids):
+            _adopt_older_point(self.points_dir, self.points[i], pid)
+            r = load_point(self.points_dir, pid)
+            if r is not None and not point_intact(self.points_dir, r):
+                monitor.message(
+                    f"[yellow]note:[/yellow] point {pid}: its files are damaged; recomputed"
+                )
+                r = None
+            if r is not None and not (retry_failed and r.get("status") != "ok"):
+                self.rows[pid] = r
+            else:
+                todo.append(i)
+        return todo
+
+    def load_earlier(self) -> None:
+        """Points of earlier runs of this sweep with other values stay in the table (a sweep
+        is extended, or re-run on a subset, without losing what it already computed)."""
+        earlier = {}
+        for f in sorted(self.points_dir.glob("*.json")):
+            if f.stem in self.ids or f.name.startswith("."):
+                continue
+            r = load_point(self.points_dir, f.stem)
+            if r is not None and all(f"param:{k}" in r for k in self.keys):
+                earlier[f.stem] = r
+        keys = self.keys
+        self.earlier_rows = sorted(
+            earlier.values(), key=lambda r: [float(r[f"param:{k}"]) for k in keys]
+        )
+
+    def ordered(self) -> list[dict]:
+        return [self.rows[pid] for pid in self.ids if pid in self.rows] + self.earlier_rows
+
+    def write_tables(self, rows: list[dict]) -> None:
+        missing = len(self.points) - len(self.rows)
+        write_tables(self.out, self.spec, self.keys, rows, missing, self.metric_cols)
+
+
+def _compute(sw: _Sweep, todo: list[int], scheduler, workers, monitor, n_failed0, code):
+    """Solves the points ``todo`` on Dask, saving each as it finishes; (computed, lost)."""
+    if scheduler and workers:
+        monitor.message(
+            f"[yellow]note:[/yellow] --workers {workers} is ignored with --scheduler (the "
+            "cluster's own workers run the points)"
+        )
+    client, cluster = open_client(scheduler, workers)
+    try:
+        nthreads = sum(client.nthreads().values())
+        where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
+        monitor.message(f"dask: {where}, {nthreads} threads")
+        from distributed import as_completed
+
+        monitor.begin(len(sw.points), len(sw.rows), n_failed0)
+        try:
+            _subscribe(client, monitor)
+            futures = _submit(client, sw, todo)
+            computed = lost = 0
+            for fut in as_completed(list(futures)):
+                if _record(sw, fut, futures[fut], monitor, code):
+                    computed += 1
+                else:
+                    lost += 1
+            try:
+                client.unsubscribe_topic(EVENT_TOPIC)
+            except Exception:  # noqa: BLE001
+                pass
+        finally:
+            monitor.end()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return computed, lost
+
+
+def _subscribe(client, monitor: SweepMonitor) -> None:
+    """Tells ``monitor`` when a worker starts a point (if the scheduler relays events)."""
+
+    def on_event(event):
+        msg = event[1] if isinstance(event, tuple) else event
+        if isinstance(msg, dict) and msg.get("state") == "running":
+            monitor.started(msg.get("id"))
+
+    try:
+        client.subscribe_topic(EVENT_TOPIC, on_event)
+    except Exception:  # noqa: BLE001 - running count is cosmetic
+        pass
+
+
+def _submit(client, sw: _Sweep, todo: list[int]) -> dict:
+    """future -> index of its point, for each point of ``todo``."""
+    futures = {}
+    for i in todo:
+        f = client.submit(
+            solve_point,
+            sw.task_arg,
+            sw.cfg_arg,
+            sw.smoke,
+            sw.overrides,
+            sw.points[i],
+            sw.ids[i],
+            pure=False,
+            key=f"hydroilqr-point-{sw.ids[i]}-{os.getpid()}-{time.time_ns()}",
+        )
+        futures[f] = i
+    return futures
+
+
+def _record(sw: _Sweep, fut, i: int, monitor: SweepMonitor, code: str) -> bool:
+    """Saves point ``i``'s result (a failed row if its worker raised), logs it and rewrites
+    the tables; False if the scheduler cancelled or lost it."""
+    try:
+        result = fut.result()
+    except CancelledError:
+        # the scheduler went away (or cancelled it): the point was not computed,
+        # so it stays missing and a plain rerun computes it
+        return False
+    except Exception as e:  # noqa: BLE001 - e.g. the worker died (KilledWorker)
+        result = {
+            "row": {
+                "id": sw.ids[i],
+                **{f"param:{k}": v for k, v in sw.points[i].items()},
+                "status": "failed",
+                "error": _error_text(e),
+            },
+            "arrays": {},
+        }
+    result["row"].setdefault("code", code)
+    save_point(sw.points_dir, result)
+    row = result["row"]
+    sw.rows[sw.ids[i]] = row
+    with open(sw.out / "computed.log", "a") as fh:
+        fh.write(f"{sw.ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
+    monitor.finished(sw.ids[i], row, sw.keys)
+    sw.write_tables(sw.ordered())
+    return True
+
+
+def _plot(sw: _Sweep, params: list[tuple[str, list]], all_rows: list[dict], task_cfg) -> list:
+    """sweep.png (and snapshots.png for the cartpole_wall metric); the names written."""
+    keys = sw.keys
+    grid_values = [
+        sorted({r[f"param:{k}"] for r in all_rows}, key=float) if sw.earlier_rows else v
+        for k, v in params
+    ]
+    plot_sweep(sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
+    wrote = ["sweep.png"]
+    if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
+        sw.out / "snapshots.png", sw.points_dir, task_cfg, keys, all_rows
+    ):
+        wrote.append("snapshots.png")
+    return wrote
+
+
+def _finish(sw: _Sweep, all_rows: list[dict], computed: int, wrote: list, monitor) -> dict:
+    """Reports the sweep's counts (and mixed code versions); run_sweep's result."""
+    failed = sum(sw.rows[pid].get("status") != "ok" for pid in sw.ids if pid in sw.rows)
     versions = {r.get("code") for r in all_rows if r.get("code")}
     if len(versions) > 1:
         monitor.message(
             f"[yellow]note:[/yellow] the points were computed by {len(versions)} code "
             f"versions ({', '.join(sorted(versions))}); see the code column"
         )
+    n, earlier = len(sw.points), sw.earlier_rows
     monitor.message(
-        f"{len(points)} points ({computed} computed now, "
-        f"{len(points) - computed} from earlier runs), {failed} failed"
-        + (f"; the table also keeps {len(earlier_rows)} points of earlier runs" if earlier else "")
-        + f"; wrote {', '.join(wrote)} in {out}"
+        f"{n} points ({computed} computed now, "
+        f"{n - computed} from earlier runs), {failed} failed"
+        + (f"; the table also keeps {len(earlier)} points of earlier runs" if earlier else "")
+        + f"; wrote {', '.join(wrote)} in {sw.out}"
     )
     return {
         "rows": all_rows,
         "computed": computed,
-        "skipped": len(points) - computed,
+        "skipped": n - computed,
         "failed": failed,
     }
