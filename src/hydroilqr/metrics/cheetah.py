@@ -315,18 +315,9 @@ def plot_cheetah(task, sol, out: Path) -> None:
 
 def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]:
     """(start, width) of every run of True in ``on``."""
-    runs = []
-    k = 0
-    while k < len(on):
-        if on[k]:
-            j = k
-            while j + 1 < len(on) and on[j + 1]:
-                j += 1
-            runs.append((float(t[k]), float(t[j] - t[k] + dt)))
-            k = j + 1
-        else:
-            k += 1
-    return runs
+    from hydroilqr.metrics.contacts import runs
+
+    return [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in runs(on)]
 
 
 def _check_names(task, p: dict) -> None:
