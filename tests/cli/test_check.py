@@ -1,3 +1,5 @@
+"""`hydroilqr check`: what it reports about a task file before any solve."""
+
 from __future__ import annotations
 
 from hydroilqr import Task, cli

@@ -1,3 +1,5 @@
+"""Initial-guess files given to the command line: paths, lengths, empty files."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,3 +1,5 @@
+"""The command-line entry point: `python -m hydroilqr`, one-line errors, the debug variable."""
+
 from __future__ import annotations
 
 import pytest

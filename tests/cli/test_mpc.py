@@ -1,3 +1,5 @@
+"""`hydroilqr mpc` options checked at the command line."""
+
 from __future__ import annotations
 
 import pytest

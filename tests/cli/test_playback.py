@@ -1,3 +1,5 @@
+"""`hydroilqr playback` beside `hydroilqr solve` on the same run directory."""
+
 from __future__ import annotations
 
 import pytest

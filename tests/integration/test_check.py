@@ -1,3 +1,5 @@
+"""problem.check: warnings and reports of the task check on a rollout."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Foundation: LQR = Riccati, derivatives agree, the plant really steps, cart-pole solves."""
+"""Solves through solver.api/solver.loop: the plant steps, cart-pole solves, stopping and gains."""
 
 import json
 

@@ -1,3 +1,5 @@
+"""Worker processes (model.workers): autodiff and line search in a pool agree with serial."""
+
 from __future__ import annotations
 
 import numpy as np

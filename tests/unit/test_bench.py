@@ -1,3 +1,5 @@
+"""studies.bench pure logic: ratios, phase shares, blocks, probes, contact polygons."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

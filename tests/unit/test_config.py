@@ -1,6 +1,4 @@
-"""Metrics, cost, state difference, config, check, bench, sweep, Solution files and worker
-line-search rounds, checked at their edges against hand-built data (a mutation-testing round:
-each test kills a mutation the rest of the suite let through). Smoke-sized."""
+"""problem.config: task files, overrides, --set, extends, smoke sections, ranges."""
 
 from __future__ import annotations
 

@@ -1,3 +1,5 @@
+"""model.cost: quadratization, blocks and weights, the cost breakdown, cost settings."""
+
 from __future__ import annotations
 
 from pathlib import Path

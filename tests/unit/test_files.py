@@ -1,3 +1,5 @@
+"""output.files: atomic writes, locks and Ctrl+C while results are written."""
+
 from __future__ import annotations
 
 import numpy as np

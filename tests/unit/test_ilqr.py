@@ -1,3 +1,5 @@
+"""solver.ilqr kernels on linear problems: backward pass, LQR in one step, line search."""
+
 import numpy as np
 import pytest
 

@@ -1,3 +1,5 @@
+"""metrics.cartpole on synthetic runs."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

@@ -1,3 +1,5 @@
+"""metrics.cheetah on synthetic contact patterns."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

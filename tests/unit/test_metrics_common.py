@@ -1,3 +1,5 @@
+"""metrics.common: the default metrics."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

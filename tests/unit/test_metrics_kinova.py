@@ -1,3 +1,5 @@
+"""metrics.kinova on a synthetic ball path."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

@@ -1,3 +1,6 @@
+"""Package data: every task and model file ships with the package."""
+
+
 def test_package_data_ships_every_task_and_model_file():
     """A non-editable install (pip install .) carries only the files pyproject's package-data
     names: every file the built-in tasks read (models, the cheetah's standing-torque CSV) must

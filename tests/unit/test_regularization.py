@@ -1,3 +1,5 @@
+"""solver.regularization: the final gains are regularized only as Q_uu needs."""
+
 from __future__ import annotations
 
 import numpy as np

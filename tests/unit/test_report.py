@@ -1,3 +1,5 @@
+"""output.report: the output directory of a run."""
+
 from __future__ import annotations
 
 import pytest

@@ -1,3 +1,5 @@
+"""solver.solution: saving, loading and refusing Solution files."""
+
 from __future__ import annotations
 
 import numpy as np

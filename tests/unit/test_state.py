@@ -1,3 +1,5 @@
+"""model.state: the state layout, quaternion differences and their Jacobian."""
+
 from __future__ import annotations
 
 import numpy as np

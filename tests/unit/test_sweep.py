@@ -1,3 +1,5 @@
+"""studies.sweep pure logic: values and grids."""
+
 from __future__ import annotations
 
 import pytest
