@@ -47,7 +47,7 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     # Exact derivative modes agree with AutoDiff where AutoDiff is exact.
     acc = r["accuracy"]
     # every contact class the run visits (free, and compliant-rigid when the tip is on the
-    # wall: 20 of 200 steps when written; test_foundation checks contact steps regardless)
+    # wall: 20 of 200 steps when written; integration/test_solve.py checks contact steps regardless)
     assert set(acc["central"]["max"]) == {*acc["contact_classes"], "all"} >= {"free", "all"}
     assert all(e < 1e-4 for e in acc["central"]["max"].values()), acc["central"]["max"]
     assert set(r["threads"]["seconds"]) >= {"1"}

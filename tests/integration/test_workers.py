@@ -153,7 +153,7 @@ def test_solve_uses_the_worker_counts_of_its_settings_not_the_tasks():
 def test_line_search_in_worker_processes_equals_serial():
     """Trials side by side in two processes give bitwise the serial iterates. (Three smoke
     iterations take steps of 1/4 to 1/32: rounds past the first. A trial blowing up in a worker:
-    test_edges::test_a_trial_that_blows_up_in_a_worker_keeps_the_pool.)"""
+    test_a_trial_that_blows_up_in_a_worker_keeps_the_pool.)"""
     from hydroilqr.model import workers
 
     sols = []
