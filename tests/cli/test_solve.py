@@ -1,4 +1,5 @@
-"""A run directory: Ctrl+C keeps the best-so-far, re-runs replace old results, never mix runs."""
+"""`hydroilqr solve` and its run directory: outputs, Ctrl+C keeps the best-so-far, re-runs
+replace old results, runs never mix, one-line refusals."""
 
 from __future__ import annotations
 
