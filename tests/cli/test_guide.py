@@ -13,9 +13,38 @@ import pytest
 from hydroilqr import Task, cli, solve
 from hydroilqr.problem.check import check_task
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
+
+
 EXAMPLES = ROOT / "examples"
+
+
 GUIDE = ROOT / "docs" / "guide.md"
+
+
+# ---------------------------------------------------------------------------------- the guide
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+
+
+def guide_steps() -> list[tuple[str, str]]:
+    """Runnable pieces of docs/guide.md in order: ("file", yaml), ("cmd", line), ("python", src).
+
+    YAML blocks whose first line is ``# file: NAME`` are written to NAME; each line of a
+    ``bash`` block that starts with ``hydroilqr`` is a command; ``python`` blocks are executed.
+    """
+    steps = []
+    for lang, body in FENCE.findall(GUIDE.read_text()):
+        if lang == "yaml" and body.startswith("# file: "):
+            steps.append(("file", body))
+        elif lang == "bash":
+            steps += [
+                ("cmd", ln.strip())
+                for ln in body.splitlines()
+                if ln.strip().startswith("hydroilqr ")
+            ]
+        elif lang == "python":
+            steps.append(("python", body))
+    return steps
 
 
 def test_acrobot_from_yaml_check():
@@ -67,31 +96,6 @@ def test_check_command_output(capsys):
         "check passed",
     ):
         assert text in out, text
-
-
-# ---------------------------------------------------------------------------------- the guide
-FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
-
-
-def guide_steps() -> list[tuple[str, str]]:
-    """Runnable pieces of docs/guide.md in order: ("file", yaml), ("cmd", line), ("python", src).
-
-    YAML blocks whose first line is ``# file: NAME`` are written to NAME; each line of a
-    ``bash`` block that starts with ``hydroilqr`` is a command; ``python`` blocks are executed.
-    """
-    steps = []
-    for lang, body in FENCE.findall(GUIDE.read_text()):
-        if lang == "yaml" and body.startswith("# file: "):
-            steps.append(("file", body))
-        elif lang == "bash":
-            steps += [
-                ("cmd", ln.strip())
-                for ln in body.splitlines()
-                if ln.strip().startswith("hydroilqr ")
-            ]
-        elif lang == "python":
-            steps.append(("python", body))
-    return steps
 
 
 def test_guide_has_runnable_steps():

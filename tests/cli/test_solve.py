@@ -1,32 +1,94 @@
-"""A run directory: Ctrl+C keeps the best-so-far, re-runs replace old results, never mix runs."""
+"""`hydroilqr solve` and its run directory: outputs, Ctrl+C keeps the best-so-far, re-runs
+replace old results, runs never mix, one-line refusals."""
 
 from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from hydroilqr import IterationTable, Solution, Task, cli, solve
-
-ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
-TASK = {
-    "name": "runs-acrobot",
-    "models": [{"file": ACROBOT}],
-    "plant": {"time_step": 0.02},
-    "num_steps": 20,
-    "blocks": {"angles": ["shoulder", "elbow"]},
-    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 50.0}, "nominal": {"angles": 1.0}},
-    "solver": {"max_iterations": 30},
-}
+from hydroilqr.problem.config import ConfigError, SolverConfig
+from hydroilqr.solver.ilqr import solve as ilqr_solve
+from tests.conftest import ACROBOT_TASK as TASK
+from tests.conftest import BASE, assert_one_line, edit, write_case, write_task
 
 
-def write_task(tmp_path, **changes):
-    path = tmp_path / "task.yaml"
-    path.write_text(yaml.safe_dump({**TASK, **changes}))
-    return path
+def test_a_runs_resolved_config_is_a_task_file_and_parent_smoke_paths_anchor(tmp_path):
+    """summary.json's config solves as a YAML task file (one trajectory length), and a
+    parent's smoke: paths are relative to the parent's own directory."""
+    import json
+
+    import yaml
+
+    from hydroilqr import Task
+    from hydroilqr.cli import main
+
+    out = tmp_path / "run"
+    argv = ["solve", "cartpole-wall", "--smoke", "--set", "num_steps=12", "--no-replay"]
+    assert main([*argv, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    cfg = summary["config"]
+    assert "horizon" not in cfg and cfg["num_steps"] == 12
+    for m in cfg["models"]:  # relative to base_dir, as documented
+        m["file"] = str(Path(summary["base_dir"]) / m["file"])
+    f = tmp_path / "again.yaml"
+    f.write_text(yaml.safe_dump(cfg))
+    assert Task.from_yaml(f).steps == 12
+
+    parent_dir = tmp_path / "p"
+    parent_dir.mkdir()
+    np.savetxt(parent_dir / "U.csv", np.zeros((5, 1)), delimiter=",")
+    (parent_dir / "parent.yaml").write_text(
+        yaml.safe_dump({**cfg, "smoke": {"num_steps": 5, "initial_guess": "U.csv"}})
+    )
+    (tmp_path / "child.yaml").write_text("extends: p/parent.yaml\nname: child\n")
+    task = Task.load(str(tmp_path / "child.yaml"), smoke=True)
+    assert Path(task.config.initial_guess) == parent_dir / "U.csv"
+
+
+def test_cli_solve_writes_outputs(tmp_path):
+    import json
+
+    from hydroilqr.cli import main
+
+    out = tmp_path / "run"
+    assert (
+        main(
+            [
+                "solve",
+                "cartpole-wall",
+                "--smoke",
+                "--set",
+                "solver.max_iterations=2",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    for key in (
+        "task",
+        "converged",
+        "iterations",
+        "final_cost",
+        "iteration_seconds",
+        "phase_seconds",
+        "derivatives",
+        "metrics",
+    ):
+        assert key in summary
+    for key in ("final_angle_error_rad", "max_overlap_m", "wall_contact_steps"):
+        assert key in summary["metrics"]
+    for f in ("solution.npz", "convergence.png", "replay.html"):
+        assert (out / f).stat().st_size > 0
+    assert "<html" in (out / "replay.html").read_text()[:2000].lower()
 
 
 def test_ctrl_c_during_a_solve_writes_the_best_so_far(tmp_path, monkeypatch, capsys):
@@ -103,9 +165,7 @@ def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):
 
 def test_interrupted_ilqr_statistics_are_consistent():
     """stop_on_interrupt: every per-iteration list has one entry per recorded iteration."""
-    from hydroilqr.problem.config import SolverConfig
     from hydroilqr.problem.task import Task
-    from hydroilqr.solver.ilqr import solve as ilqr_solve
 
     calls = []
 
@@ -150,8 +210,6 @@ def test_a_run_directory_loads_as_a_solution_and_playback_wants_the_directory(tm
 
 
 def test_one_run_per_output_directory_at_a_time(tmp_path):
-    import subprocess
-    import sys
     import time
 
     from hydroilqr.output.report import output_dir
@@ -205,3 +263,40 @@ def test_solution_files_are_written_whole(tmp_path):
     task = Task.load("cartpole-wall", ["num_steps=5", "solver.max_iterations=1"])
     path = solve(task).save(tmp_path / "s")
     assert path.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["s.npz"]
+
+
+def test_out_that_is_a_file_or_another_tasks_directory(tmp_path, capsys):
+    path = write_case(tmp_path, BASE)
+    (tmp_path / "afile").write_text("x")
+    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "afile"), "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "exists and is not a directory")
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "mpc.json").write_text('{"task": "cartpole-wall"}')
+    rc = cli.main(["mpc", str(path), "--duration", "0.1", "--out", str(other), "--no-replay"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "holds the results of task 'cartpole-wall'")
+
+
+def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
+    path = write_case(
+        tmp_path, edit(cost__Qf={"angles": 1e308}, initial_state={"angles": [2.0, 1.0]})
+    )
+    rc = cli.main(["solve", "--task-file", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc != 0 and "Traceback" not in cap.err and "RuntimeWarning" not in cap.err
+    lines = [ln for ln in cap.err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "cost of the initial guess is inf" in lines[0], cap.err
+    assert not (tmp_path / "o" / "solution.npz").exists()
+
+
+def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkeypatch):
+    from hydroilqr.problem.config import load_task
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "cartpole-wall").mkdir()  # e.g. `solve cartpole-wall --out cartpole-wall`
+    assert load_task("cartpole-wall").name == "cartpole-wall"
+    (tmp_path / "mine.yaml").mkdir()
+    with pytest.raises(ConfigError, match="a directory, not a task YAML file"):
+        load_task("mine.yaml")

@@ -12,30 +12,14 @@ from hydroilqr.cli import main
 from hydroilqr.problem.config import ConfigError
 from hydroilqr.studies.sweep import POINT_COLUMNS, grid, parse_values, point_id, run_sweep
 
-# Tiny cart-pole-wall solves: 30 steps, 3 iterations (contact happens within 0.3 s).
-SMALL = ["num_steps=30", "solver.max_iterations=3"]
 KEY = "tip.hydroelastic_modulus"
 
 
-def test_parse_values():
-    assert parse_values("logspace:1e3:1e9:13")[:3] == [1000.0, 3162.27766017, 10000.0]
-    assert parse_values("logspace:1e3:1e9:13")[-1] == 1e9
-    assert parse_values("linspace:0:1:3") == [0.0, 0.5, 1.0]
-    assert parse_values("1, 2.5,3e4") == [1, 2.5, 30000.0]
-    for bad in ("logspace:0:1:3", "logspace:1:2", "a,b", "linspace:0:1:0", "1,1"):
-        with pytest.raises(ConfigError):
-            parse_values(bad)
-    # a generated list that repeats a value would compute one point several times
-    for bad in ("linspace:1:1:3", "logspace:1e5:1e5:2", "logspace:1:1.0000000000001:3"):
-        with pytest.raises(ConfigError, match="repeated values"):
-            parse_values(bad)
-    assert parse_values("linspace:5:5:1") == [5.0]
-    with pytest.raises(ConfigError, match="at most 10000 points"):
-        parse_values("linspace:0:1:100000000000")  # refused before numpy allocates it
-    g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
-    assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
-    assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})
-    assert point_id({KEY: 1000000}) == point_id({KEY: 1e6})  # one value, two spellings
+TINY = ["num_steps=5", "solver.max_iterations=1"]
+
+
+# Tiny cart-pole-wall solves: 30 steps, 3 iterations (contact happens within 0.3 s).
+SMALL = ["num_steps=30", "solver.max_iterations=3"]
 
 
 def _rows(out: Path) -> list[dict]:
@@ -68,6 +52,86 @@ def swept(tmp_path_factory):
         argv += ["--set", s]
     assert main(argv) == 1  # one point failed: the table is written, the exit code says so
     return out, argv
+
+
+def test_sweep_refuses_bad_specs_before_starting(tmp_path):
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies.sweep import run_sweep
+
+    with pytest.raises(ConfigError, match="at most two"):
+        run_sweep("cartpole-wall", [("a", [1]), ("b", [1]), ("c", [1])], tmp_path / "a")
+    with pytest.raises(ConfigError, match="the same key twice"):
+        run_sweep("cartpole-wall", [(KEY, [1e6]), (KEY, [2e6])], tmp_path / "b")
+    # The last point is built before the cluster starts, like the first.
+    with pytest.raises(ConfigError, match="must be positive"):
+        run_sweep("cartpole-wall", [(KEY, [1e6, -5.0])], tmp_path / "c", sets=TINY)
+    assert not (tmp_path / "c" / "points").exists()
+
+
+def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path):
+    import json
+
+    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.studies.sweep import point_id, run_sweep
+
+    out = tmp_path / "s"
+    (out / "points").mkdir(parents=True)
+    pid = point_id({KEY: 1e6})
+    failed = {"id": pid, f"param:{KEY}": 1e6, "status": "failed", "error": "KilledWorker: x"}
+    (out / "points" / f"{pid}.json").write_text(json.dumps(failed))
+    # A spec written before solver.threads=1 stopped being listed under --set: the same sweep.
+    spec = {
+        "task": "cartpole-wall",
+        "config_file": None,
+        "smoke": False,
+        "set": sorted(TINY + ["solver.threads=1"]),
+        "params": [{"key": KEY, "values": [1e6]}],
+    }
+    (out / "sweep_spec.json").write_text(json.dumps(spec))  # fmt: skip
+    res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, sets=TINY, plots=False)
+    assert res["computed"] == 0 and res["failed"] == 1  # kept as it is
+    # Another swept key over the same values is another sweep.
+    with pytest.raises(ConfigError, match="--param"):
+        run_sweep("cartpole-wall", [("tip.dissipation", [1e6])], out, sets=TINY, plots=False)
+    res = run_sweep(
+        "cartpole-wall", [(KEY, [1e6])], out, sets=TINY, plots=False, retry_failed=True, workers=1
+    )
+    assert res["computed"] == 1 and res["failed"] == 0
+    assert json.loads((out / "points" / f"{pid}.json").read_text())["status"] == "ok"
+
+
+def test_an_older_point_file_does_not_replace_the_current_one(tmp_path):
+    import json
+
+    from hydroilqr.studies.sweep import _adopt_older_point, point_id
+
+    old = point_id({KEY: 1000000}, {KEY: repr(1000000)})
+    new = point_id({KEY: 1e6})
+    (tmp_path / f"{old}.json").write_text(json.dumps({"id": old, "status": "failed"}))
+    (tmp_path / f"{new}.json").write_text(json.dumps({"id": new, "status": "ok"}))
+    _adopt_older_point(tmp_path, {KEY: 1e6}, new)
+    assert json.loads((tmp_path / f"{new}.json").read_text())["status"] == "ok"
+
+
+def test_parse_values():
+    assert parse_values("logspace:1e3:1e9:13")[:3] == [1000.0, 3162.27766017, 10000.0]
+    assert parse_values("logspace:1e3:1e9:13")[-1] == 1e9
+    assert parse_values("linspace:0:1:3") == [0.0, 0.5, 1.0]
+    assert parse_values("1, 2.5,3e4") == [1, 2.5, 30000.0]
+    for bad in ("logspace:0:1:3", "logspace:1:2", "a,b", "linspace:0:1:0", "1,1"):
+        with pytest.raises(ConfigError):
+            parse_values(bad)
+    # a generated list that repeats a value would compute one point several times
+    for bad in ("linspace:1:1:3", "logspace:1e5:1e5:2", "logspace:1:1.0000000000001:3"):
+        with pytest.raises(ConfigError, match="repeated values"):
+            parse_values(bad)
+    assert parse_values("linspace:5:5:1") == [5.0]
+    with pytest.raises(ConfigError, match="at most 10000 points"):
+        parse_values("linspace:0:1:100000000000")  # refused before numpy allocates it
+    g = grid([("a", [1, 2]), ("b", [3, 4, 5])])
+    assert len(g) == 6 and g[0] == {"a": 1, "b": 3} and g[-1] == {"a": 2, "b": 5}
+    assert point_id({KEY: 1000.0}) == point_id({KEY: 1000.0}) != point_id({KEY: 1000.5})
+    assert point_id({KEY: 1000000}) == point_id({KEY: 1e6})  # one value, two spellings
 
 
 def test_three_point_sweep(swept):

@@ -1,6 +1,8 @@
 """Task actuators (effort limit, rotor inertia, gear ratio) and what uses them: the plant,
 `check`, playback's PD+ stability advisory and its resting measurement (issue 28)."""
 
+from __future__ import annotations
+
 import numpy as np
 import pytest
 
@@ -103,3 +105,29 @@ def test_mpc_truth_counts_the_commands_it_clips_at_the_task_limits():
     u[6] = 3.0
     _, applied = truth.step(task.x0, u, 0, [])
     assert applied[6] == 2.0 and (truth.saturated, truth.commands) == (1, 7)
+
+
+def test_commands_beyond_the_effort_limits_are_reported():
+    """Drake clips the actuation input to the effort limits (the same trajectory as a clipped
+    command, partials zero beyond it); a plan whose commands exceed them says so."""
+    from hydroilqr import Task
+    from hydroilqr.metrics import beyond_limits, summary_lines
+
+    task = Task.load("kinova-forward", ["solver.autodiff_workers=1"], smoke=True)
+    dyn = task.dynamics
+    lim = dyn.effort_limits
+    N = task.steps
+    U = task.initial_guess(N)
+    assert beyond_limits(dyn, U) == {"commands_beyond_limits": 0}
+    U[3, 5] = 2.5 * lim[5]
+    U[4, 1] = -1.5 * lim[1]
+    np.testing.assert_array_equal(  # the plant applies the limit
+        dyn.rollout(task.x0, U), dyn.rollout(task.x0, np.clip(U, -lim, lim))
+    )
+    m = beyond_limits(dyn, U)
+    assert m["commands_beyond_limits"] == 2 and m["max_command_over_limit"] == pytest.approx(2.5)
+    assert (
+        m["max_command_over_limit_actuator"]
+        == dyn.plant.get_joint_actuator(dyn.plant.GetJointActuatorIndices()[5]).name()
+    )
+    assert any("exceed" in line for line in summary_lines(m))

@@ -9,17 +9,8 @@ from hydroilqr.model.derivatives import Linearizer, linearize
 from hydroilqr.solver.ilqr import solve
 
 
-@pytest.fixture(scope="module")
-def cartpole():
-    task = Task.load("cartpole-wall", overrides=["num_steps=30"])
-    rng = np.random.default_rng(0)
-    U = 5.0 * rng.standard_normal((30, 1))
-    X = task.dynamics.rollout(task.x0, U)
-    return task, X, U
-
-
-def test_tolerance_zero_is_plain_linearize(cartpole):
-    task, X, U = cartpole
+def test_tolerance_zero_is_plain_linearize(cartpole_rollout):
+    task, X, U = cartpole_rollout
     lin = Linearizer(task.dynamics, "forward", threads=1)
     A, B = lin(X, U)
     A0, B0 = linearize(task.dynamics, X, U, "forward", threads=1, rollout=True)
@@ -29,8 +20,8 @@ def test_tolerance_zero_is_plain_linearize(cartpole):
     assert lin.last_computed == 0 and np.array_equal(A1, A0)
 
 
-def test_reuse_tolerance_cap_and_shift(cartpole):
-    task, X, U = cartpole
+def test_reuse_tolerance_cap_and_shift(cartpole_rollout):
+    task, X, U = cartpole_rollout
     dyn = task.dynamics
     lin = Linearizer(dyn, "forward", threads=1, reuse_tolerance=1e-3)
     lin(X, U)
@@ -53,8 +44,8 @@ def test_reuse_tolerance_cap_and_shift(cartpole):
     assert lin.last_computed == 0 and np.array_equal(A_shifted, A[10:])
 
 
-def test_known_rollout_is_not_recomputed(cartpole, monkeypatch):
-    task, X, U = cartpole
+def test_known_rollout_is_not_recomputed(cartpole_rollout, monkeypatch):
+    task, X, U = cartpole_rollout
     problem = task.problem()
     dyn = problem.dynamics
     calls, real = [], dyn.rollout
@@ -154,8 +145,8 @@ def test_interval_interpolates_linearly_between_keypoints():
         np.testing.assert_allclose(Ai[k], (1 - s) * A1[k0] + s * A1[k1], rtol=1e-12, atol=1e-12)
 
 
-def test_linearize_at_one_point_gives_one_pair(cartpole):
-    task = cartpole[0]
+def test_linearize_at_one_point_gives_one_pair(cartpole_rollout):
+    task = cartpole_rollout[0]
     dyn = task.dynamics
     x, u = task.x0, np.array([1.0])
     A, B = linearize(dyn, x, u, "autodiff")

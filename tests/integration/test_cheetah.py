@@ -28,6 +28,31 @@ def smoke_run(tmp_path_factory):
     return task, sol, out
 
 
+FEET = {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision"}
+
+
+SPLIT = Path(__file__).parents[2] / "examples" / "cheetah-split-ground.yaml"
+
+
+def half_space_ground() -> Task:
+    """examples/cheetah-split-ground.yaml: the feet touch a compliant half space with the box's
+    pressure field near its top face (box 1 m thick: p = E d / 0.5 m; half space with slab
+    0.5 m), the compliant body touches the box (a compliant half space cannot touch compliant
+    geometry)."""
+    return Task.from_yaml(SPLIT)
+
+
+def _interrupt_after(resolves: int, task, directory) -> None:
+    """Runs a receding-horizon task into ``directory`` and stops it after some resolves."""
+
+    def stop(done, total, sol):
+        if done == resolves:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        solve(task, checkpoint_dir=directory, on_resolve=stop)
+
+
 def test_tasks_listed_and_paper_setup():
     assert set(TASKS) <= set(list_tasks())
     assert not any(name.startswith("_") for name in list_tasks())
@@ -71,26 +96,12 @@ def test_tasks_listed_and_paper_setup():
         assert U.shape == (5, 12) and np.all(np.abs(U) <= dyn.effort_limits)
 
 
-FEET = {"FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision"}
-
-
 def test_standing_contacts():
     task = Task.load("cheetah-trot-0.5")
     surfaces = task.dynamics.contact_surfaces(task.x0)
     feet = {a for a, b, n in surfaces if "foot" in a and b == "ground" and n > 0}
     assert feet == FEET
     assert not any("body" in a for a, _, _ in surfaces)
-
-
-SPLIT = Path(__file__).parent.parent / "examples" / "cheetah-split-ground.yaml"
-
-
-def half_space_ground() -> Task:
-    """examples/cheetah-split-ground.yaml: the feet touch a compliant half space with the box's
-    pressure field near its top face (box 1 m thick: p = E d / 0.5 m; half space with slab
-    0.5 m), the compliant body touches the box (a compliant half space cannot touch compliant
-    geometry)."""
-    return Task.from_yaml(SPLIT)
 
 
 def test_a_ground_of_two_geometries_each_touching_its_own():
@@ -175,17 +186,6 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
     saved = json.loads((tmp_path / "summary.json").read_text())
     assert saved["metrics"]["duty_factor"] == summary["metrics"]["duty_factor"]
     assert len(saved["extra"]["resolves"]) == rh.resolves
-
-
-def _interrupt_after(resolves: int, task, directory) -> None:
-    """Runs a receding-horizon task into ``directory`` and stops it after some resolves."""
-
-    def stop(done, total, sol):
-        if done == resolves:
-            raise _Stop
-
-    with pytest.raises(_Stop):
-        solve(task, checkpoint_dir=directory, on_resolve=stop)
 
 
 def test_resume_equals_uninterrupted(smoke_run, tmp_path):

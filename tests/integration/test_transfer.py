@@ -5,7 +5,7 @@ distance to the target at rest must not exceed the committed baseline (a ratchet
 that has been reached must stay reached); a lift must keep its fraction of the planned rise.
 
 Baselines and tolerance: tests/transfer_baseline.json. After a change that makes transfer
-better, lower the baseline to the new numbers (``python tests/test_transfer.py`` prints
+better, lower the baseline to the new numbers (``python tests/integration/test_transfer.py`` prints
 them); a change that makes it worse by more than the tolerance fails here.
 
 Full-size solves: this module takes minutes, not seconds. HYDROILQR_TRANSFER_SET (dotted
@@ -15,7 +15,6 @@ task, to see the guard fail on a deliberately worsened plan.
 
 import json
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from hydroilqr import Task
 from hydroilqr.control.playback import PlaybackSettings, playback
 from hydroilqr.solver.api import solve
 
-BASELINE = Path(__file__).with_name("transfer_baseline.json")
+BASELINE = Path(__file__).parents[1] / "transfer_baseline.json"
 
 
 def _baseline() -> dict:
@@ -90,8 +89,3 @@ def test_transfer_does_not_regress(name):
         assert got["kept_lift_fraction"] is not None and got["kept_lift_fraction"] >= keep, (
             f"{name}: kept {got['kept_lift_fraction']} of the planned lift < {keep:.3f}"
         )
-
-
-if __name__ == "__main__":  # prints the numbers a new baseline would hold
-    names = sys.argv[1:] or sorted(_baseline()["tasks"])
-    print(json.dumps({n: measure(n) for n in names}, indent=2))

@@ -237,7 +237,7 @@ def test_the_object_is_the_unactuated_joint_the_plan_moves_most():
 
     from hydroilqr.control.playback import choose_object
 
-    example = Path(__file__).parent.parent / "examples" / "gripper-brick.yaml"
+    example = Path(__file__).parents[2] / "examples" / "gripper-brick.yaml"
     task = Task.from_yaml(example, smoke=True)
     dyn, plant = task.dynamics, task.dynamics.plant
     actuated = {

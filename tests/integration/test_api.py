@@ -14,6 +14,11 @@ def task():
     return Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=3")
 
 
+def _rollout(t):
+    U = t.initial_guess(t.steps)
+    return t.dynamics.rollout(t.x0, U), U
+
+
 def test_solve_takes_own_guess_and_state_and_leaves_the_task_alone(task):
     U0 = np.full((task.steps, 1), 0.5)
     x0 = task.x0 + np.array([0.0, 0.01, 0.0, 0.0])
@@ -89,11 +94,6 @@ def test_overrides_make_a_new_task_and_read_1e6_as_a_number(task):
     assert stiff.config.cost.Qf["pole_angle"] == 1e6
     assert task.config.cost.Qf["pole_angle"] != 1e6
     assert stiff.cost.total(*_rollout(stiff)) > task.cost.total(*_rollout(task))
-
-
-def _rollout(t):
-    U = t.initial_guess(t.steps)
-    return t.dynamics.rollout(t.x0, U), U
 
 
 def test_save_and_load_agree_on_paths(task, tmp_path):

@@ -8,33 +8,38 @@ import os
 import subprocess
 import sys
 
-import yaml
-
 from hydroilqr import cli
 from hydroilqr.cli.solve import GOAL_NOT_MET
 from hydroilqr.output import rundir
+from tests.conftest import ACROBOT_TASK
+from tests.conftest import write_task as write_acrobot_task
 
-ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 TASK = {
+    **ACROBOT_TASK,
     "name": "trust-acrobot",
-    "models": [{"file": ACROBOT}],
-    "plant": {"time_step": 0.02},
-    "num_steps": 20,
-    "blocks": {"angles": ["shoulder", "elbow"]},
-    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 50.0}, "nominal": {"angles": 1.0}},
     "solver": {"max_iterations": 15},
     "metrics": ["default"],
 }
 
 
 def write_task(tmp_path, **changes):
-    path = tmp_path / "task.yaml"
-    path.write_text(yaml.safe_dump({**TASK, **changes}))
-    return path
+    return write_acrobot_task(tmp_path, TASK, **changes)
 
 
 def summary(out):
     return json.loads((out / "summary.json").read_text())
+
+
+def _complete_run(tmp_path):
+    out = tmp_path / "run"
+    assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
+    return out, (out / "solution.npz").read_bytes(), summary(out)
+
+
+def _solve_in_a_process(task, out, kill_at: str = ""):
+    env = {**os.environ, rundir.KILL_ENV: kill_at}
+    cmd = [sys.executable, "-m", "hydroilqr", "solve", task, "--out", str(out), "--no-replay"]
+    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
 
 
 def test_goal_pass_and_fail_reach_the_terminal_json_and_exit_code(tmp_path, capsys):
@@ -95,12 +100,6 @@ def test_multistart_arguments_are_checked_before_work(tmp_path, capsys):
     assert not (tmp_path / "x").exists()
 
 
-def _complete_run(tmp_path):
-    out = tmp_path / "run"
-    assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
-    return out, (out / "solution.npz").read_bytes(), summary(out)
-
-
 def test_a_run_failing_after_the_solve_leaves_the_earlier_set(tmp_path, capsys, monkeypatch):
     out, npz, first = _complete_run(tmp_path)
     from hydroilqr import metrics
@@ -146,12 +145,6 @@ def test_resolving_retires_old_playbacks_and_never_follows_a_symlink(tmp_path):
     assert not (out / "playback-pd").exists()  # derived from the earlier plan
     assert (target / "playback.json").read_text() == "precious"
     assert (out / "notes.txt").read_text() == "mine"
-
-
-def _solve_in_a_process(task, out, kill_at: str = ""):
-    env = {**os.environ, rundir.KILL_ENV: kill_at}
-    cmd = [sys.executable, "-m", "hydroilqr", "solve", task, "--out", str(out), "--no-replay"]
-    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
 
 
 def test_killed_while_writing_results_leaves_one_complete_set(tmp_path):

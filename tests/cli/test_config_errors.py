@@ -9,53 +9,20 @@ also runs as real subprocesses of the installed ``hydroilqr`` script.
 
 from __future__ import annotations
 
-import copy
 import os
 import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
-import yaml
 
 from hydroilqr import cli
-from hydroilqr.problem.config import ConfigError
+from tests.conftest import ACROBOT, BASE, assert_one_line, edit, write_case
 
-ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 PENDULUM = "package://drake/examples/pendulum/Pendulum.urdf"
+
+
 HYDROILQR = Path(sys.executable).parent / "hydroilqr"
-
-BASE = {
-    "name": "val",
-    "models": [{"file": ACROBOT}],
-    "plant": {"time_step": 0.02},
-    "num_steps": 5,
-    "blocks": {"angles": ["shoulder", "elbow"]},
-    "initial_state": {"angles": [0.1, 0.0]},
-    "cost": {
-        "Q": {"angles": 1.0},
-        "R": 0.01,
-        "Qf": {"angles": 10.0},
-        "nominal": {"angles": [3.14, 0.0]},
-    },
-    "solver": {"max_iterations": 1},
-}
-
-
-def edit(**changes):
-    """BASE with dotted-key changes ('cost.Q.angles': -1); value None deletes the key."""
-    data = copy.deepcopy(BASE)
-    for dotted, value in changes.items():
-        *path, last = dotted.split("__")
-        node = data
-        for p in path:
-            node = node.setdefault(p, {})
-        if value is None:
-            node.pop(last, None)
-        else:
-            node[last] = value
-    return data
 
 
 # (case id, task dict or raw YAML text, text the one-line message must contain)
@@ -205,20 +172,12 @@ CASES = [
 ]
 
 
-def write_case(tmp_path: Path, spec) -> Path:
-    path = tmp_path / "task.yaml"
-    path.write_text(spec if isinstance(spec, str) else yaml.safe_dump(spec))
-    return path
-
-
-def assert_one_line(rc: int, out: str, err: str, needle: str) -> None:
-    assert rc != 0
-    assert "Traceback" not in err and "Traceback" not in out
-    lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1, err
-    assert lines[0].startswith("hydroilqr: error: "), lines[0]
-    assert needle in lines[0], lines[0]
-    assert out.strip() == "", f"the solve started: {out}"
+SUBPROCESS_CASES = [
+    "unknown-top-level-key",
+    "nan-weight",
+    "malformed-yaml",
+    "compliant-halfspace-pair",
+]
 
 
 @pytest.mark.parametrize("case,spec,needle", CASES, ids=[c[0] for c in CASES])
@@ -254,14 +213,6 @@ def test_bad_override_names_key(tmp_path, capsys):
     )
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "solver.derivatives")
-
-
-SUBPROCESS_CASES = [
-    "unknown-top-level-key",
-    "nan-weight",
-    "malformed-yaml",
-    "compliant-halfspace-pair",
-]
 
 
 def test_bad_keys_as_subprocesses(tmp_path):
@@ -319,125 +270,6 @@ def test_smoke_typo_is_named_as_smoke(tmp_path, capsys):
     assert_one_line(rc, cap.out, cap.err, "smoke: solver.max_iteratons")
 
 
-def test_extends_across_directories_keeps_base_paths(tmp_path):
-    """A base in another directory keeps resolving its own relative model and guess paths."""
-    from hydroilqr.problem.config import load_task
-
-    base_dir, child_dir = tmp_path / "shared", tmp_path / "mine"
-    base_dir.mkdir()
-    child_dir.mkdir()
-    (base_dir / "robot.urdf").write_text(
-        '<robot name="r"><link name="a"><inertial><mass value="1"/>'
-        '<inertia ixx="1" iyy="1" izz="1" ixy="0" ixz="0" iyz="0"/></inertial></link></robot>'
-    )
-    (base_dir / "guess.csv").write_text("0\n")
-    base = {"models": [{"file": "robot.urdf"}], "initial_guess": "guess.csv", "num_steps": 3}
-    (base_dir / "base.yaml").write_text(yaml.safe_dump(base))
-    (child_dir / "task.yaml").write_text("extends: ../shared/base.yaml\nname: child\n")
-    cfg = load_task(str(child_dir / "task.yaml"))
-    assert cfg.resolve_path(cfg.models[0].file) == base_dir / "robot.urdf"
-    assert cfg.resolve_path(cfg.initial_guess) == base_dir / "guess.csv"
-
-
-def test_scalar_weight_still_applies_to_a_whole_block():
-    from hydroilqr.problem.task import Task
-
-    path_spec = edit(initial_state={"angles": 0.05})
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as d:
-        task = Task.load(str(write_case(Path(d), path_spec)))
-        np.testing.assert_allclose(task.x0[:2], [0.05, 0.05])
-
-
-def test_short_initial_guess_file_is_an_error(tmp_path, capsys):
-    (tmp_path / "U.csv").write_text("0.1\n0.2\n")  # 2 rows, the task has 5 steps
-    path = write_case(tmp_path, edit(initial_guess="U.csv"))
-    rc = cli.main(["solve", "--task-file", str(path), "--no-replay", "--out", str(tmp_path / "o")])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "has 2 rows; the task needs 5")
-    (tmp_path / "U.csv").write_text("0.1\n")  # one row: a constant control
-    from hydroilqr.problem.task import Task
-
-    np.testing.assert_allclose(Task.load(str(path)).initial_guess(5), np.full((5, 1), 0.1))
-
-
-def test_command_line_guess_path_is_relative_to_the_working_directory(tmp_path, monkeypatch):
-    from hydroilqr.problem.task import Task
-
-    task_dir, work = tmp_path / "tasks", tmp_path / "work"
-    task_dir.mkdir()
-    work.mkdir()
-    path = write_case(task_dir, BASE)
-    (work / "U.csv").write_text("0.3\n")
-    monkeypatch.chdir(work)
-    task = Task.load(str(path), overrides=["initial_guess=U.csv"])
-    np.testing.assert_allclose(task.initial_guess(5), np.full((5, 1), 0.3))
-
-
-def test_check_validates_the_smoke_section(tmp_path, capsys):
-    path = write_case(tmp_path, edit(smoke={"solver.max_iterations": -1}))
-    rc = cli.main(["check", str(path)])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "solver.max_iterations")
-
-
-def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
-    """Velocity blocks (`shoulder.v`) and floating-body blocks (`ball.position`) by --set."""
-    from hydroilqr.problem.task import Task
-
-    path = write_case(tmp_path, BASE)
-    task = Task.load(
-        str(path), ["cost.Q.shoulder.v=0.5", "initial_state.elbow=0.2", "cost.Qf.elbow.v=2"]
-    )
-    assert task.config.cost.Q == {"angles": 1.0, "shoulder.v": 0.5}  # merged, not replaced
-    assert task.config.cost.Qf["elbow.v"] == 2
-    v = task.dynamics.layout.block("shoulder.v").tangent[0]
-    assert task.cost.q[v] == 0.5
-
-
-def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
-    from hydroilqr.problem.task import Task
-
-    path = write_case(tmp_path, BASE)  # num_steps: 5
-    assert Task.load(str(path), ["horizon=0.2"]).config.steps == 10
-
-
-def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
-    """A collision name matches every geometry of that name, a body name all of the body's;
-    a body name that is also another body's collision name is ambiguous; BODY/NAME picks one."""
-    from hydroilqr.model.plant import geometry_hits
-
-    geoms = {1: ("Sphere", "arm"), 2: ("Sphere", "base"), 3: ("arm", "base"), 4: ("Box", "arm")}
-    assert geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
-    assert geometry_hits("base/Sphere", geoms) == [2]
-    from hydroilqr.problem.config import ConfigError
-
-    with pytest.raises(ConfigError, match="ambiguous"):
-        geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
-    assert geometry_hits("Box", geoms) == [4]
-
-
-def test_out_that_is_a_file_or_another_tasks_directory(tmp_path, capsys):
-    path = write_case(tmp_path, BASE)
-    (tmp_path / "afile").write_text("x")
-    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "afile"), "--no-replay"])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "exists and is not a directory")
-    other = tmp_path / "other"
-    other.mkdir()
-    (other / "mpc.json").write_text('{"task": "cartpole-wall"}')
-    rc = cli.main(["mpc", str(path), "--duration", "0.1", "--out", str(other), "--no-replay"])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "holds the results of task 'cartpole-wall'")
-
-
-def test_bench_block_must_be_positive(capsys):
-    rc = cli.main(["bench", "cartpole-wall", "--smoke", "--block", "0", "--out", "/nonexistent"])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "--block")
-
-
 def test_smoke_section_cannot_change_itself(tmp_path, capsys):
     path = write_case(tmp_path, edit(smoke={"smoke.num_steps": 3}))
     rc = cli.main(["check", str(path)])
@@ -450,32 +282,6 @@ def test_smoke_values_are_validated_as_smoke(tmp_path, capsys):
     rc = cli.main(["solve", str(path), "--smoke", "--no-replay", "--out", str(tmp_path / "o")])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "smoke: num_steps")
-
-
-def test_empty_guess_file_is_one_line(tmp_path, capsys):
-    (tmp_path / "empty.csv").write_text("")
-    path = write_case(tmp_path, edit(initial_guess="empty.csv"))
-    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, "empty.csv is empty")
-
-
-@pytest.mark.parametrize(
-    "option",
-    [
-        ["--duration", "nan"],
-        ["--rate", "inf"],
-        ["--threads", "-2"],
-        ["--push", "nan:lower_link:1,0,0"],
-        ["--push-duration", "nan", "--push", "0.01:lower_link:1,0,0"],
-        ["--push-duration", "0.2"],
-    ],
-)
-def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):
-    path = write_case(tmp_path, BASE)
-    rc = cli.main(["mpc", str(path), "--out", str(tmp_path / "o"), "--no-replay", *option])
-    cap = capsys.readouterr()
-    assert_one_line(rc, cap.out, cap.err, option[0].lstrip("-").split("-")[0])
 
 
 def test_task_file_that_is_not_utf8(tmp_path, capsys):
@@ -494,89 +300,6 @@ def test_smoke_does_not_claim_the_task_own_mistakes(tmp_path, capsys):
     assert "smoke:" not in cap.err
 
 
-def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
-    path = write_case(
-        tmp_path, edit(cost__Qf={"angles": 1e308}, initial_state={"angles": [2.0, 1.0]})
-    )
-    rc = cli.main(["solve", "--task-file", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
-    cap = capsys.readouterr()
-    assert rc != 0 and "Traceback" not in cap.err and "RuntimeWarning" not in cap.err
-    lines = [ln for ln in cap.err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "cost of the initial guess is inf" in lines[0], cap.err
-    assert not (tmp_path / "o" / "solution.npz").exists()
-
-
-def test_run_files_that_disagree_are_refused(tmp_path):
-    from hydroilqr.problem.config import ConfigError
-    from hydroilqr.solver.solution import Solution, load_run_solution
-
-    def make(n_u):  # a solution of N = 4 steps whose U has n_u rows
-        N, nx, nu = 4, 2, 1
-        z = np.zeros
-        return Solution(
-            z((N + 1, nx)), z((n_u, nu)), z((N, nu, nx)), z((N, nu)), np.arange(N + 1.0),
-            z(1), [], {}, True, "", "",
-        )  # fmt: skip
-
-    make(4).save(tmp_path / "a")
-    Solution.load(tmp_path / "a.npz").check_shapes()
-    bad = make(2)
-    bad.save(tmp_path / "b")
-    with pytest.raises(ConfigError, match="arrays disagree"):
-        load_run_solution(tmp_path / "b.npz", "cost.reference")
-    (tmp_path / "c.npz").write_bytes(b"garbage")
-    with pytest.raises(ValueError, match="not a file written by Solution.save"):
-        Solution.load(tmp_path / "c.npz")
-
-
-def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):
-    from hydroilqr.output.report import output_dir
-    from hydroilqr.problem.config import ConfigError
-
-    (tmp_path / "summary.json").write_text("{torn")
-    with pytest.raises(ConfigError, match="summary.json is unreadable"):
-        output_dir(tmp_path, "cartpole-wall")
-
-
-def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkeypatch):
-    from hydroilqr.problem.config import load_task
-
-    monkeypatch.chdir(tmp_path)
-    (tmp_path / "cartpole-wall").mkdir()  # e.g. `solve cartpole-wall --out cartpole-wall`
-    assert load_task("cartpole-wall").name == "cartpole-wall"
-    (tmp_path / "mine.yaml").mkdir()
-    with pytest.raises(ConfigError, match="a directory, not a task YAML file"):
-        load_task("mine.yaml")
-
-
-def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
-    from hydroilqr.problem.config import load_task
-
-    path = write_case(tmp_path, BASE)  # num_steps: 5 at dt 0.02
-    extra = tmp_path / "extra.yaml"
-    extra.write_text("horizon: 0.2\n")
-    assert load_task(str(path), config_file=str(extra)).steps == 10
-    smoke = write_case(tmp_path, edit(smoke={"horizon": 0.06}))
-    assert load_task(str(smoke), smoke=True).steps == 3
-    (tmp_path / "child.yaml").write_text(f"extends: {path.name}\nhorizon: 0.4\n")
-    assert load_task(str(tmp_path / "child.yaml")).steps == 20
-
-
-def test_continuation_stages_keep_the_grid_and_read_paths_from_the_task_file(tmp_path):
-    from hydroilqr.problem.task import Task
-
-    path = write_case(tmp_path, edit(continuation=[{"plant": {"time_step": 0.04}}]))
-    with pytest.raises(ConfigError, match="time grid"):
-        Task.load(str(path)).stages()
-    path = write_case(tmp_path, edit(continuation=[{"initial_guess": "guess.csv"}]))
-    with pytest.raises(ConfigError, match="initial_guess cannot change"):
-        Task.load(str(path))
-    (tmp_path / "u.csv").write_text("0.1\n")
-    path = write_case(tmp_path, edit(continuation=[{"cost.R": 0.02}], initial_guess="u.csv"))
-    stage = Task.load(str(path)).stages()[0]
-    assert stage.config.resolve_path(stage.config.initial_guess) == tmp_path / "u.csv"
-
-
 def test_a_weld_names_a_frame_of_its_own_model(tmp_path, capsys):
     spec = edit(
         models=[
@@ -591,12 +314,3 @@ def test_a_weld_names_a_frame_of_its_own_model(tmp_path, capsys):
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "models[1].weld.child: unknown frame 'arm'")
-
-
-def test_check_names_a_deep_initial_overlap_even_when_the_rollout_survives(capsys):
-    deep = "initial_state.ball_position=[0.4, 0, 0.06]"  # 4 cm into the floor
-    rc = cli.main(["check", "kinova-forward", "--set", deep])
-    out = capsys.readouterr().out
-    assert rc == 0 and "ball_collision (ball) and ground (world) overlap by 40 mm" in out
-    assert cli.main(["check", "kinova-forward"]) == 0  # resting 1.6 mm deep: no warning
-    assert "overlap by" not in capsys.readouterr().out

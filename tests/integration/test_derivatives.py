@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroilqr import Task
+from hydroilqr import DerivativeMethod, Task
 from hydroilqr.model.derivatives import _finite_differences, linearize
 
-GRIPPER = str(Path(__file__).parent.parent / "examples" / "gripper-brick.yaml")
+GRIPPER = str(Path(__file__).parents[2] / "examples" / "gripper-brick.yaml")
 
 
 def _compare(dyn, X, U, central):
@@ -118,3 +118,34 @@ def test_check_reports_the_steps_per_time_step():
         overrides=["num_steps=10", "solver.fd_forces=true", "plant.contact_approximation=lagged"],
     )
     assert check_task(lagged, rollout_steps=3)["fd_steps_per_time_step"] == 5
+
+
+def test_autodiff_matches_central_differences_in_and_out_of_contact(cartpole):
+    dyn = cartpole.dynamics
+    # Out of contact, then the tip pressed ~3 mm into the wall (generic, non-symmetric poses).
+    free = np.array([0.013, 3.52, -0.21, 0.37])
+    theta = np.pi + np.arcsin((0.45 - 0.05 + 0.003 - 0.011) / 0.5)
+    touching = np.array([-0.011, theta, -0.05, 0.12])
+    assert not dyn.contact_surfaces(free)
+    assert dyn.contact_surfaces(touching), "the tip should touch the wall"
+    X = np.stack([free, touching, touching])
+    U = np.array([[1.3], [-2.1], [0.7]])
+    A_ad, B_ad = linearize(dyn, X, U, DerivativeMethod.AUTODIFF)
+    A_fd, B_fd = linearize(dyn, X, U, DerivativeMethod.CENTRAL)
+    for k in range(2):
+        J_ad = np.hstack([A_ad[k], B_ad[k]])
+        J_fd = np.hstack([A_fd[k], B_fd[k]])
+        err = np.max(np.abs(J_ad - J_fd)) / np.max(np.abs(J_ad))
+        assert err < 1e-4, f"step {k}: relative error {err:.2e}"
+    # Contact changes the partials (the wall is felt).
+    assert np.max(np.abs(A_ad[1] - A_ad[0])) > 1e-3
+
+
+def test_forward_differences_close_to_autodiff(cartpole):
+    dyn = cartpole.dynamics
+    X = np.array([[0.02, 3.3, 0.1, -0.2]])
+    U = np.array([[0.5]])
+    A_ad, B_ad = linearize(dyn, X, U, "autodiff")
+    A_fw, B_fw = linearize(dyn, X, U, "forward")
+    assert np.max(np.abs(A_ad - A_fw)) / np.max(np.abs(A_ad)) < 1e-4
+    assert np.max(np.abs(B_ad - B_fw)) / np.max(np.abs(B_ad)) < 1e-4

@@ -1,8 +1,15 @@
 """bench: the paper method vs the fast configuration, alternating in one process (smoke)."""
 
+from __future__ import annotations
+
 import json
 
+import numpy as np
+import pytest
+
+from hydroilqr import cli
 from hydroilqr.cli import main
+from tests.conftest import assert_one_line
 
 
 def test_bench_smoke_writes_json_and_plot(tmp_path):
@@ -40,7 +47,7 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     # Exact derivative modes agree with AutoDiff where AutoDiff is exact.
     acc = r["accuracy"]
     # every contact class the run visits (free, and compliant-rigid when the tip is on the
-    # wall: 20 of 200 steps when written; test_foundation checks contact steps regardless)
+    # wall: 20 of 200 steps when written; integration/test_solve.py checks contact steps regardless)
     assert set(acc["central"]["max"]) == {*acc["contact_classes"], "all"} >= {"free", "all"}
     assert all(e < 1e-4 for e in acc["central"]["max"].values()), acc["central"]["max"]
     assert set(r["threads"]["seconds"]) >= {"1"}
@@ -73,9 +80,6 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     """The shadow sees U0 and then every iterate (b) continues from, with its μ, inside (b)'s
     turn; and one (a) iteration from a nominal is timed without its initial rollout."""
     from types import SimpleNamespace
-
-    import numpy as np
-    import pytest
 
     from hydroilqr import Task
     from hydroilqr.solver import ilqr
@@ -156,7 +160,6 @@ def test_three_runners_take_turns_and_a_finished_one_is_skipped(monkeypatch):
 def test_fast_derivative_paths_match_exact_ones():
     """Forward FD reusing the rollout is bitwise the plain one; adaptive keypoints are exact and
     include both sides of every contact event."""
-    import numpy as np
 
     from hydroilqr import Task
     from hydroilqr.model.derivatives import contact_events, linearize
@@ -208,3 +211,9 @@ def test_a_bench_failing_on_a_later_task_keeps_the_earlier_results(tmp_path, cap
     )  # `tip` is the cart-pole's; kinova-forward has no such geometry
     assert rc == 2 and "geometry.tip" in capsys.readouterr().err
     assert "earlier" in json.loads((tmp_path / "bench.json").read_text())["tasks"]
+
+
+def test_bench_block_must_be_positive(capsys):
+    rc = cli.main(["bench", "cartpole-wall", "--smoke", "--block", "0", "--out", "/nonexistent"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "--block")

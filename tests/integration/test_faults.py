@@ -46,6 +46,88 @@ def one_line_error(r: subprocess.CompletedProcess) -> str:
     return lines[0]
 
 
+# -- YAML alias expansion ---------------------------------------------------------------------
+
+BILLION_LAUGHS = """\
+metric_params:
+  a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]
+  b: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]
+  c: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]
+  d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]
+  e: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]
+  f: &f [*e,*e,*e,*e,*e,*e,*e,*e,*e]
+  g: &g [*f,*f,*f,*f,*f,*f,*f,*f,*f]
+  h: &h [*g,*g,*g,*g,*g,*g,*g,*g,*g]
+  i: &i [*h,*h,*h,*h,*h,*h,*h,*h,*h]
+"""
+
+
+# -- bounded waits ----------------------------------------------------------------------------
+
+
+class _Listener:
+    """A loopback TCP listener that accepts and then stays silent, or answers HTTP."""
+
+    def __init__(self, http: bool = False):
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(4)
+        self.sock.settimeout(0.2)
+        self.port = self.sock.getsockname()[1]
+        self.http, self.stop, self.conns = http, False, []
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        deadline = time.monotonic() + 60
+        while not self.stop and time.monotonic() < deadline:
+            try:
+                c, _ = self.sock.accept()
+            except OSError:
+                continue
+            self.conns.append(c)
+            if self.http:
+                c.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
+
+    def close(self):
+        self.stop = True
+        self.thread.join(2)
+        for c in self.conns:
+            c.close()
+        self.sock.close()
+
+
+def _parser(func):
+    import argparse
+
+    p = argparse.ArgumentParser()
+    p.add_argument("cmd")
+    p.set_defaults(func=func)
+    return p
+
+
+# -- checkpoints and sweep points -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def receding_run(tmp_path_factory):
+    from hydroilqr.problem.task import Task
+    from hydroilqr.solver import api
+
+    d = tmp_path_factory.mktemp("rh")
+    task = Task.load("cartpole-wall", SMOKE_RH)
+    api.solve(task, checkpoint_dir=d)
+    return task, d
+
+
+def _rewrite(ck: Path, **changes):
+    with np.load(ck) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays.update(changes)
+    np.savez(ck, **arrays)
+    os.replace(str(ck) + ".npz", ck) if Path(str(ck) + ".npz").exists() else None
+
+
 # -- bounded reads ----------------------------------------------------------------------------
 
 
@@ -127,22 +209,6 @@ def test_initial_guess_cap_and_npz_bomb(tmp_path):
     assert inputs.table_cap(10, 1) == inputs.MAX_TABLE_BYTES
 
 
-# -- YAML alias expansion ---------------------------------------------------------------------
-
-BILLION_LAUGHS = """\
-metric_params:
-  a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]
-  b: &b [*a,*a,*a,*a,*a,*a,*a,*a,*a]
-  c: &c [*b,*b,*b,*b,*b,*b,*b,*b,*b]
-  d: &d [*c,*c,*c,*c,*c,*c,*c,*c,*c]
-  e: &e [*d,*d,*d,*d,*d,*d,*d,*d,*d]
-  f: &f [*e,*e,*e,*e,*e,*e,*e,*e,*e]
-  g: &g [*f,*f,*f,*f,*f,*f,*f,*f,*f]
-  h: &h [*g,*g,*g,*g,*g,*g,*g,*g,*g]
-  i: &i [*h,*h,*h,*h,*h,*h,*h,*h,*h]
-"""
-
-
 def test_billion_laughs_refused(tmp_path):
     f = tmp_path / "bomb.yaml"
     f.write_text("extends: cartpole-wall\n" + BILLION_LAUGHS)
@@ -208,41 +274,6 @@ def test_cli_huge_window_refused_with_one_line():
         env={inputs.MEMORY_LIMIT_ENV: str(2 << 30)},
     )
     assert "of memory" in one_line_error(r)
-
-
-# -- bounded waits ----------------------------------------------------------------------------
-
-
-class _Listener:
-    """A loopback TCP listener that accepts and then stays silent, or answers HTTP."""
-
-    def __init__(self, http: bool = False):
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(4)
-        self.sock.settimeout(0.2)
-        self.port = self.sock.getsockname()[1]
-        self.http, self.stop, self.conns = http, False, []
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        deadline = time.monotonic() + 60
-        while not self.stop and time.monotonic() < deadline:
-            try:
-                c, _ = self.sock.accept()
-            except OSError:
-                continue
-            self.conns.append(c)
-            if self.http:
-                c.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n")
-
-    def close(self):
-        self.stop = True
-        self.thread.join(2)
-        for c in self.conns:
-            c.close()
-        self.sock.close()
 
 
 @pytest.mark.parametrize("http", [False, True])
@@ -324,37 +355,6 @@ def test_drake_failure_and_systemexit_are_one_line(monkeypatch, capsys):
         assert cli_mod.main(["x"]) == code
         err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
         assert len(err) == 1 and err[0].startswith(f"hydroilqr: {text}"), err
-
-
-def _parser(func):
-    import argparse
-
-    p = argparse.ArgumentParser()
-    p.add_argument("cmd")
-    p.set_defaults(func=func)
-    return p
-
-
-# -- checkpoints and sweep points -------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def receding_run(tmp_path_factory):
-    from hydroilqr.problem.task import Task
-    from hydroilqr.solver import api
-
-    d = tmp_path_factory.mktemp("rh")
-    task = Task.load("cartpole-wall", SMOKE_RH)
-    api.solve(task, checkpoint_dir=d)
-    return task, d
-
-
-def _rewrite(ck: Path, **changes):
-    with np.load(ck) as z:
-        arrays = {k: z[k] for k in z.files}
-    arrays.update(changes)
-    np.savez(ck, **arrays)
-    os.replace(str(ck) + ".npz", ck) if Path(str(ck) + ".npz").exists() else None
 
 
 def test_checkpoint_hash_and_finiteness(receding_run, tmp_path):

@@ -12,6 +12,8 @@ import pytest
 from hydroilqr.output import rundir
 
 OLD = {"summary.json": "old-summary", "solution.npz": "old-solution", "convergence.png": "old"}
+
+
 NEW = {"summary.json": "new-summary", "solution.npz": "new-solution", "replay.html": "new"}
 
 
@@ -43,6 +45,12 @@ def _state(out) -> str:
 RETIRE = ["summary.json", "solution.npz", "convergence.png", "replay.html", "playback-pd"]
 
 
+STEPS = ["staged", "journal", *[f"retire:{i}" for i in range(5)]]
+
+
+STEPS += [*[f"install:{i}" for i in range(3)], "installed"]
+
+
 def test_commit_replaces_the_set_and_its_playbacks(tmp_path):
     out = tmp_path / "run"
     _old_run(out)
@@ -64,10 +72,6 @@ def test_a_failure_while_writing_leaves_the_earlier_set(tmp_path, error):
             raise error
     assert _state(out) == "old"
     assert not (out / rundir.STAGE).exists()
-
-
-STEPS = ["staged", "journal", *[f"retire:{i}" for i in range(5)]]
-STEPS += [*[f"install:{i}" for i in range(3)], "installed"]
 
 
 @pytest.mark.parametrize("step", STEPS)

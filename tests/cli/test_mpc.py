@@ -1,0 +1,40 @@
+"""`hydroilqr mpc` options checked at the command line."""
+
+from __future__ import annotations
+
+import pytest
+
+from hydroilqr import cli
+from tests.conftest import BASE, assert_one_line, write_case
+
+
+def test_mpc_smoke_runs_a_few_updates_unless_a_duration_is_given(tmp_path):
+    import json
+
+    from hydroilqr.cli import main
+    from hydroilqr.control.mpc import SMOKE_UPDATES
+
+    assert main(["mpc", "cartpole-wall", "--smoke", "--out", str(tmp_path / "a")]) == 0
+    doc = json.loads((tmp_path / "a" / "mpc.json").read_text())
+    assert doc["duration_s"] == pytest.approx(SMOKE_UPDATES / doc["requested_rate_hz"])
+    argv = ["mpc", "cartpole-wall", "--smoke", "--duration", "0.2", "--out", str(tmp_path / "b")]
+    assert main(argv) == 0
+    assert json.loads((tmp_path / "b" / "mpc.json").read_text())["duration_s"] == 0.2
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        ["--duration", "nan"],
+        ["--rate", "inf"],
+        ["--threads", "-2"],
+        ["--push", "nan:lower_link:1,0,0"],
+        ["--push-duration", "nan", "--push", "0.01:lower_link:1,0,0"],
+        ["--push-duration", "0.2"],
+    ],
+)
+def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):
+    path = write_case(tmp_path, BASE)
+    rc = cli.main(["mpc", str(path), "--out", str(tmp_path / "o"), "--no-replay", *option])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, option[0].lstrip("-").split("-")[0])

@@ -1,0 +1,97 @@
+"""Fixtures and helpers shared by the unit, integration and cli tests."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from hydroilqr import Task
+
+ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
+
+# A tiny acrobot task: twenty steps, solves in a moment (the run-directory and CLI tests).
+ACROBOT_TASK = {
+    "name": "runs-acrobot",
+    "models": [{"file": ACROBOT}],
+    "plant": {"time_step": 0.02},
+    "num_steps": 20,
+    "blocks": {"angles": ["shoulder", "elbow"]},
+    "cost": {"Q": {"angles": 1.0}, "R": 0.01, "Qf": {"angles": 50.0}, "nominal": {"angles": 1.0}},
+    "solver": {"max_iterations": 30},
+}
+
+
+# A five-step acrobot task of the validation tests, changed key by key with edit().
+BASE = {
+    "name": "val",
+    "models": [{"file": ACROBOT}],
+    "plant": {"time_step": 0.02},
+    "num_steps": 5,
+    "blocks": {"angles": ["shoulder", "elbow"]},
+    "initial_state": {"angles": [0.1, 0.0]},
+    "cost": {
+        "Q": {"angles": 1.0},
+        "R": 0.01,
+        "Qf": {"angles": 10.0},
+        "nominal": {"angles": [3.14, 0.0]},
+    },
+    "solver": {"max_iterations": 1},
+}
+
+
+def edit(**changes):
+    """BASE with dotted-key changes ('cost.Q.angles': -1); value None deletes the key."""
+    data = copy.deepcopy(BASE)
+    for dotted, value in changes.items():
+        *path, last = dotted.split("__")
+        node = data
+        for p in path:
+            node = node.setdefault(p, {})
+        if value is None:
+            node.pop(last, None)
+        else:
+            node[last] = value
+    return data
+
+
+def write_case(tmp_path: Path, spec) -> Path:
+    path = tmp_path / "task.yaml"
+    path.write_text(spec if isinstance(spec, str) else yaml.safe_dump(spec))
+    return path
+
+
+def assert_one_line(rc: int, out: str, err: str, needle: str) -> None:
+    assert rc != 0
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert lines[0].startswith("hydroilqr: error: "), lines[0]
+    assert needle in lines[0], lines[0]
+    assert out.strip() == "", f"the solve started: {out}"
+
+
+def write_task(tmp_path, base: dict | None = None, **changes):
+    """Write the tiny acrobot task (or `base`), with top-level `changes`, to tmp_path/task.yaml."""
+    path = tmp_path / "task.yaml"
+    path.write_text(yaml.safe_dump({**(ACROBOT_TASK if base is None else base), **changes}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    """The cart-pole-against-a-wall task at its full size."""
+    return Task.load("cartpole-wall")
+
+
+@pytest.fixture(scope="module")
+def cartpole_rollout():
+    """A 30-step cart-pole task with a random-input rollout: (task, X, U)."""
+    task = Task.load("cartpole-wall", overrides=["num_steps=30"])
+    rng = np.random.default_rng(0)
+    U = 5.0 * rng.standard_normal((30, 1))
+    X = task.dynamics.rollout(task.x0, U)
+    return task, X, U
