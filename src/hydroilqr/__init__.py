@@ -17,15 +17,38 @@ if not _sys.flags.utf8_mode and _locale.getpreferredencoding(False).lower() in (
         "set PYTHONUTF8=1 or a UTF-8 locale (LC_ALL=C.UTF-8)"
     )
 
-from hydroilqr.model.derivatives import DerivativeMethod, linearize  # noqa: E402
-from hydroilqr.model.plant import Dynamics, SimulationError  # noqa: E402
-from hydroilqr.output.progress import IterationTable  # noqa: E402
-from hydroilqr.problem.config import ConfigError, SolverConfig, TaskConfig  # noqa: E402
-from hydroilqr.problem.task import Task  # noqa: E402
-from hydroilqr.solver.api import solve  # noqa: E402
-from hydroilqr.solver.explain import explain  # noqa: E402
-from hydroilqr.solver.ilqr import IterationInfo  # noqa: E402
-from hydroilqr.solver.solution import Solution  # noqa: E402
+# The public API, imported on first use (``import hydroilqr`` stays cheap: the command line
+# can refuse bad input before Drake is loaded).
+_API = {
+    "ConfigError": "hydroilqr.problem.config",
+    "DerivativeMethod": "hydroilqr.model.derivatives",
+    "Dynamics": "hydroilqr.model.plant",
+    "IterationInfo": "hydroilqr.solver.ilqr",
+    "IterationTable": "hydroilqr.output.progress",
+    "SimulationError": "hydroilqr.model.plant",
+    "Solution": "hydroilqr.solver.solution",
+    "SolverConfig": "hydroilqr.problem.config",
+    "Task": "hydroilqr.problem.task",
+    "TaskConfig": "hydroilqr.problem.config",
+    "explain": "hydroilqr.solver.explain",
+    "linearize": "hydroilqr.model.derivatives",
+    "solve": "hydroilqr.solver.api",
+}
+
+
+def __getattr__(name: str):
+    if name in _API:
+        import importlib
+
+        value = getattr(importlib.import_module(_API[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'hydroilqr' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])
+
 
 __all__ = [
     "ConfigError",

@@ -162,12 +162,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def _run(args) -> int:
     """Runs the command; a failed one leaves no empty results directory."""
-    from hydroilqr.output.report import discard_empty_outputs
-
     try:
         return int(args.func(args) or 0)
     except BaseException:
-        discard_empty_outputs()
+        if "hydroilqr.output.report" in sys.modules:  # (else no output directory was made)
+            sys.modules["hydroilqr.output.report"].discard_empty_outputs()
         raise
 
 
@@ -200,11 +199,10 @@ def _system_exit_code(e: SystemExit) -> int | None:
 
 def _error_line(e: Exception) -> tuple[int, str]:
     """The exit code for ``e`` and the one line that reports it."""
-    from hydroilqr.model.plant import SimulationError
-
     if isinstance(e, ConfigError):
         return 2, f"hydroilqr: error: {e}"
-    if isinstance(e, SimulationError):
+    plant = sys.modules.get("hydroilqr.model.plant")  # (not loaded: no simulation ran)
+    if plant is not None and isinstance(e, plant.SimulationError):
         return 3, f"hydroilqr: simulation failed: {e}"
     if isinstance(e, OSError):  # e.g. a full disk or a directory made read-only during the run
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""

@@ -18,9 +18,9 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
+    task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
     from hydroilqr.problem.check import check_task
 
-    task = load_task_from_args(args)
     if not args.smoke:  # the task's `smoke:` section must work too (tests rely on it)
         from hydroilqr.problem.task import Task
 

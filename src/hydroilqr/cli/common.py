@@ -45,13 +45,23 @@ def task_name_from_args(args) -> str | None:
 
 
 def load_task_from_args(args, extra_overrides: list[str] | None = None):
-    from hydroilqr.problem.task import Task
+    """The task the arguments name, validated. Its files are read and checked before Drake
+    is loaded, so bad input is refused at once."""
+    from hydroilqr.problem import inputs
+    from hydroilqr.problem.config import GUESS_KEYWORDS, load_task
 
     name = task_name_from_args(args)
     if not name:
         raise ConfigError("no task given (try `hydroilqr tasks`)")
     overrides = list(args.set or []) + list(extra_overrides or [])
-    task = Task.load(name, overrides, args.config, args.smoke)
+    cfg = load_task(name, overrides, args.config, args.smoke)
+    if cfg.initial_guess not in GUESS_KEYWORDS and cfg.resolve_path(cfg.initial_guess).exists():
+        # (the cap that fits the task's size is applied when the guess is read)
+        guess = cfg.resolve_path(cfg.initial_guess)
+        inputs.check_file(guess, "initial_guess:", inputs.MAX_ARRAY_FILE_BYTES)
+    from hydroilqr.problem.task import Task
+
+    task = Task(cfg)
     task.validate()
     return task
 

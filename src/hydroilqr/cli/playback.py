@@ -5,8 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydroilqr.cli.common import command_line, console, print_goal, warn
-from hydroilqr.control.playback import POLICIES
-from hydroilqr.problem.config import APPROXIMATIONS, ConfigError
+from hydroilqr.problem.config import APPROXIMATIONS, PLAYBACK_POLICIES, ConfigError
 
 HELP = (
     "execute a solved trajectory open loop (PD+, paper §V) on a finer "
@@ -33,7 +32,7 @@ def setup(p) -> None:
     )
     p.add_argument(
         "--policy",
-        choices=POLICIES,
+        choices=PLAYBACK_POLICIES,
         default="pd",
         help="pd: PD+ on the joints (eq. 11); ilqr: u = ū − K(x − x̄) (eq. 8)",
     )

@@ -6,13 +6,11 @@ HELP = "solve built-in tasks and write the results page (docs/results.md, result
 
 
 def setup(p) -> None:
-    from hydroilqr.studies.results import DEFAULT_TASKS
-
     p.add_argument(
         "tasks",
         nargs="*",
         metavar="TASK",
-        help=f"built-in task names or task files (default: {' '.join(DEFAULT_TASKS)})",
+        help="built-in task names or task files (default: every built-in task)",
     )
     p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests, quick tries)")
     p.add_argument("--out", default="docs", help="directory for results.md/.json (default docs)")

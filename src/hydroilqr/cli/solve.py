@@ -68,9 +68,9 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
+    task = load_task_from_args(args, _solver_overrides(args))  # (before Drake is loaded)
     from hydroilqr.output import report
 
-    task = load_task_from_args(args, _solver_overrides(args))
     _check_starts(task, args)
     if args.resume:
         _check_resume(task, args)

@@ -47,6 +47,7 @@ from hydroilqr.output.files import atomic_savez
 from hydroilqr.problem.config import (
     APPROXIMATIONS,
     MAX_STEPS,
+    PLAYBACK_POLICIES,
     TASKS_DIR,
     ConfigError,
     check_truth_overrides,
@@ -58,7 +59,7 @@ from hydroilqr.solver.solution import Solution, load_run_solution
 
 #: Default "real" contact approximation for each planner approximation (always a different one).
 TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "sap"}
-POLICIES = ("pd", "ilqr")
+POLICIES = PLAYBACK_POLICIES
 
 
 # ------------------------------------------------------------------------------------------
