@@ -167,3 +167,13 @@ def test_killed_while_writing_results_leaves_one_complete_set(tmp_path):
         names = {p.name for p in out.iterdir() if not p.name.startswith(".")}
         assert names == {"summary.json", "solution.npz", "convergence.png", "contacts.png"}
         first, npz = s, (out / "solution.npz").read_bytes()
+
+
+def test_a_playback_written_into_the_run_directory_is_retired_by_the_next_solve(tmp_path):
+    out, _, _ = _complete_run(tmp_path)
+    stale = ("playback.json", "playback.npz", "reference.csv", "playback.png")
+    for name in stale:  # as `hydroilqr playback RUN --out RUN` leaves them
+        (out / name).write_text("of the earlier plan")
+    assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
+    assert not any((out / name).exists() for name in stale)
+    assert (out / "summary.json").exists()

@@ -312,12 +312,18 @@ def read_lock(run_dir: Path) -> None:
 _READ_LOCKS: dict[str, int] = {}  # directories this process reads (shared locks)
 
 
+# What ``hydroilqr playback`` writes (into DIR/playback-POLICY, or where --out says).
+PLAYBACK_FILES = ("playback.json", "playback.npz", "playback.png", "reference.csv", "playback.html")
+
+
 def solve_outputs(out: Path) -> list[Path]:
     """What earlier solves wrote into ``out``: standard files, task plots and playbacks."""
     out = Path(out)
     if not out.is_dir():
         return []
     names = set(SOLVE_FILES) | metrics_mod.plot_files() | _previous_plot_files(out)
+    if (out / "playback.json").exists():  # a playback of the earlier plan written into out
+        names |= set(PLAYBACK_FILES)
     found = [out / n for n in sorted(names) if (out / n).exists()]
     found += sorted(p for p in out.glob("playback-*") if (p / "playback.json").exists())
     return found
