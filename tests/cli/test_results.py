@@ -36,8 +36,8 @@ def test_results_command(tmp_path, capsys):
 def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
     bench = {
         "environment": {"command": "hydroilqr bench kinova-forward", "load_average": 0.4},
-        "tasks": [
-            {
+        "tasks": {
+            "kinova-forward": {
                 "task": "kinova-forward",
                 "paper": {"median_s": 0.52, "final_cost": 43.9},
                 "fast": {"median_s": 0.38, "final_cost": 44.3},
@@ -47,7 +47,7 @@ def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
                 "cost_rel_diff_same_solver": 0.0003,
                 "limits": {"limit_s": 0.11, "fast_share_of_limit": 0.3},
             }
-        ],
+        },
     }
     (tmp_path / "bench").mkdir()
     (tmp_path / "bench" / "bench.json").write_text(json.dumps(bench))

@@ -200,10 +200,10 @@ def test_batched_finite_differences_equal_a_per_step_per_column_reference(method
     assert np.abs(A[1] - A[0]).max() > 1e-3  # the contact step's partials differ (the wall)
 
 
-def test_secant_updates_between_exact_partials(cartpole):
+def test_secant_updates_between_exact_partials(cartpole_rollout):
     """derivative_secant_updates: exact partials, then Broyden updates (no differentiation):
     rank-one changes that satisfy each step's secant equation; then exact again."""
-    task, X, U = cartpole
+    task, X, U = cartpole_rollout
     dyn = task.dynamics
     lin = Linearizer(dyn, "central", threads=1, secant_updates=2)
     A0, B0 = lin(X, U, rollout=True)

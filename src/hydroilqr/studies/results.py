@@ -232,7 +232,8 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
         return None
     doc = json.loads(path.read_text())
     rows = []
-    for r in doc.get("tasks", []):
+    tasks = doc.get("tasks") or {}
+    for r in tasks.values() if isinstance(tasks, dict) else tasks:
         a, b, a2 = r.get("paper", {}), r.get("fast", {}), r.get("paper_same_solver", {})
         if not all("median_s" in x for x in (a, b, a2)):
             continue
