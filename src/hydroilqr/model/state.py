@@ -188,15 +188,20 @@ class StateLayout:
         ]
 
     # ---------------------------------------------------------------------------- vectors
+    def _numbers(self, name: str, value, key: str) -> tuple[Block, np.ndarray]:
+        """The block ``name`` and ``value`` as a flat float array (ConfigError naming
+        ``key.name`` if it is not numbers)."""
+        b = self.block(name, f"{key}.{name}")
+        try:
+            return b, np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{key}.{name}: expected numbers, got {value!r}") from None
+
     def tangent_vector(self, spec: dict, key: str, default: float = 0.0) -> np.ndarray:
         """Weights by block name -> vector over the tangent space, shape [2 nv]."""
         w = np.full(2 * self.nv, float(default))
         for name, value in spec.items():
-            b = self.block(name, f"{key}.{name}")
-            try:
-                vals = np.asarray(value, dtype=float).reshape(-1)
-            except (TypeError, ValueError):
-                raise ConfigError(f"{key}.{name}: expected numbers, got {value!r}") from None
+            b, vals = self._numbers(name, value, key)
             n = len(b.tangent)
             if np.ndim(value) == 0:  # a number applies to the whole block; a list must fit it
                 vals = np.full(n, vals[0])
@@ -212,11 +217,7 @@ class StateLayout:
         # In order: a later name overrides the coordinates an earlier one set (e.g. --set
         # initial_state.joint_2=... over a task's group arm_q).
         for name, value in spec.items():
-            b = self.block(name, f"{key}.{name}")
-            try:
-                vals = np.asarray(value, dtype=float).reshape(-1)
-            except (TypeError, ValueError):
-                raise ConfigError(f"{key}.{name}: expected numbers, got {value!r}") from None
+            b, vals = self._numbers(name, value, key)
             n = len(b.coords)
             if np.ndim(value) == 0 and b.kind != "quaternion":
                 vals = np.full(n, vals[0])
