@@ -177,3 +177,24 @@ def test_a_playback_written_into_the_run_directory_is_retired_by_the_next_solve(
     assert cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"]) == 0
     assert not any((out / name).exists() for name in stale)
     assert (out / "summary.json").exists()
+
+
+def test_a_goal_on_a_metric_the_task_never_reports_is_refused_before_solving(tmp_path, capsys):
+    bad = write_task(tmp_path, goal={"final_eror.angles": {"max": 0.1}})
+    rc = cli.main(["solve", str(bad), "--out", str(tmp_path / "g"), "--no-replay"])
+    err = capsys.readouterr().err
+    assert (
+        rc == 2 and "goal.final_eror.angles" in err and "did you mean 'final_error.angles'" in err
+    )
+    assert not (tmp_path / "g").exists()
+    other = write_task(tmp_path, goal={"steps": {"above": "nosuch"}})
+    assert cli.main(["solve", str(other), "--out", str(tmp_path / "h")]) == 2
+    assert "goal.steps.above: 'nosuch'" in capsys.readouterr().err
+
+
+def test_a_smoke_runs_goal_is_recorded_as_not_judged(tmp_path):
+    task = write_task(tmp_path, goal={"steps": {"min": 1}})
+    assert cli.main(["solve", str(task), "--smoke", "--out", str(tmp_path / "s")]) == 0
+    assert summary(tmp_path / "s")["goal"]["judged"] is False
+    assert cli.main(["solve", str(task), "--out", str(tmp_path / "f"), "--no-replay"]) == 0
+    assert summary(tmp_path / "f")["goal"]["judged"] is True

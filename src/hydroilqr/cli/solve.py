@@ -277,8 +277,8 @@ def _solve_receding(task, out: Path, restart: bool):
 
 def _print_outcome(sol, task, wall: float) -> None:
     console.print(
-        f"{'converged' if sol.converged else 'stopped'} ({sol.reason}) after "
-        f"{sol.iterations} iterations, cost {sol.final_cost:.6g}, {wall:.2f} s"
+        f"stopped after {sol.iterations} iterations ({sol.reason}), cost "
+        f"{sol.final_cost:.6g}, {wall:.2f} s; converged: {'yes' if sol.converged else 'no'}"
     )
     from hydroilqr.solver.explain import explain
 

@@ -853,7 +853,7 @@ def write_outputs(
     data = {
         "task": task.name,
         **stats,
-        "goal": evaluate(task.config.goal, task_metrics),
+        "goal": {**evaluate(task.config.goal, task_metrics), "judged": not task.config.smoke_run},
         "metrics": task_metrics,
         "environment": report.environment(command),
     }

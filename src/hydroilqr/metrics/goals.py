@@ -107,3 +107,59 @@ def verdict_line(result: dict) -> str:
         f"{c['metric']} {c.get('why', '')}".strip() for c in checks if not c["passed"]
     )
     return f"goal: FAIL ({passed}/{len(checks)} checks): {failed}"
+
+
+def reported_names(metrics: dict, prefix: str = "") -> set[str]:
+    """Every dotted name a goal could use in ``metrics`` (nested dicts flattened)."""
+    names = set()
+    for k, v in metrics.items():
+        name = f"{prefix}{k}"
+        names.add(name)
+        if isinstance(v, dict):
+            names |= reported_names(v, f"{name}.")
+    return names
+
+
+def check_names(task) -> None:
+    """ConfigError, before any solve, for a goal on a metric the task's metrics never report
+    (a misspelled name would otherwise fail only after the solve). The names come from the
+    task's metrics computed on a two-step rollout of its initial guess; if that probe cannot
+    be computed, the names are checked after the solve instead."""
+    goal = task.config.goal
+    if not goal:
+        return
+    names = _probe_names(task)
+    if names is None:
+        return
+    for name, check in goal.items():
+        for ref, where in (
+            (name, f"goal.{name}"),
+            (check.above, f"goal.{name}.above"),
+            (check.below, f"goal.{name}.below"),
+        ):
+            if ref is not None and ref not in names:
+                import difflib
+
+                close = difflib.get_close_matches(ref, sorted(names), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
+                raise ConfigError(
+                    f"{where}: {ref!r} is not a metric of this task's metrics "
+                    f"({', '.join(task.config.metrics)}){hint}"
+                )
+
+
+def _probe_names(task) -> set[str] | None:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hydroilqr import metrics as metrics_mod
+
+    try:
+        dyn = task.dynamics
+        U = task.initial_guess(2)
+        X = dyn.rollout(task.x0, U)
+        probe = SimpleNamespace(t=dyn.dt * np.arange(3), X=X, U=U, extra={}, costs=[0.0])
+        return reported_names(metrics_mod.compute(task, probe))
+    except Exception:  # noqa: BLE001 - a probe only: the goal is checked after the solve
+        return None

@@ -99,7 +99,8 @@ def write_outputs(
     summary = {
         "task": task.name,
         **sol.stats(),
-        "goal": evaluate(task.config.goal, metrics),
+        # judged: false for a smoke-sized run (its goal is the full task's; exit code 0)
+        "goal": {**evaluate(task.config.goal, metrics), "judged": not task.config.smoke_run},
         "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
         "metrics": metrics,
         **(extra_summary or {}),

@@ -138,6 +138,9 @@ class Task:
         from hydroilqr import metrics as metrics_mod
 
         metrics_mod.validate(self)  # metric names and metric_params
+        from hydroilqr.metrics.goals import check_names
+
+        check_names(self)  # a goal names metrics the task reports
 
     def check_memory(self, steps: int | None = None, what: str | None = None) -> None:
         """ConfigError if a solve over ``steps`` (default: this task's window or horizon, and

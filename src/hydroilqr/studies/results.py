@@ -109,7 +109,10 @@ COLUMNS: list[Column] = [
     Column("task", lambda r: f"`{r.name}`"),
     Column("iterations", lambda r: str(r.sol.iterations)),
     Column("final cost", lambda r: f"{r.sol.final_cost:.4g}"),
-    Column("status", lambda r: f"{r.sol.status} ({r.sol.reason})"),
+    Column(
+        "status",
+        lambda r: r.sol.status + ("" if r.sol.reason == r.sol.status else f" ({r.sol.reason})"),
+    ),
     Column("goal", lambda r: _goal_cell(r.task, r.metrics)),
     Column("solve s", lambda r: f"{r.solve_seconds:.1f}"),
     Column("headline metrics", lambda r: headline(r.metrics)),
