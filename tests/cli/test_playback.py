@@ -34,3 +34,45 @@ def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_
     finally:
         holder.kill()
         holder.wait()
+
+
+@pytest.fixture(scope="module")
+def acrobot_run(tmp_path_factory):
+    """A two-iteration solve of the tiny acrobot task (its elbow is actuated) to play back."""
+    from hydroilqr import cli
+    from tests.conftest import write_task
+
+    tmp = tmp_path_factory.mktemp("acro")
+    task = write_task(tmp, num_steps=10, solver={"max_iterations": 2})
+    assert cli.main(["solve", str(task), "--out", str(tmp / "run"), "--no-replay"]) in (0, 4)
+    return tmp / "run"
+
+
+def test_the_feedforward_is_in_the_header_and_playback_json(acrobot_run, tmp_path, capsys):
+    import json
+
+    from hydroilqr import cli
+
+    fast = ["--truth-time-step", "0.005", "--rest-max", "0", "--no-replay"]
+    capsys.readouterr()
+    for extra, name in (([], "scaled"), (["--feedforward", "plan"], "plan")):
+        out = tmp_path / name
+        assert cli.main(["playback", str(acrobot_run), *fast, *extra, "--out", str(out)]) in (0, 4)
+        header = capsys.readouterr().out.splitlines()[0]
+        assert f"pd playback at speed 0.5, feed-forward {name}, truth dt=0.005" in header
+        data = json.loads((out / "playback.json").read_text())
+        assert data["settings"]["feedforward"] == name
+        assert ("--feedforward plan" in data["environment"]["command"]) == (name == "plan")
+
+
+def test_feedforward_with_the_ilqr_policy_is_refused_not_ignored(acrobot_run, tmp_path, capsys):
+    from hydroilqr import cli
+    from tests.conftest import assert_one_line
+
+    out = str(tmp_path / "pb")
+    args = ["playback", str(acrobot_run), "--policy", "ilqr", "--out", out]
+    rc = cli.main([*args, "--feedforward", "plan"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "--feedforward: options of the PD+ loop")
+    rc = cli.main([*args, "--kp", "100", "--feedforward", "scaled"])
+    assert rc == 2 and "--kp, --feedforward: options" in capsys.readouterr().err

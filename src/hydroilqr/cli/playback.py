@@ -5,7 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydroilqr.cli.common import command_line, console, print_goal, warn
-from hydroilqr.problem.config import APPROXIMATIONS, PLAYBACK_POLICIES, ConfigError
+from hydroilqr.problem.config import (
+    APPROXIMATIONS,
+    PLAYBACK_FEEDFORWARDS,
+    PLAYBACK_POLICIES,
+    ConfigError,
+)
 
 HELP = (
     "execute a solved trajectory open loop (PD+, paper §V) on a finer "
@@ -24,6 +29,13 @@ def setup(p) -> None:
     p.add_argument("--kp", type=float, help="PD+ stiffness (default 500)")
     p.add_argument("--kd", type=float, help="PD+ damping (default 5)")
     p.add_argument("--rate", type=float, help="PD+ control rate, Hz (default 1000)")
+    p.add_argument(
+        "--feedforward",
+        choices=PLAYBACK_FEEDFORWARDS,
+        help="PD+ feed-forward ū: scaled (default): g(q̄) + s²·(ū_plan − g(q̄)) at speed s, "
+        "gravity kept and the rest slowed with the motion (Hollerbach 1984); plan: the "
+        "plan's ū unchanged (the paper's)",
+    )
     p.add_argument(
         "--update-period",
         type=float,
@@ -115,7 +127,11 @@ def _settings(args):
     """The solved run's task and solution, and the PlaybackSettings the options ask for."""
     from hydroilqr.control.playback import PlaybackSettings, load_run
 
-    pd_loop = {k: getattr(args, k) for k in ("kp", "kd", "rate") if getattr(args, k) is not None}
+    pd_loop = {
+        k: getattr(args, k)
+        for k in ("kp", "kd", "rate", "feedforward")
+        if getattr(args, k) is not None
+    }
     if args.policy == "ilqr" and pd_loop:
         raise ConfigError(
             f"{', '.join('--' + k for k in pd_loop)}: options of the PD+ loop; --policy ilqr "
@@ -151,8 +167,9 @@ def _output_dir(task, args) -> Path:
 def _print_header(task, settings, out: Path) -> None:
     truth_contact = settings.truth_contact_for(task)
     console.print(
-        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}, "
-        f"truth dt={settings.truth_time_step:g} contact={truth_contact} "
+        f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}"
+        + (f", feed-forward {settings.feedforward}" if settings.policy == "pd" else "")
+        + f", truth dt={settings.truth_time_step:g} contact={truth_contact} "
         f"(plan dt={task.config.plant.time_step:g} "
         f"contact={task.config.plant.contact_approximation}) -> {out}"
     )

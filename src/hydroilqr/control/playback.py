@@ -16,9 +16,15 @@ Policies:
 * ``pd`` (eq. 11): τ = ū − Kp (q_J − q̄_J) − Kd (v_J − v̄_J) on the actuated joints only,
   computed at ``rate`` Hz from the measured joint state and a reference held for
   ``update_period`` seconds of playback time. At speed s the reference at playback time τ is
-  the plan at plan time s·τ (linear interpolation of X, the plan's zero-order-hold input);
-  ū is used unchanged (as in the paper) and v̄_J is the plan's velocity times s (the
-  derivative of the time-stretched q̄_J) unless ``scale_velocity_reference`` is off.
+  the plan at plan time s·τ (linear interpolation of X, the plan's zero-order-hold input),
+  and v̄_J is the plan's velocity times s (the derivative of the time-stretched q̄_J) unless
+  ``scale_velocity_reference`` is off. The feed-forward ū (``feedforward``): "scaled"
+  (default) is the plan's input dynamically scaled to the speed, ū_s = g(q̄) + s²·(ū − g(q̄))
+  with g the planning model's gravity compensation at the reference state: rigid-body
+  inverse dynamics of a trajectory slowed to q(s·t) keep the gravity term and scale the
+  rest by s² (J. M. Hollerbach, "Dynamic scaling of manipulator trajectories", ASME J. Dyn.
+  Sys. Meas. Control 106(1), 1984); "plan" uses ū unchanged at any speed, as the paper did.
+  The two are the same at speed 1.
 * ``ilqr`` (eq. 8): u = ū_k − K_k (x − x̄_k) with the full state (including unactuated
   coordinates), recomputed once per plan step (plan time). Only speed 1 reproduces the
   conditions under which K was computed; at other speeds x̄ still holds the plan's velocities.
@@ -47,6 +53,7 @@ from hydroilqr.output.files import atomic_savez
 from hydroilqr.problem.config import (
     APPROXIMATIONS,
     MAX_STEPS,
+    PLAYBACK_FEEDFORWARDS,
     PLAYBACK_POLICIES,
     TASKS_DIR,
     ConfigError,
@@ -84,6 +91,8 @@ class PlaybackSettings:
     truth_overrides: list[str] = field(default_factory=list)  # KEY=VALUE on the truth task
     clip_torques: bool = True  # saturate at the actuators' effort limits
     scale_velocity_reference: bool = True  # v̄_J = s · v_plan (pd policy)
+    # PD+ feed-forward ū: "scaled" g + s²·(ū_plan − g) (Hollerbach 1984), "plan" ū_plan
+    feedforward: str = "scaled"
     object: str | None = None  # state block compared planned vs actual (None: automatic)
     # After the plan's end the robot holds its last reference until the object is at rest:
     # its speed below rest_speed (m/s or rad/s) for rest_time seconds, or rest_max seconds
@@ -147,6 +156,10 @@ class PlaybackSettings:
                 raise ConfigError(f"playback {name}: must be non-negative, got {v}")
         if self.policy not in POLICIES:
             raise ConfigError(f"playback policy: expected pd or ilqr, got {self.policy!r}")
+        if self.feedforward not in PLAYBACK_FEEDFORWARDS:
+            raise ConfigError(
+                f"playback feedforward: expected scaled or plan, got {self.feedforward!r}"
+            )
         if self.truth_contact is not None and self.truth_contact not in APPROXIMATIONS:
             raise ConfigError(
                 f"playback truth-contact: expected one of "
@@ -571,8 +584,8 @@ class _Controller:
                 self.next_update += st.update_period  # update period < truth step
             xr = self.plan.state(c.s * self.next_update)
             self.qbar, self.vbar = xr[self.qi], c.vscale * xr[self.vi]
-            # the torque that acted in the plan (its commands beyond a limit acted at it)
-            self.ubar = self.task.dynamics.clip_to_limits(self.plan.input(c.s * self.next_update))
+            u_plan = self.plan.input(c.s * self.next_update)
+            self.ubar = feedforward(self.task.dynamics, u_plan, xr, st)
             self.ref_t.append(self.next_update)
             self.ref_q.append(self.qbar)
             self.ref_v.append(self.vbar)
@@ -596,6 +609,24 @@ class _Controller:
         if self.settings.clip_torques:
             self.saturated += int(np.count_nonzero(np.abs(self.u) > self.limits))
             self.u = np.clip(self.u, -self.limits, self.limits)
+
+
+def feedforward(
+    dyn: Dynamics, u_plan: np.ndarray, x_ref: np.ndarray, st: PlaybackSettings
+) -> np.ndarray:
+    """The PD+ feed-forward ū: [nu] sent with the reference state x_ref: [nx] (the plan at
+    plan time p), for the plan's input u_plan: [nu] at p. The plan's input is taken as it
+    acted (clipped to ``dyn``'s effort limits: a command beyond a limit acted at it). With
+    ``st.feedforward`` "scaled" at speed s ≠ 1 it is dynamically scaled (Hollerbach 1984):
+    g + s²·(ū − g), g = ``dyn``'s gravity compensation at x_ref (the planning model's); for
+    s ≤ 1 a blend of two torques within the limits when g is. Not clipped again: the PD+
+    command is, when torques are clipped."""
+    u = dyn.clip_to_limits(u_plan)
+    s = float(st.speed)
+    if st.feedforward == "plan" or s == 1.0:
+        return u  # the plan's torque bitwise (g + 1·(ū − g) could differ in the last bit)
+    g = dyn.gravity_compensation(x_ref)
+    return g + s * s * (u - g)
 
 
 def _simulate(truth: Dynamics, x0, ctl: _Controller, clock: _PlayClock, progress):
@@ -631,12 +662,12 @@ def _reference(task, plan: PlanSampler, ctl: _Controller, clock: _PlayClock, qi,
             xr = plan.state(s * tr)
             ref_q.append(xr[qi])
             ref_v.append(clock.vscale * xr[vi])
-            ref_u.append(task.dynamics.clip_to_limits(plan.input(s * tr)))  # as acted
+            ref_u.append(feedforward(task.dynamics, plan.input(s * tr), xr, ctl.settings))
     return Reference(
         np.array(ref_t),
         np.array(ref_q).reshape(len(ref_t), -1),
         np.array(ref_v).reshape(len(ref_t), -1),
-        np.array(ref_u).reshape(len(ref_t), -1),  # clipped where sampled
+        np.array(ref_u).reshape(len(ref_t), -1),  # from the plan's input clipped where sampled
     )
 
 

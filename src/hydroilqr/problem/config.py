@@ -1066,6 +1066,8 @@ def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
 
 APPROXIMATIONS = ("sap", "similar", "lagged", "tamsi")
 PLAYBACK_POLICIES = ("pd", "ilqr")  # playback: PD+ around the plan, or its iLQR gains
+# playback's PD+ feed-forward: ū dynamically scaled to the speed, or the plan's unchanged
+PLAYBACK_FEEDFORWARDS = ("scaled", "plan")
 CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
 DERIVATIVES = tuple(m.value for m in DerivativeMethod)  # the YAML/CLI spellings
 WARM_START_TAILS = ("last", "guess")  # mpc.warm_start_tail
