@@ -44,6 +44,7 @@ def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
                 "paper_same_solver": {"median_s": 0.53, "final_cost": 44.3},
                 "speedup_median": 1.4,
                 "speedup_same_solver_median": 1.4,
+                "speedup_same_solver_total": 1.6,
                 "cost_rel_diff_same_solver": 0.0003,
                 "limits": {"limit_s": 0.11, "fast_share_of_limit": 0.3},
             }
@@ -59,5 +60,5 @@ def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
     (moved,) = page["sections"]["transfer"]
     assert moved["task"] == "kinova-forward" and moved["final_gap_m"] >= 0
     assert "## Transfer (open-loop playback)" in md and "## Speed per iteration" in md
-    assert "| `kinova-forward` | 0.520 | 0.530 | 0.380 | 1.4x | 1.4x |" in md
+    assert "| `kinova-forward` | 0.520 | 0.530 | 0.380 | 1.4x | 1.4x | 1.6x |" in md
     assert "(load 0.4)" in md

@@ -244,6 +244,7 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
         rows.append(
             f"| `{r['task']}` | {a['median_s']:.3f} | {a2['median_s']:.3f} | {b['median_s']:.3f} "
             f"| {r['speedup_median']:.1f}x | {r['speedup_same_solver_median']:.1f}x | "
+            f"{_ratio(r.get('speedup_same_solver_total'))} | "
             f"{a2['final_cost']:.4g} / {b['final_cost']:.4g} "
             f"({r['cost_rel_diff_same_solver']:+.1%}) | "
             + (
@@ -255,18 +256,25 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
     env = doc.get("environment", {})
     load = env.get("load_average") or env.get("load")
     head = (
-        "| task | (a) s/it | (a') s/it | (b) s/it | a/b | a'/b | cost a' / b | "
-        "fastest possible s/it (b reaches) |\n|---|---|---|---|---|---|---|---|"
+        "| task | (a) s/it | (a') s/it | (b) s/it | a/b | a'/b | a'/b mean | cost a' / b | "
+        "fastest possible s/it (b reaches) |\n|---|---|---|---|---|---|---|---|---|"
     )
     note = (
         f"From `{env.get('command', 'hydroilqr bench')}` (load {load or 'not recorded'}), "
-        "median seconds per iteration measured side by side in one process. (a): TAMSI, "
+        "median seconds per iteration measured side by side in one process; a'/b mean: the "
+        "ratio of the whole runs' times (the same number of iterations each), which counts "
+        "iterations with exact and with secant partials alike. (a): TAMSI, "
         "AutoDiff at every step, serial (the paper's method); (a'): the same on (b)'s contact "
         "solver; (b): the fast path. The fastest possible iteration: one rollout, exact "
         "partials of the needed keypoints on the cheapest path on this machine's cores, "
         "backward pass and line search."
     )
     return Section("bench", "Speed per iteration", "\n".join([head, *rows, "", note]), doc)
+
+
+def _ratio(v) -> str:
+    """A speed-up cell: '1.5x', or '-' where the bench file has none (an older bench.json)."""
+    return "-" if v is None else f"{v:.1f}x"
 
 
 SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [
