@@ -50,7 +50,9 @@ PAPER = [
 # (a'): the paper's method on the fast configuration's contact solver (its
 # plant.contact_approximation is appended per task by ``bench_tasks``).
 PAPER_SAME_SOLVER = [c for c in PAPER if not c.startswith("plant.contact_approximation=")]
-# The fastest configuration measured on this machine (docs/performance.md): SAP; the cheaper
+# The fast configuration (docs/performance.md), on the task's own contact approximation (what
+# its users run: SAP for the cart-pole and the cheetah, "similar" for kinova-forward and
+# kinova-left); the cheaper
 # of AutoDiff (in one worker process per core) and batched forward differences (on threads),
 # chosen per task by a short probe
 # (``probe_derivatives``; ``--fast solver.derivatives=...`` skips it); exact derivatives at
@@ -59,7 +61,6 @@ PAPER_SAME_SOLVER = [c for c in PAPER if not c.startswith("plant.contact_approxi
 # (``--fast solver.fd_forces=true``: finite differences over generalized forces, see
 # docs/performance.md.)
 FAST = [
-    "plant.contact_approximation=sap",
     "solver.derivative_interval=2",
     "solver.derivative_adaptive=true",
     "solver.autodiff_workers=0",
