@@ -76,3 +76,23 @@ def test_feedforward_with_the_ilqr_policy_is_refused_not_ignored(acrobot_run, tm
     assert_one_line(rc, cap.out, cap.err, "--feedforward: options of the PD+ loop")
     rc = cli.main([*args, "--kp", "100", "--feedforward", "scaled"])
     assert rc == 2 and "--kp, --feedforward: options" in capsys.readouterr().err
+
+
+def test_a_damping_law_mismatch_is_noted_and_recorded(acrobot_run, tmp_path, capsys):
+    """SAP damps contact by relaxation times, the other approximations by Hunt-Crossley
+    dissipation: a playback across the two says so, one within a law does not."""
+    import json
+
+    from hydroilqr import cli
+
+    fast = ["--truth-time-step", "0.005", "--rest-max", "0", "--no-replay"]
+    capsys.readouterr()
+    for truth, noted in (("similar", True), ("sap", False)):
+        out = tmp_path / truth
+        args = ["playback", str(acrobot_run), *fast, "--truth-contact", truth, "--out", str(out)]
+        assert cli.main(args) in (0, 4)
+        printed = capsys.readouterr().out
+        assert ("note: the planner (sap) damps contact by relaxation times" in printed) == noted
+        data = json.loads((out / "playback.json").read_text())
+        assert data["planner"]["damping"] == "relaxation_time"
+        assert data["truth"]["damping"] == ("hunt_crossley" if noted else "relaxation_time")

@@ -91,3 +91,12 @@ def test_an_unknown_feedforward_is_refused_in_one_line():
         PlaybackSettings(feedforward="scale").validate()
     assert str(e.value) == "playback feedforward: expected scaled or plan, got 'scale'"
     PlaybackSettings(feedforward="plan").validate()
+
+
+def test_damping_laws_of_the_contact_approximations():
+    from hydroilqr.control.playback import damping_law, damping_note
+
+    assert damping_law("sap") == "relaxation_time"
+    assert {damping_law(a) for a in ("similar", "lagged", "tamsi")} == {"hunt_crossley"}
+    assert damping_note("similar", "lagged") is None and damping_note("sap", "sap") is None
+    assert "Hunt-Crossley dissipation" in damping_note("similar", "sap")

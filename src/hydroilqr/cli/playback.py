@@ -173,6 +173,11 @@ def _print_header(task, settings, out: Path) -> None:
         f"(plan dt={task.config.plant.time_step:g} "
         f"contact={task.config.plant.contact_approximation}) -> {out}"
     )
+    from hydroilqr.control.playback import damping_note
+
+    note = damping_note(task.config.plant.contact_approximation, truth_contact)
+    if note:
+        console.print(f"note: {note}")
 
 
 def _print_result(data: dict, wall_seconds: float) -> None:

@@ -69,6 +69,27 @@ TRUTH_CONTACT = {"sap": "similar", "similar": "sap", "lagged": "sap", "tamsi": "
 POLICIES = PLAYBACK_POLICIES
 
 
+def damping_law(approximation: str) -> str:
+    """How Drake damps contact under a discrete contact approximation: SAP by each geometry's
+    relaxation time (a linear Kelvin-Voigt model; Hunt-Crossley dissipation ignored), the
+    others by Hunt-Crossley dissipation (relaxation time ignored)."""
+    return "relaxation_time" if approximation == "sap" else "hunt_crossley"
+
+
+def damping_note(planner_contact: str, truth_contact: str) -> str | None:
+    """A note when the planner and the real system damp contact by different laws (then a
+    rolling or sliding object meets different resistance in the two), else None."""
+    a, b = damping_law(planner_contact), damping_law(truth_contact)
+    if a == b:
+        return None
+    name = {"relaxation_time": "relaxation times", "hunt_crossley": "Hunt-Crossley dissipation"}
+    return (
+        f"the planner ({planner_contact}) damps contact by {name[a]}, the real system "
+        f"({truth_contact}) by {name[b]}: a rolling or sliding object meets different "
+        "resistance in the two (docs/playback.md)"
+    )
+
+
 # ------------------------------------------------------------------------------------------
 # Settings and result
 # ------------------------------------------------------------------------------------------
@@ -1024,9 +1045,14 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
         "truth": {
             "time_step": st.truth_time_step,
             "contact_approximation": r.truth_contact,
+            "damping": damping_law(r.truth_contact),
             "overrides": list(st.truth_overrides),
         },
-        "planner": {"time_step": r.planner_time_step, "contact_approximation": r.planner_contact},
+        "planner": {
+            "time_step": r.planner_time_step,
+            "contact_approximation": r.planner_contact,
+            "damping": damping_law(r.planner_contact),
+        },
         "plan_duration_s": float(r.t[e] * st.speed),
         "playback_duration_s": float(r.t[e]),
         "hold_duration_s": h.seconds if h is not None else 0.0,
