@@ -90,7 +90,7 @@ def write_outputs(
     wall time as the caller measured it (setup included), recorded last in summary.json;
     ``command``: the command line that ran the solve (``environment.command``);
     ``extra_summary``: more top-level entries (e.g. ``multistart``)."""
-    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.metrics.goals import judge
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -100,7 +100,7 @@ def write_outputs(
         "task": task.name,
         **sol.stats(),
         # judged: false for a smoke-sized run (its goal is the full task's; exit code 0)
-        "goal": {**evaluate(task.config.goal, metrics), "judged": not task.config.smoke_run},
+        "goal": judge(task.config, metrics),
         "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
         "metrics": metrics,
         **(extra_summary or {}),
