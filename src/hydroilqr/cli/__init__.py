@@ -130,12 +130,7 @@ def _first_line(e: object) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import logging
-
     _escape_unencodable_output()
-    # Drake's INFO lines (e.g. "Meshcat listening ...") are noise for a command-line user;
-    # warnings and errors still show.
-    logging.getLogger("drake").setLevel(logging.WARNING)
     try:
         commands()  # imports Drake: Ctrl+C here is an interruption like any other
     except KeyboardInterrupt:
