@@ -156,13 +156,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    """Runs the command; a failed one leaves no empty results directory."""
+    """Runs the command; a failed one leaves no empty results directory, and none leaves its
+    directories locked (nor their lock files behind)."""
     try:
         return int(args.func(args) or 0)
     except BaseException:
         if "hydroilqr.output.report" in sys.modules:  # (else no output directory was made)
             sys.modules["hydroilqr.output.report"].discard_empty_outputs()
         raise
+    finally:
+        if "hydroilqr.output.report" in sys.modules:
+            sys.modules["hydroilqr.output.report"].release_locks()
 
 
 def _exit_code(e: BaseException) -> int | None:
