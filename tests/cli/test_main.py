@@ -56,3 +56,49 @@ def test_an_ascii_text_encoding_is_named_in_the_import_error():
     )
     assert p.returncode != 0
     assert "PYTHONUTF8=1" in p.stderr.strip().splitlines()[-1]
+
+
+def test_a_solve_writes_its_replay_without_meshcats_listening_line(tmp_path):
+    """The replay file is written through a Meshcat server; its INFO line ("Meshcat listening
+    for connections at ...") is not the user's business without --view."""
+    import subprocess
+    import sys
+
+    from tests.conftest import write_task
+
+    task = write_task(tmp_path, num_steps=10, solver={"max_iterations": 1})
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [sys.executable, "-m", "hydroilqr", "solve", str(task), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    assert (out / "replay.html").is_file()
+    assert "Meshcat" not in r.stdout + r.stderr
+
+
+def test_meshcats_info_line_alone_is_held_back(monkeypatch, caplog):
+    """Around the server's start only: Drake's level is as it was afterwards, and a level the
+    user raised (ERROR) is not lowered to WARNING meanwhile."""
+    import logging
+
+    from hydroilqr.output import replay
+
+    drake = logging.getLogger("drake")
+    before = drake.level
+    try:
+        for level in (logging.INFO, logging.ERROR):
+            drake.setLevel(level)
+            seen = []
+            monkeypatch.setattr(replay, "_MESHCAT", None)  # a new server
+            monkeypatch.setattr(
+                drake, "setLevel", lambda v, f=drake.setLevel, s=seen: [s.append(v), f(v)]
+            )
+            assert replay.meshcat_instance().web_url().startswith("http")
+            monkeypatch.undo()
+            assert seen == [max(level, logging.WARNING), level] and drake.level == level
+        assert not [r for r in caplog.records if "Meshcat listening" in r.getMessage()]
+    finally:
+        drake.setLevel(before)

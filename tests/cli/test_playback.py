@@ -96,3 +96,21 @@ def test_a_damping_law_mismatch_is_noted_and_recorded(acrobot_run, tmp_path, cap
         data = json.loads((out / "playback.json").read_text())
         assert data["planner"]["damping"] == "relaxation_time"
         assert data["truth"]["damping"] == ("hunt_crossley" if noted else "relaxation_time")
+
+
+def test_a_smoke_plans_playback_records_its_goal_as_not_judged(acrobot_run, tmp_path, capsys):
+    """As its solve did (summary.json ``smoke: true``); a full plan's playback is judged."""
+    import json
+
+    from hydroilqr import cli
+    from tests.conftest import write_task
+
+    task = write_task(tmp_path, num_steps=10, solver={"max_iterations": 2})
+    smoke = tmp_path / "smoke"
+    assert cli.main(["solve", str(task), "--smoke", "--out", str(smoke), "--no-replay"]) == 0
+    fast = ["--truth-time-step", "0.005", "--rest-max", "0", "--no-replay"]
+    for run, judged in ((smoke, False), (acrobot_run, True)):
+        out = tmp_path / f"pb-{judged}"
+        assert cli.main(["playback", str(run), *fast, "--out", str(out)]) in (0, 4)
+        goal = json.loads((out / "playback.json").read_text())["goal"]
+        assert goal["judged"] is judged

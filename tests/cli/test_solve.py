@@ -259,6 +259,16 @@ def test_a_read_only_run_directory_is_refused_before_the_solve(tmp_path, capsys)
     assert sorted(p.name for p in out.iterdir()) == [".hydroilqr.lock", "summary.json"]
 
 
+def test_a_finished_command_leaves_no_lock_file(tmp_path):
+    out = tmp_path / "run"
+    task = write_task(tmp_path, num_steps=10, solver={"max_iterations": 1})
+    assert cli.main(["solve", str(task), "--out", str(out), "--no-replay"]) == 0
+    fast = ["--truth-time-step", "0.005", "--rest-max", "0", "--no-replay"]
+    assert cli.main(["playback", str(out), *fast]) == 0
+    assert (out / "playback-pd" / "playback.json").is_file()
+    assert not list(tmp_path.rglob(".hydroilqr.lock"))
+
+
 def test_solution_files_are_written_whole(tmp_path):
     task = Task.load("cartpole-wall", ["num_steps=5", "solver.max_iterations=1"])
     path = solve(task).save(tmp_path / "s")

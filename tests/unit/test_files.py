@@ -59,3 +59,30 @@ def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypat
         files.atomic_write(p, '{"new": 2}')
     assert p.read_text() == '{"old": 1}'  # untouched, and no temporary file left behind
     assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "a.npz"]
+
+
+def test_the_last_holder_removes_the_lock_file_and_a_stale_open_cannot_let_two_writers_in(
+    tmp_path,
+):
+    import os
+
+    from hydroilqr.output import report
+
+    path = tmp_path / report.LOCK_NAME
+    report._lock(tmp_path)  # a writer
+    stale = os.open(path, os.O_RDWR)  # another one opened the file just before its release
+    report.release_locks()
+    assert not path.exists()
+    report._lock(tmp_path)  # a third writer, on a new lock file
+    with pytest.raises(report._Held):  # the old file's flock is free, but no longer the lock
+        report._hold(path, shared=False, fd=stale)
+    report.release_locks()
+    assert not path.exists()
+    # two readers share it: the first to leave keeps the file, the last removes it
+    first, second = (report._hold(path, shared=True) for _ in range(2))
+    report._release(path, first)
+    assert path.exists()
+    with pytest.raises(report._Held):  # and it is still a lock
+        report._hold(path, shared=False)
+    report._release(path, second)
+    assert not path.exists()

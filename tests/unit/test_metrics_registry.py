@@ -241,3 +241,20 @@ def test_check_warns_when_no_touched_pair_involves_a_tracked_object():
     cartpole = Task.load("cartpole-wall", smoke=True)
     assert contacts.tracked_objects(cartpole) == set()
     assert _untracked_contact_warning([], contacts.tracked_objects(cartpole)) == ""
+
+
+def test_the_terminal_metrics_line_prints_arrays_fixed_point():
+    """Not numpy's scientific notation; scalars as before (JSON keeps full precision)."""
+    m = {
+        "ball_final_m": np.array([7.99011324e-01, -5.43492901e-04, 9.57821572e-02]),
+        "steps": 200,
+        "final_gap_m": 0.012345678,
+        "tunnelled": False,
+        "tiny": np.array([-1e-9, 2.0]),
+    }
+    assert metrics.summary_lines(m)[0] == (
+        "metrics: ball_final_m=[0.7990, -0.0005, 0.0958], steps=200, final_gap_m=0.01235, "
+        "tunnelled=False, tiny=[0.0000, 2.0000]"
+    )
+    assert metrics.terminal_value(np.float32(0.5)) == "0.5"
+    assert metrics.terminal_value([[1.0, 2.5], [3, None]]) == "[[1.0000, 2.5000], [3, None]]"

@@ -130,12 +130,7 @@ def _first_line(e: object) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import logging
-
     _escape_unencodable_output()
-    # Drake's INFO lines (e.g. "Meshcat listening ...") are noise for a command-line user;
-    # warnings and errors still show.
-    logging.getLogger("drake").setLevel(logging.WARNING)
     try:
         commands()  # imports Drake: Ctrl+C here is an interruption like any other
     except KeyboardInterrupt:
@@ -161,13 +156,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args) -> int:
-    """Runs the command; a failed one leaves no empty results directory."""
+    """Runs the command; a failed one leaves no empty results directory, and none leaves its
+    directories locked (nor their lock files behind)."""
     try:
         return int(args.func(args) or 0)
     except BaseException:
         if "hydroilqr.output.report" in sys.modules:  # (else no output directory was made)
             sys.modules["hydroilqr.output.report"].discard_empty_outputs()
         raise
+    finally:
+        if "hydroilqr.output.report" in sys.modules:
+            sys.modules["hydroilqr.output.report"].release_locks()
 
 
 def _exit_code(e: BaseException) -> int | None:

@@ -94,7 +94,7 @@ def run(args) -> int:
     from hydroilqr.output.report import deferred_interrupt, read_lock
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
-    task, sol, settings, summary = _settings(args)
+    task, sol, settings = _settings(args)
     out = _output_dir(task, args)
     _print_header(task, settings, out)
     early = advisories(task.dynamics.plant, settings)
@@ -119,8 +119,8 @@ def run(args) -> int:
         f"wrote {out}/playback.json, playback.png, reference.csv, playback.npz"
         + ("" if args.no_replay else ", playback.html")
     )
-    smoke = bool(summary.get("smoke"))  # a smoke-sized plan: its goal is the full task's
-    return print_goal(data.get("goal"), smoke, "on the executed motion, at rest")
+    # a smoke-sized plan (its summary.json says so): its goal is the full task's
+    return print_goal(data.get("goal"), task.config.smoke_run, "on the executed motion, at rest")
 
 
 def _settings(args):
@@ -137,7 +137,7 @@ def _settings(args):
             f"{', '.join('--' + k for k in pd_loop)}: options of the PD+ loop; --policy ilqr "
             "applies the plan's own gains K once per plan step"
         )
-    task, sol, summary = load_run(args.dir)
+    task, sol, _ = load_run(args.dir)
     settings = PlaybackSettings(
         speed=args.speed,
         **pd_loop,  # the rest: PlaybackSettings' defaults
@@ -153,7 +153,7 @@ def _settings(args):
     )
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
-    return task, sol, settings, summary
+    return task, sol, settings
 
 
 def _output_dir(task, args) -> Path:

@@ -847,13 +847,13 @@ def write_outputs(
         task_metrics = metrics.compute(sim_task, sol)
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
-    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.metrics.goals import judge
     from hydroilqr.output import rundir
 
     data = {
         "task": task.name,
         **stats,
-        "goal": {**evaluate(task.config.goal, task_metrics), "judged": not task.config.smoke_run},
+        "goal": judge(task.config, task_metrics),
         "metrics": task_metrics,
         "environment": report.environment(command),
     }

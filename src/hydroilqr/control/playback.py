@@ -319,6 +319,9 @@ def load_run(run_dir: str | Path) -> SolvedRun:
             err = err or e
     if task is None:
         raise ConfigError(f"{summary_path}: cannot rebuild the task: {err}")
+    # A smoke-sized plan's task is the shrunk one (its config holds the shrunk values), and
+    # its goal is the full task's: recorded as not judged, as the solve did.
+    task.config.smoke_run = bool(summary.get("smoke"))
     sol, _ = load_run_solution(sol_path, str(run_dir))
     return SolvedRun(task, sol, summary)
 
@@ -1177,16 +1180,17 @@ def executed(task, sol, r: PlaybackResult):
 
 def executed_goal(task, sol, r: PlaybackResult) -> dict:
     """The task's metrics on the executed motion (``executed``) and its goal judged on them:
-    {"metrics": ..., "goal": {met, checks}}; a metric the truth state cannot give is an
-    error entry (and fails the checks that need it)."""
+    {"metrics": ..., "goal": {met, checks, judged}} (``judged`` false for a smoke-sized plan,
+    as its solve recorded); a metric the truth state cannot give is an error entry (and fails
+    the checks that need it)."""
     from hydroilqr import metrics
-    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.metrics.goals import judge
 
     try:
         m = metrics.compute(task, executed(task, sol, r))
     except (RuntimeError, SimulationError, ValueError) as e:
         m = {"error": str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__}
-    return {"metrics": m, "goal": evaluate(task.config.goal, m)}
+    return {"metrics": m, "goal": judge(task.config, m)}
 
 
 def write_outputs(

@@ -137,9 +137,31 @@ def sweep_arrays(task, X) -> dict:
     return out
 
 
+def _fixed(x) -> str:
+    """An element of an array on the terminal: a float fixed-point to 4 decimals (no -0.0000),
+    a nested list in brackets, anything else as str."""
+    if isinstance(x, (list, tuple)):
+        return "[" + ", ".join(_fixed(e) for e in x) + "]"
+    if isinstance(x, float):
+        text = f"{x:.4f}"
+        return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+    return str(x)
+
+
+def terminal_value(v) -> str:
+    """A metric on the terminal (JSON keeps full precision): a float to 4 significant digits,
+    an array or list of numbers fixed-point, ``[0.7990, -0.0005, 0.0958]``."""
+    if hasattr(v, "tolist") and not isinstance(v, float):  # numpy arrays and scalars
+        v = v.tolist()
+    if isinstance(v, (list, tuple)):
+        return _fixed(v)
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
 def summary_lines(m: dict) -> list[str]:
-    """Console lines for a metrics dict: its scalars, then the final error per Qf block."""
-    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
+    """Console lines for a metrics dict: its scalars and arrays, then the final error per Qf
+    block."""
+    fmt = terminal_value
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
     lines = ["metrics: " + ", ".join(f"{k}={fmt(v)}" for k, v in shown.items())]
     if m.get("commands_beyond_limits"):

@@ -95,6 +95,13 @@ def evaluate(goal: dict[str, GoalCheck], metrics: dict) -> dict:
     return {"met": met, "checks": checks}
 
 
+def judge(config, metrics: dict) -> dict:
+    """The goal record a run writes, ``{"met", "checks", "judged"}``: the goal of the task
+    ``config`` (a TaskConfig) evaluated on ``metrics``; ``judged`` is false for a smoke-sized
+    run (``config.smoke_run``: its goal is the full task's, reported but not judged)."""
+    return {**evaluate(config.goal, metrics), "judged": not config.smoke_run}
+
+
 def verdict_line(result: dict) -> str:
     """``goal: PASS (2/2 checks)`` or ``goal: FAIL (1/2): target_error_m 0.067 > 0.03``."""
     checks = result.get("checks") or []

@@ -9,6 +9,8 @@ frame published last (a Meshcat recording animates transforms, not geometry).
 
 from __future__ import annotations
 
+import logging
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +22,31 @@ _MESHCAT = None
 
 
 def meshcat_instance():
-    """One Meshcat server per process (each instance holds a port)."""
+    """One Meshcat server per process (each instance holds a port), started on first use: a
+    replay file is written through one (Drake's Meshcat has no serverless mode; its
+    ``StaticHtml`` is a method of the server), and ``solve --view`` serves one. Its "Meshcat
+    listening for connections at ..." INFO line is held back (the live view prints its own
+    URL; a replay file needs none); Drake's warnings and errors still show."""
     global _MESHCAT
     if _MESHCAT is None:
         from pydrake.geometry import Meshcat, MeshcatParams
 
-        _MESHCAT = Meshcat(MeshcatParams())
+        with _drake_info_held_back():
+            _MESHCAT = Meshcat(MeshcatParams())
     return _MESHCAT
+
+
+@contextmanager
+def _drake_info_held_back():
+    """Drake's logger (Python's ``drake`` logger, which pydrake keeps in step with its C++
+    spdlog level) at WARNING or above for the block, then as it was."""
+    logger = logging.getLogger("drake")
+    level = logger.level
+    logger.setLevel(max(logging.WARNING, logger.getEffectiveLevel()))
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def camera_for(task):

@@ -90,7 +90,7 @@ def write_outputs(
     wall time as the caller measured it (setup included), recorded last in summary.json;
     ``command``: the command line that ran the solve (``environment.command``);
     ``extra_summary``: more top-level entries (e.g. ``multistart``)."""
-    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.metrics.goals import judge
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -100,7 +100,7 @@ def write_outputs(
         "task": task.name,
         **sol.stats(),
         # judged: false for a smoke-sized run (its goal is the full task's; exit code 0)
-        "goal": {**evaluate(task.config.goal, metrics), "judged": not task.config.smoke_run},
+        "goal": judge(task.config, metrics),
         "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
         "metrics": metrics,
         **(extra_summary or {}),
@@ -214,7 +214,14 @@ def discard_empty_outputs() -> None:
             pass
 
 
-_LOCKS: dict[str, int] = {}  # directory -> open lock file, held until this process ends
+# Locks. A process holds an flock on DIR/.hydroilqr.lock while it writes DIR (exclusive) or
+# plays the plan in DIR (shared), until ``release_locks`` at the end of the command (or until
+# the process ends: the system releases an flock even on kill -9, leaving the file). The last
+# holder removes the file: it unlinks it only under an exclusive lock, so no other process
+# holds it then; one that opened the file just before finds, once it has the lock, that the
+# file it locked is no longer the one at the path, and locks the path's new file instead
+# (``_hold``). So removing the file never lets two writers in.
+_LOCKS: dict[str, int] = {}  # directory -> open lock file, held until the command ends
 LOCK_NAME = ".hydroilqr.lock"
 
 
@@ -222,12 +229,50 @@ def _lock_file(directory: str | Path) -> Path:
     return Path(directory) / LOCK_NAME
 
 
-def _lock(out: Path) -> None:
-    """One run per output directory at a time: an flock on ``out/.hydroilqr.lock``, held for
-    the life of this process (the system releases it when the process ends, even by kill -9),
-    or until ``discard_empty_outputs`` removes a directory this process created for nothing.
-    Also proves the directory is writable before any work is done."""
+class _Held(Exception):
+    """Another process holds a conflicting lock."""
+
+
+def _is_file_at(fd: int, path: Path) -> bool:
+    """Whether the open file ``fd`` is still the file at ``path`` (not removed or replaced)."""
+    import os
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    here = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (here.st_dev, here.st_ino)
+
+
+def _hold(path: Path, shared: bool, fd: int | None = None) -> int:
+    """An flock on the lock file ``path`` (``fd``: already open on it, e.g. a shared lock to
+    upgrade), on the file that is at ``path`` once it is held; OSError if it cannot be opened,
+    _Held if another process holds it."""
     import fcntl
+    import os
+
+    mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB
+    for _ in range(100):  # each retry follows a holder's release: this ends at once
+        if fd is None:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, mode)
+        except OSError:
+            os.close(fd)
+            raise _Held from None
+        if _is_file_at(fd, path):
+            return fd
+        os.close(fd)  # its holder removed it on release: lock the path's new file
+        fd = None
+    raise _Held
+
+
+def _lock(out: Path) -> None:
+    """One run per output directory at a time: an exclusive flock on ``out/.hydroilqr.lock``,
+    held until ``release_locks`` (or the process ends, even by kill -9), or until
+    ``discard_empty_outputs`` removes a directory this process created for nothing. Also
+    proves the directory is writable before any work is done."""
     import os
 
     from hydroilqr.problem.config import ConfigError
@@ -239,34 +284,31 @@ def _lock(out: Path) -> None:
     # An existing lock file opens for writing even in a directory made read-only since (a run
     # directory kept as it was): that alone would let the solve run, then fail on its files.
     _probe_writable(out)
-    if key in _READ_LOCKS:  # this process reads it too (playback --out RUN): upgrade
-        fd = _READ_LOCKS.pop(key)
-    else:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as e:
-            raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
-        try:
-            from hydroilqr.problem.inputs import read_bounded
-
-            other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
-        except (OSError, ValueError):
-            other = ""
-        who = (
-            f" (process {other}, or a playback reading its plan)"
-            if other
-            else " (a playback reading its plan)"
-        )
+    try:  # this process reads it too (playback --out RUN): upgrade
+        fd = _hold(path, shared=False, fd=_READ_LOCKS.pop(key, None))
+    except _Held:
         raise ConfigError(
-            f"{out} is in use by another hydroilqr run{who}: wait for it or choose another --out"
+            f"{out} is in use by another hydroilqr run{_holder(path)}: wait for it or choose "
+            "another --out"
         ) from None
+    except OSError as e:
+        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     _LOCKS[key] = fd
+
+
+def _holder(path: Path) -> str:
+    """Who holds the lock file ``path``, as the refusal says it."""
+    try:
+        from hydroilqr.problem.inputs import read_bounded
+
+        other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
+    except (OSError, ValueError):
+        other = ""
+    if other:
+        return f" (process {other}, or a playback reading its plan)"
+    return " (a playback reading its plan)"
 
 
 def _probe_writable(out: Path) -> None:
@@ -288,29 +330,54 @@ def read_lock(run_dir: Path) -> None:
     """A shared lock on a run directory this process reads (playback of its plan): a solve
     into it is refused meanwhile, so a playback never pairs an old plan with new results.
     Nothing to do where the directory is not writable (nothing can replace it either)."""
-    import fcntl
-    import os
-
     from hydroilqr.problem.config import ConfigError
 
     key = str(Path(run_dir).resolve())
     if key in _LOCKS or key in _READ_LOCKS:
         return
     try:
-        fd = os.open(_lock_file(run_dir), os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError:
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
-    except OSError:
-        os.close(fd)
+        _READ_LOCKS[key] = _hold(_lock_file(run_dir), shared=True)
+    except _Held:
         raise ConfigError(
             f"{run_dir} is being written by another hydroilqr run: wait for it"
         ) from None
-    _READ_LOCKS[key] = fd
+    except OSError:
+        return
 
 
 _READ_LOCKS: dict[str, int] = {}  # directories this process reads (shared locks)
+
+
+def release_locks() -> None:
+    """Releases every lock this process holds (the command is done with its directories).
+    Each lock file is removed unless another process holds it too (a playback sharing a read
+    lock), which then removes it when it is done."""
+    import os
+
+    if os.getpid() != _PID:  # a forked copy of this process: its parent holds them
+        return
+    for table in (_LOCKS, _READ_LOCKS):
+        while table:
+            key, fd = table.popitem()
+            _release(_lock_file(key), fd)
+
+
+_PID = os.getpid()  # the process whose tables these are (a forked child inherits them)
+
+
+def _release(path: Path, fd: int) -> None:
+    import fcntl
+    import os
+
+    try:
+        # Exclusive (a shared lock is upgraded): no other process holds this file then.
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if _is_file_at(fd, path):
+            path.unlink()
+    except OSError:
+        pass  # another holder (it removes the file), or the directory is gone or read-only
+    finally:
+        os.close(fd)
 
 
 # What ``hydroilqr playback`` writes (into DIR/playback-POLICY, or where --out says).
