@@ -169,6 +169,29 @@ CASES = [
         edit(receding_horizon={"window_steps": 2, "shift_steps": 4, "resolves": 1}),
         "receding_horizon.shift_steps",
     ),
+    ("ensemble-time-step", edit(ensemble=[{"plant.time_step": 0.01}]), "ensemble[0]: plant"),
+    (
+        "ensemble-time-step-nested",
+        edit(ensemble=[{"plant": {"time_step": 0.01}}]),
+        "ensemble[0]: the time grid",
+    ),
+    ("ensemble-unknown-key", edit(ensemble=[{"tipp.friction": 0.1}]), "ensemble[0]"),
+    ("ensemble-solver", edit(ensemble=[{"solver.max_iterations": 2}]), "ensemble[0]: solver"),
+    ("ensemble-not-a-mapping", edit(ensemble=[0.3]), "ensemble[0]: expected a mapping"),
+    ("ensemble-weight", edit(ensemble_weight=-1), "ensemble_weight: must be >= 0"),
+    (
+        "ensemble-receding",
+        edit(
+            ensemble=[{"plant.gravity": [0, 0, -9]}],
+            receding_horizon={"window_steps": 2, "shift_steps": 1, "resolves": 1},
+        ),
+        "ensemble: for single solves",
+    ),
+    (
+        "ensemble-continuation",
+        edit(ensemble=[{"plant.gravity": [0, 0, -9]}], continuation=[{"plant.gravity": [0, 0, 1]}]),
+        "ensemble: not supported together with continuation",
+    ),
 ]
 
 

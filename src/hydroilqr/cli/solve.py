@@ -228,6 +228,12 @@ def _print_header(task, out: Path) -> None:
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
         )
+    if cfg.ensemble:
+        members = "; ".join(", ".join(f"{k}={v}" for k, v in m.items()) for m in cfg.ensemble)
+        console.print(
+            f"ensemble: one plan against the task and {len(cfg.ensemble)} perturbed model(s) "
+            f"({members}), each weighted {cfg.ensemble_weight:g}; costs are the weighted sum"
+        )
 
 
 def _warn_about_start(task) -> None:

@@ -81,6 +81,11 @@ MPCSettings = MPCConfig
 
 def check_settings(settings: MPCSettings, task) -> None:
     """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``)."""
+    if task.config.ensemble:
+        raise ConfigError(
+            "ensemble: robust (ensemble) solves are for single solves, not mpc "
+            "(--set 'ensemble=[]' plans against the nominal model only)"
+        )
     dt = task.config.plant.time_step
     _check_timing(settings, dt)
     _check_iteration(settings)

@@ -48,6 +48,10 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     continuation: []              # single solves: stages of dotted overrides solved first,
                                   # each warm-starting the next, e.g.
                                   # [{ball_collision.hydroelastic_modulus: 5.0e+5}]
+    ensemble: []                  # single solves: perturbed copies (dotted overrides, e.g.
+                                  # [{ball.friction: 0.14}, {ball.friction: 0.26}]) that one
+                                  # control sequence is optimized against with the task itself
+    ensemble_weight: 1.0          # cost weight of each perturbed member (the task's: 1)
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
@@ -383,6 +387,12 @@ class TaskConfig:
     # overrides (e.g. a softer contact), each stage warm-starting the next with its controls,
     # then the task as written. Softer contact has smoother gradients (paper §IV-C).
     continuation: list[dict[str, Any]] = field(default_factory=list)
+    # Robust (ensemble) iLQR for single solves: perturbed copies of the task, each a mapping of
+    # dotted overrides (e.g. {ball.friction: 0.14}); one control sequence is optimized against
+    # the task itself (the nominal) and every member at once (model/ensemble.py). Empty: off.
+    ensemble: list[dict[str, Any]] = field(default_factory=list)
+    # The cost weight of each perturbed member relative to the nominal's 1 (>= 0).
+    ensemble_weight: float = 1.0
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
@@ -922,11 +932,12 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     # dotted overrides (smoke:, continuation stages) name paths too
     if isinstance(data.get("smoke"), dict):
         data["smoke"] = {k: cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
-    if isinstance(data.get("continuation"), list):
-        data["continuation"] = [
-            {k: cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
-            for st in data["continuation"]
-        ]
+    for section in ("continuation", "ensemble"):
+        if isinstance(data.get(section), list):
+            data[section] = [
+                {k: cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
+                for st in data[section]
+            ]
 
 
 def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
@@ -1185,6 +1196,7 @@ def _has_cost_terms(cost: CostConfig) -> bool:
 def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
     _validate_continuation(cfg)
+    _validate_ensemble(cfg)
     if not cfg.models:
         raise ConfigError("models: at least one model file is required")
     _validate_names(cfg)
@@ -1208,24 +1220,46 @@ def validate(cfg: TaskConfig) -> None:
     _validate_receding_horizon(cfg.receding_horizon)
 
 
+# Keys a continuation stage or an ensemble member cannot override (the time grid and start).
+_FIXED_KEYS = ("continuation", "receding_horizon", "smoke", "name", "horizon", "num_steps")
+_FIXED_KEYS += ("initial_state", "initial_guess", "ensemble", "ensemble_weight")
+
+
+def _check_overrides(section: str, i: int, item: Any, why: str, fixed=()) -> None:
+    """``section[i]``: a non-empty mapping of dotted keys, none of which changes the time grid
+    or the start (nor a key of ``fixed``); ConfigError saying ``why`` otherwise."""
+    if not isinstance(item, dict) or not item:
+        raise ConfigError(
+            f"{section}[{i}]: expected a mapping of dotted keys to values, e.g. "
+            "{ball_collision.hydroelastic_modulus: 5.0e+5}"
+        )
+    for key in item:
+        first = str(key).split(".")[0]
+        if first in _FIXED_KEYS + tuple(fixed) or str(key) == "plant.time_step":
+            raise ConfigError(f"{section}[{i}]: {key} cannot change {why}")
+
+
 def _validate_continuation(cfg: TaskConfig) -> None:
     """Each stage: a mapping of dotted keys that leave the time grid and start alone."""
+    why = "between stages (every stage solves the task's time grid from its initial state)"
     for i, stage in enumerate(cfg.continuation):
-        if not isinstance(stage, dict) or not stage:
-            raise ConfigError(
-                f"continuation[{i}]: expected a mapping of dotted keys to values, e.g. "
-                "{ball_collision.hydroelastic_modulus: 5.0e+5}"
-            )
-        fixed = ("continuation", "receding_horizon", "smoke", "name", "horizon", "num_steps")
-        fixed += ("initial_state", "initial_guess")
-        for key in stage:
-            if str(key).split(".")[0] in fixed or str(key) == "plant.time_step":
-                raise ConfigError(
-                    f"continuation[{i}]: {key} cannot change between stages (every stage "
-                    "solves the task's time grid from its initial state)"
-                )
+        _check_overrides("continuation", i, stage, why)
     if cfg.continuation and cfg.receding_horizon is not None:
         raise ConfigError("continuation: for single solves (not with receding_horizon)")
+
+
+def _validate_ensemble(cfg: TaskConfig) -> None:
+    """Each member: a mapping of dotted keys that leave the time grid, start and solver alone;
+    single solves only; a finite weight >= 0."""
+    why = "in an ensemble member (every member shares the task's time grid, start and solver)"
+    for i, member in enumerate(cfg.ensemble):
+        _check_overrides("ensemble", i, member, why, ("solver", "mpc"))
+    if not (math.isfinite(cfg.ensemble_weight) and cfg.ensemble_weight >= 0):
+        raise ConfigError(f"ensemble_weight: must be >= 0, got {cfg.ensemble_weight}")
+    if cfg.ensemble and cfg.receding_horizon is not None:
+        raise ConfigError("ensemble: for single solves (not with receding_horizon)")
+    if cfg.ensemble and cfg.continuation:
+        raise ConfigError("ensemble: not supported together with continuation (use one of them)")
 
 
 def _validate_names(cfg: TaskConfig) -> None:

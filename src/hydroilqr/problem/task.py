@@ -61,16 +61,32 @@ class Task:
     def stages(self) -> list[Task]:
         """The continuation stages (``continuation:``) as Tasks, in order; the last stage is
         followed by this task itself. Built once (each holds its own plant)."""
-        if getattr(self, "_stages", None) is not None:
-            return self._stages
+        if getattr(self, "_stages", None) is None:
+            why = "between stages (every stage solves the task's time grid from its initial state)"
+            self._stages = self._variants("continuation", why)
+        return self._stages
+
+    def members(self) -> list[Task]:
+        """The perturbed members of a robust solve (``ensemble:``) as Tasks, in order; the
+        task itself is the nominal, not among them. Built once (each holds its own plant)."""
+        if getattr(self, "_members", None) is None:
+            why = "in an ensemble member (every member shares the task's time grid and start)"
+            self._members = self._variants("ensemble", why)
+        return self._members
+
+    def _variants(self, section: str, why: str) -> list[Task]:
+        """This task with each of ``section``'s override mappings applied (continuation
+        stages or ensemble members), none of which may change the time grid or the start."""
         out = []
         cfg = self.config
-        for i, stage in enumerate(cfg.continuation):
+        for i, overrides in enumerate(getattr(cfg, section)):
             try:
-                # paths in a stage are relative to the task file, like the rest of it
-                st = with_overrides(cfg, {**stage, "continuation": []}, Path(cfg.base_dir))
+                # paths in them are relative to the task file, like the rest of it
+                st = with_overrides(
+                    cfg, {**overrides, "continuation": [], "ensemble": []}, Path(cfg.base_dir)
+                )
             except ConfigError as e:
-                raise ConfigError(f"continuation[{i}]: {e}") from None
+                raise ConfigError(f"{section}[{i}]: {e}") from None
             same = (
                 st.plant.time_step == cfg.plant.time_step
                 and st.steps == cfg.steps
@@ -79,12 +95,10 @@ class Task:
             )
             if not same:  # e.g. {plant: {time_step: ...}}, which the key check cannot see
                 raise ConfigError(
-                    f"continuation[{i}]: the time grid, initial state and initial guess cannot "
-                    "change between stages (every stage solves the task's time grid from its "
-                    "initial state)"
+                    f"{section}[{i}]: the time grid, initial state and initial guess cannot "
+                    f"change {why}"
                 )
             out.append(Task(st))
-        self._stages = out
         return out
 
     def with_overrides(self, overrides) -> Task:
@@ -128,19 +142,24 @@ class Task:
         _ = self.dynamics, self.cost, self.x0
         self.check_memory()
         self.initial_guess(self.steps)
-        for i, stage in enumerate(self.stages()):
-            try:
-                _ = stage.dynamics, stage.cost
-            except ConfigError as e:
-                raise ConfigError(f"continuation[{i}]: {e}") from None
-            if stage.dynamics.nx != self.dynamics.nx or stage.dynamics.nu != self.dynamics.nu:
-                raise ConfigError(f"continuation[{i}]: changes the state or input size")
+        self._check_variants("continuation", self.stages())
+        self._check_variants("ensemble", self.members())
         from hydroilqr import metrics as metrics_mod
 
         metrics_mod.validate(self)  # metric names and metric_params
         from hydroilqr.metrics.goals import check_names
 
         check_names(self)  # a goal names metrics the task reports
+
+    def _check_variants(self, section: str, tasks: list[Task]) -> None:
+        """Each continuation stage or ensemble member builds, with this task's nx and nu."""
+        for i, t in enumerate(tasks):
+            try:
+                _ = t.dynamics, t.cost
+            except ConfigError as e:
+                raise ConfigError(f"{section}[{i}]: {e}") from None
+            if t.dynamics.nx != self.dynamics.nx or t.dynamics.nu != self.dynamics.nu:
+                raise ConfigError(f"{section}[{i}]: changes the state or input size")
 
     def check_memory(self, steps: int | None = None, what: str | None = None) -> None:
         """ConfigError if a solve over ``steps`` (default: this task's window or horizon, and
@@ -151,8 +170,9 @@ class Task:
         dyn, rh = self.dynamics, self.config.receding_horizon
         if steps is not None:
             check_memory(steps, dyn.nx, dyn.nu, what or "horizon")
-        elif rh is None:
-            check_memory(self.steps, dyn.nx, dyn.nu, "horizon")
+        elif rh is None:  # an ensemble's partials are of its stacked state (M·nx)
+            M = 1 + len(self.config.ensemble)
+            check_memory(self.steps, M * dyn.nx, dyn.nu, "horizon")
         else:
             # the window's solve, and the kept trajectory (X, U, K, kappa) of every window
             kept = rh.resolves * rh.shift_steps

@@ -23,6 +23,7 @@ from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import callback_list
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.receding import solve_receding
+from hydroilqr.solver.robust import solve_ensemble
 from hydroilqr.solver.solution import PHASES, Solution
 
 
@@ -56,7 +57,11 @@ def solve(
     The Solution's ``status`` says what the result is worth (``hydroilqr.solver.stopping``;
     for a continuation, judged from the guess's cost on the task's own model; for a receding
     horizon, its worst window's), ``explain(solution, task)`` why. A task whose cost has no
-    terms is refused (ConfigError)."""
+    terms is refused (ConfigError).
+
+    A task with ``ensemble:`` members is solved robustly, against the task and every member
+    at once (``solver.robust``): the Solution's X and gains are the nominal's, its costs the
+    ensemble objective's, ``extra["ensemble"]`` how each member ended."""
     task = _as_task(task)
     validate_for_solve(task.config)
     task.check_memory()  # before any horizon is allocated
@@ -74,6 +79,8 @@ def solve(
             )
         return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver)
     x0, U0 = _start(task, U0, x0)
+    if task.config.ensemble:  # (not with continuation or receding_horizon: config.validate)
+        return solve_ensemble(task, U0, x0, solver, callbacks, stop_on_interrupt)
     if not stages:
         return ilqr_solve(
             task.problem(x0=x0), U0, solver, callbacks, stop_on_interrupt=stop_on_interrupt

@@ -1,0 +1,89 @@
+"""Robust (ensemble) solves of a task with ``ensemble:`` members (see model/ensemble.py).
+
+The stacked problem (the task itself, the nominal, first; then each member of
+``Task.members()``) is solved from the task's initial state x0 given to every member (the
+real start does not depend on which model is right) with the task's initial guess, by the
+ordinary iLQR loop. The Solution is then put in the nominal's terms:
+
+* X: [N+1, n], the nominal member's states; U, kappa, costs, status, reason as solved (the
+  costs are those of the ensemble objective Σ_m w_m J_m, which the stopping tests judged);
+* K: [N, nu, n] = Σ_m K_m, the gains of every member's block summed. The stacked policy is
+  u = ū − Σ_m K_m (x_m − x̄_m); with one measured state x standing in for every member it is
+  u = ū − Σ_m K_m (x − x̄_m), which equals ū − K_eff (x − x̄_nominal) only up to the offsets
+  K_m (x̄_m − x̄_nominal) of the perturbed members' trajectories. The stored K_eff is about
+  the nominal trajectory (the offsets are dropped, so u = ū at x = x̄_nominal);
+* ``extra["ensemble"]``: the weight, and per member (nominal first, overrides {}) its
+  overrides, weight, final cost J_m, terminal cost and terminal error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from hydroilqr.model.ensemble import EnsembleCost, EnsembleDynamics, EnsembleLinearizer
+from hydroilqr.problem.task import Task
+from hydroilqr.solver.ilqr import Problem
+from hydroilqr.solver.loop import solve as ilqr_solve
+from hydroilqr.solver.solution import Solution
+
+
+def ensemble_problem(task: Task, x0: np.ndarray | None = None) -> Problem:
+    """The stacked problem of ``task`` and its ensemble members, from x0: [n] (default: the
+    task's initial state) given to every member: x0 stacked [M·n]."""
+    members = [task, *task.members()]
+    dyn = EnsembleDynamics([m.dynamics for m in members])
+    weights = [1.0] + [task.config.ensemble_weight] * (len(members) - 1)
+    cost = EnsembleCost([m.cost for m in members], weights)
+    return Problem(dyn, cost, dyn.stack(task.x0 if x0 is None else x0), 0.0)
+
+
+def solve_ensemble(
+    task: Task, U0: np.ndarray, x0, settings, callbacks, stop_on_interrupt: bool
+) -> Solution:
+    """Solves ``task``'s ensemble problem from U0: [N, nu] (x0: [n] or None for the task's);
+    the Solution in the nominal's terms (module docstring). Callbacks see the stacked
+    iterates (IterationInfo.X: [N+1, M·n])."""
+    problem = ensemble_problem(task, x0)
+    lin = EnsembleLinearizer.from_settings(problem.dynamics, settings)
+    sol = ilqr_solve(
+        problem, U0, settings, callbacks, stop_on_interrupt=stop_on_interrupt, linearizer=lin
+    )
+    return nominal_solution(task, problem, sol)
+
+
+def nominal_solution(task: Task, problem: Problem, sol: Solution) -> Solution:
+    """``sol`` of the stacked ``problem`` in the nominal's terms: X of the nominal member,
+    K_eff = Σ_m K_m, and ``extra["ensemble"]`` per member."""
+    dyn, cost = problem.dynamics, problem.cost
+    K = np.zeros((sol.K.shape[0], dyn.nu, dyn.n))
+    for b in dyn.blocks:
+        K += sol.K[:, :, b]
+    overrides = [{}, *(dict(m) for m in task.config.ensemble)]
+    members = []
+    for m, (c, w) in enumerate(zip(cost.members, cost.weights)):
+        Xm = dyn.member_states(sol.X, m)
+        members.append(
+            {
+                "overrides": overrides[m],
+                "weight": float(w),
+                "final_cost": c.total(Xm, sol.U, problem.t0),
+                **_terminal(c, Xm, sol.U.shape[0], problem.t0),
+            }
+        )
+    ensemble = {"weight": task.config.ensemble_weight, "members": members}
+    return dataclasses.replace(
+        sol, X=sol.X[:, : dyn.n].copy(), K=K, extra={**sol.extra, "ensemble": ensemble}
+    )
+
+
+def _terminal(cost, XN: np.ndarray, N: int, t0: float) -> dict:
+    """Member's terminal cost x̃_Nᵀ Q_f x̃_N and terminal error |x̃_N| over the coordinates
+    Q_f weights (over all of them if it weights none): x̃_N = x_N ⊖ x_nom(t_N)."""
+    r = cost.layout.diff(XN[-1:], cost.targets(N, t0)[-1:])[0]
+    mask = cost.qf > 0 if np.any(cost.qf > 0) else np.ones(r.shape, bool)
+    return {
+        "terminal_cost": float(r @ (cost.qf * r)),
+        "terminal_error": float(np.linalg.norm(r[mask])),
+    }
