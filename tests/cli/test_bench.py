@@ -217,3 +217,14 @@ def test_bench_block_must_be_positive(capsys):
     rc = cli.main(["bench", "cartpole-wall", "--smoke", "--block", "0", "--out", "/nonexistent"])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "--block")
+
+
+def test_bench_refuses_an_ensemble_task_in_one_line(tmp_path, capsys):
+    """bench times one model's iterations: an ensemble task is refused before any work."""
+    from tests.conftest import write_task
+
+    task = write_task(tmp_path, num_steps=5, ensemble=[{"plant.gravity": [0, 0, -8]}])
+    rc = main(["bench", str(task), "--iterations", "1", "--out", str(tmp_path / "b")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "has an ensemble")
+    assert not (tmp_path / "b").exists()

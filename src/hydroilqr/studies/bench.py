@@ -513,6 +513,11 @@ def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict,
     for t in tasks:
         t.validate()
     a, b = tasks[:2]
+    if b.config.ensemble:
+        raise ConfigError(
+            f"{b.name} has an ensemble: bench times one model's iterations (the paper's method "
+            "has no ensemble); remove it with --set ensemble=[] to time the nominal"
+        )
     if a.steps != b.steps or a.config.plant.time_step != b.config.plant.time_step:
         raise ConfigError(
             f"--fast: {a.name}'s fast configuration has {b.steps} steps of "
