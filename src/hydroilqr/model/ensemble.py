@@ -130,7 +130,9 @@ class EnsembleLinearizer:
     """Partials of the stacked dynamics from one ``Linearizer`` per member (same order as
     ``EnsembleDynamics.members``): A: [N, M·n, M·n] block diagonal, B: [N, M·n, nu].
     ``last_computed``: the steps the members differentiated in the last call, summed;
-    ``last_secant``: the last call's partials were all secant updates."""
+    ``last_secant``: some of the last call's partials were secant updates (members fall out
+    of step when one's update is not finite or one's exact call fails): then they are not
+    exact, and the solver's ``exact`` recomputes them all."""
 
     def __init__(self, member_linearizers: list[Linearizer]):
         self.members = list(member_linearizers)
@@ -152,7 +154,7 @@ class EnsembleLinearizer:
         for b, lin in zip(_blocks(M, n), self.members):
             A[:, b, b], B[:, b, :] = call(lin, X[:, b])
         self.last_computed = sum(lin.last_computed for lin in self.members)
-        self.last_secant = all(getattr(lin, "last_secant", False) for lin in self.members)
+        self.last_secant = any(getattr(lin, "last_secant", False) for lin in self.members)
         return A, B
 
     def __call__(self, X: np.ndarray, U: np.ndarray, rollout: bool = False):
