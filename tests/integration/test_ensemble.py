@@ -118,6 +118,7 @@ def test_robust_solve_decreases_the_summed_cost(robust):
     np.testing.assert_array_equal(sol.X, XE[:, :n])  # the nominal member's trajectory
     assert sol.final_cost == pytest.approx(problem.cost.total(XE, sol.U))
     members = sol.extra["ensemble"]["members"]
+    assert "weighted sum" in sol.extra["ensemble"]["costs"]
     assert [m["overrides"] for m in members] == [{}, HEAVY, WEAK_GRAVITY]
     assert sum(m["weight"] * m["final_cost"] for m in members) == pytest.approx(sol.final_cost)
     assert members[0]["final_cost"] == pytest.approx(robust.cost.total(sol.X, sol.U))

@@ -72,7 +72,13 @@ def nominal_solution(task: Task, problem: Problem, sol: Solution) -> Solution:
                 **_terminal(c, Xm, sol.U.shape[0], problem.t0),
             }
         )
-    ensemble = {"weight": task.config.ensemble_weight, "members": members}
+    ensemble = {
+        "weight": task.config.ensemble_weight,
+        # what the run's numbers are: the costs of the solve, the rest of the nominal's
+        "costs": "initial_cost, final_cost and costs are the weighted sum over the members",
+        "metrics": "the nominal model's (its trajectory X), as is the goal",
+        "members": members,
+    }
     return dataclasses.replace(
         sol, X=sol.X[:, : dyn.n].copy(), K=K, extra={**sol.extra, "ensemble": ensemble}
     )
