@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -147,3 +149,20 @@ def test_member_that_changes_the_time_step_is_refused(task):
         from hydroilqr.control.mpc import MPCSettings
 
         MPCSettings().check(task.with_overrides({"ensemble": [HEAVY]}))
+
+
+def test_a_member_whose_coordinates_mean_other_joints_is_refused(tmp_path):
+    """Members share the nominal's x0 and controls: a model whose joints are named otherwise
+    (here the elbow renamed knee) is refused in one line, not fed the wrong coordinates."""
+    from pydrake.common import FindResourceOrThrow
+
+    from tests.conftest import write_task
+
+    urdf = Path(FindResourceOrThrow("drake/examples/acrobot/Acrobot.urdf")).read_text()
+    knee = tmp_path / "knee.urdf"
+    knee.write_text(urdf.replace('name="elbow"', 'name="knee"'))
+    base = {**ACROBOT_TASK, "blocks": {"angles": ["shoulder"]}}
+    member = {"models.0.file": str(knee)}
+    task = Task.load(str(write_task(tmp_path, base, num_steps=5, ensemble=[member])))
+    with pytest.raises(ConfigError, match=r"ensemble\[0\]: orders or names the state"):
+        task.validate()

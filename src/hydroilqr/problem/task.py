@@ -160,6 +160,11 @@ class Task:
                 raise ConfigError(f"{section}[{i}]: {e}") from None
             if t.dynamics.nx != self.dynamics.nx or t.dynamics.nu != self.dynamics.nu:
                 raise ConfigError(f"{section}[{i}]: changes the state or input size")
+            if _coordinates(t.dynamics.layout) != _coordinates(self.dynamics.layout):
+                raise ConfigError(
+                    f"{section}[{i}]: orders or names the state's coordinates or the actuators "
+                    "differently (it shares this task's initial state and controls)"
+                )
 
     def check_memory(self, steps: int | None = None, what: str | None = None) -> None:
         """ConfigError if a solve over ``steps`` (default: this task's window or horizon, and
@@ -262,3 +267,10 @@ class Task:
             raise ValueError(f"x0 must have shape [{self.dynamics.nx}] (nx), got {x0.shape}")
         check_finite("x0", x0)  # names the entry, as ilqr.solve does
         return self.dynamics.layout.normalize(x0, "x0")
+
+
+def _coordinates(layout) -> tuple:
+    """What a state and an input vector mean: each named block's coordinates, and the
+    actuators in input order."""
+    blocks = tuple(sorted((name, b.coords) for name, b in layout.primitives.items()))
+    return blocks, tuple(layout.actuators)
