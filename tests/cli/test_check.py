@@ -32,3 +32,14 @@ def test_check_names_a_deep_initial_overlap_even_when_the_rollout_survives(capsy
     assert rc == 0 and "ball_collision (ball) and ground (world) overlap by 40 mm" in out
     assert cli.main(["check", "kinova-forward"]) == 0  # resting 1.6 mm deep: no warning
     assert "overlap by" not in capsys.readouterr().out
+
+
+def test_check_lists_the_ensemble_members_and_rolls_the_guess_on_each(tmp_path, capsys):
+    from tests.conftest import write_task
+
+    member = {"plant.gravity": [0, 0, -8]}
+    task = write_task(tmp_path, num_steps=5, ensemble=[member], ensemble_weight=0.5)
+    assert cli.main(["check", str(task)]) == 0
+    out = capsys.readouterr().out
+    assert "ensemble[0] (weight 0.5, guess rollout ok): plant.gravity=[0, 0, -8]" in out
+    assert "check passed" in out

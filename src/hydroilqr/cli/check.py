@@ -69,6 +69,10 @@ def _continuation(r: dict) -> None:
     for i, stage in enumerate(r.get("continuation", [])):
         keys = ", ".join(f"{k}={v}" for k, v in stage.items())
         console.print(f"  continuation[{i}] (solved first): {keys}")
+    for i, member in enumerate(r.get("ensemble", [])):
+        keys = ", ".join(f"{k}={v}" for k, v in member["overrides"].items())
+        state = "guess rollout fails" if member.get("warning") else "guess rollout ok"
+        console.print(f"  ensemble[{i}] (weight {member['weight']:g}, {state}): {keys}")
 
 
 def _floating_bodies(r: dict) -> None:

@@ -175,9 +175,13 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         )
     done("model")
 
+    if cfg.continuation or cfg.ensemble:
+        task.validate()  # builds every stage and member: bad keys or sizes are named here
     if cfg.continuation:
-        task.validate()  # builds every stage: bad keys or sizes are named here
         out["continuation"] = [dict(s) for s in cfg.continuation]
+    if cfg.ensemble:
+        out["ensemble"] = _ensemble(task, rollout_steps)
+        out["warnings"] += [m["warning"] for m in out["ensemble"] if m.get("warning")]
     done("continuation")
 
     plant = dyn.plant
@@ -271,6 +275,23 @@ def _untracked_contact_warning(touched: list[dict], tracked: set[str]) -> str:
             "start; a guess that makes contact may be needed"
         )
     return ""
+
+
+def _ensemble(task, rollout_steps: int) -> list[dict]:
+    """Per ensemble member: its overrides and weight, and whether the initial guess's
+    rollout (its first ``rollout_steps`` steps) runs on it (a warning if not)."""
+    from hydroilqr.model.plant import SimulationError
+
+    U = task.initial_guess(task.steps)[: min(task.steps, rollout_steps)]
+    out = []
+    for i, member in enumerate(task.members()):
+        entry = {"overrides": dict(task.config.ensemble[i]), "weight": task.config.ensemble_weight}
+        try:
+            member.dynamics.rollout(task.x0, U)
+        except SimulationError as e:
+            entry["warning"] = f"ensemble[{i}]: the initial guess's rollout fails: {e}"
+        out.append(entry)
+    return out
 
 
 #: The sections of ``check_task``'s report, in the order they are complete.
