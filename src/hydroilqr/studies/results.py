@@ -215,10 +215,13 @@ def transfer_table(results: Sequence[TaskResult], context: Context) -> Section |
         "|---|---|---|---|---|---|"
     )
     note = (
-        "PD+ (eq. 11) at the paper's gains, plan played at half speed on the finer simulation "
-        "with the other contact approximation (`hydroilqr playback RUN --speed 0.5`); after the "
-        "plan the robot holds its last reference until the object rests (or 3 s). `goal`: the "
-        "task's goal judged on the executed motion, at rest."
+        "PD+ (eq. 11) at the paper's gains, plan played at half speed with the feed-forward "
+        "scaled to that speed (the default `--feedforward scaled`) on the finer simulation with "
+        "the other contact approximation (`hydroilqr playback RUN --speed 0.5`); after the plan "
+        "the robot holds its last reference until the object rests (or 3 s). `goal`: the task's "
+        "goal judged on the executed motion, at rest (for kinova-up: the lift). kinova-up's "
+        "resting gap compares where the planning model's extension drops the lifted ball with "
+        "where the real system holds it."
     )
     return Section(
         "transfer", "Transfer (open-loop playback)", "\n".join([head, *rows, "", note]), data
