@@ -33,7 +33,7 @@ import numpy as np
 
 from hydroilqr.model.cost import QuadraticCost, Quadratization
 from hydroilqr.model.derivatives import Linearizer
-from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.model.plant import Dynamics, SimulationError, feedback_rollout
 
 
 def _blocks(M: int, n: int) -> list[slice]:
@@ -109,17 +109,7 @@ class EnsembleDynamics:
         every member stepped with u_k. x0: [M·n], Ubar: [N, nu], Xbar: [N+1, M·n],
         K: [N, nu, M·n], kappa: [N, nu] -> X: [N+1, M·n], U: [N, nu]."""
         x0, Ubar = self.check_arguments(x0, Ubar, u_rows=True)
-        N = Ubar.shape[0]
-        X = np.empty((N + 1, self.nx))
-        U = np.empty_like(Ubar)
-        X[0] = x0
-        for k in range(N):
-            U[k] = Ubar[k] - eps * kappa[k] - K[k] @ (X[k] - Xbar[k])
-            try:
-                X[k + 1] = self._step(X[k], U[k])
-            except SimulationError as e:
-                raise SimulationError(f"step {k}: {e}") from None
-        return X, U
+        return feedback_rollout(self._step, x0, Ubar, Xbar, K, kappa, eps)
 
     def member_states(self, X: np.ndarray, m: int) -> np.ndarray:
         """Member m's states of stacked X: [..., M·n] -> [..., n]."""

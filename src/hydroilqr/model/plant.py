@@ -521,6 +521,23 @@ class PlantSpec:
         return p
 
 
+def feedback_rollout(step, x0, Ubar, Xbar, K, kappa, eps):
+    """The forward pass of iLQR (eq. 7) through ``step(x, u) -> x_next``: u_k = ū_k − ε κ_k −
+    K_k (x_k − x̄_k). x0: [nx], Ubar: [N, nu], Xbar: [N+1, nx], K: [N, nu, nx], kappa: [N, nu]
+    -> X: [N+1, nx], U: [N, nu]. A SimulationError names the step that failed."""
+    N = Ubar.shape[0]
+    X = np.empty((N + 1, len(x0)))
+    U = np.empty_like(Ubar)
+    X[0] = x0
+    for k in range(N):
+        U[k] = Ubar[k] - eps * kappa[k] - K[k] @ (X[k] - Xbar[k])
+        try:
+            X[k + 1] = step(X[k], U[k])
+        except SimulationError as e:
+            raise SimulationError(f"step {k}: {e}") from None
+    return X, U
+
+
 class Dynamics:
     """The discrete dynamics f(x, u) of a task's plant, plus its named state layout.
 
@@ -612,17 +629,7 @@ class Dynamics:
         expressed in the coordinates in which f was linearized).
         """
         x0, Ubar = self.check_arguments(x0, Ubar, u_rows=True)
-        N = Ubar.shape[0]
-        X = np.empty((N + 1, self.nx))
-        U = np.empty_like(Ubar)
-        X[0] = x0
-        for k in range(N):
-            U[k] = Ubar[k] - eps * kappa[k] - K[k] @ (X[k] - Xbar[k])
-            try:
-                X[k + 1] = self._step(X[k], U[k])
-            except SimulationError as e:
-                raise SimulationError(f"step {k}: {e}") from None
-        return X, U
+        return feedback_rollout(self._step, x0, Ubar, Xbar, K, kappa, eps)
 
     def clip_to_limits(self, U: np.ndarray) -> np.ndarray:
         """U: [..., nu] clipped to ±effort limit per actuator (no limit: unchanged): what
