@@ -95,3 +95,18 @@ def cartpole_rollout():
     U = 5.0 * rng.standard_normal((30, 1))
     X = task.dynamics.rollout(task.x0, U)
     return task, X, U
+
+
+def rollout_plan(task, U, cost: float | None = None):
+    """A plan that is just the rollout of U: [N, nu] from the task's x0 (no solve), as a
+    Solution with zero gains; its cost is the task's unless ``cost`` is given."""
+    from hydroilqr.solver.solution import PHASES, Solution
+
+    dyn = task.dynamics
+    N = U.shape[0]
+    X = dyn.rollout(task.x0, U)
+    J = task.cost.total(X, U) if cost is None else cost
+    return Solution(
+        X, U, np.zeros((N, dyn.nu, dyn.nx)), np.zeros((N, dyn.nu)), dyn.dt * np.arange(N + 1),
+        np.array([J]), [], {p: [] for p in PHASES}, False, "max_iterations", "autodiff",
+    )  # fmt: skip

@@ -10,7 +10,7 @@ from hydroilqr import Task
 from hydroilqr.control.playback import PlaybackSettings, _pd_check, actuated_joints, playback
 from hydroilqr.model.plant import Dynamics
 from hydroilqr.problem.config import ConfigError, with_overrides
-from hydroilqr.solver.solution import PHASES, Solution
+from tests.conftest import rollout_plan
 
 NO_ROTORS = [f"actuators.joint_{i}.rotor_inertia=0" for i in range(1, 8)]
 
@@ -75,12 +75,7 @@ def test_playback_measures_where_the_object_comes_to_rest():
     dyn = task.dynamics
     N = task.steps
     U = task.initial_guess(N)
-    X = dyn.rollout(task.x0, U)
-    sol = Solution(
-        X, U, np.zeros((N, dyn.nu, dyn.nx)), np.zeros((N, dyn.nu)), dyn.dt * np.arange(N + 1),
-        np.array([task.cost.total(X, U)]), [], {p: [] for p in PHASES}, False, "max_iterations",
-        "autodiff",
-    )  # fmt: skip
+    sol = rollout_plan(task, U)
     st = PlaybackSettings(speed=1.0, truth_time_step=0.002, rest_max=0.3, rest_time=0.05)
     r = playback(task, sol, st)
     m = r.metrics

@@ -11,6 +11,7 @@ from hydroilqr.output import report
 from hydroilqr.problem.config import ConfigError
 from hydroilqr.problem.task import Task
 from hydroilqr.solver.api import solve
+from tests.conftest import rollout_plan
 
 
 @pytest.fixture(scope="module")
@@ -212,7 +213,6 @@ def test_replay_frames_use_the_solved_inputs_and_the_nearest_state(monkeypatch, 
 def test_reference_lists_the_torques_that_acted_in_the_plan():
     """A planned command beyond an effort limit acted at the limit in the plan: the exported
     feed-forward (and the PD+ law's ū) hold the limit, not the command."""
-    from hydroilqr.solver.solution import PHASES, Solution
 
     task = Task.load("kinova-forward", ["solver.autodiff_workers=1"], smoke=True)
     dyn = task.dynamics
@@ -220,12 +220,7 @@ def test_reference_lists_the_torques_that_acted_in_the_plan():
     N = task.steps
     U = task.initial_guess(N)
     U[:, 5] = 3.0 * lim[5]  # beyond the wrist's limit all along
-    X = dyn.rollout(task.x0, U)
-    sol = Solution(
-        X, U, np.zeros((N, dyn.nu, dyn.nx)), np.zeros((N, dyn.nu)), dyn.dt * np.arange(N + 1),
-        np.array([task.cost.total(X, U)]), [], {p: [] for p in PHASES}, False, "max_iterations",
-        "autodiff",
-    )  # fmt: skip
+    sol = rollout_plan(task, U)
     r = playback(task, sol, PlaybackSettings(speed=1.0, truth_time_step=0.002))
     assert np.all(np.abs(r.reference.u) <= lim + 1e-12)
     assert np.allclose(r.reference.u[:, 5], lim[5])

@@ -8,15 +8,13 @@ import pytest
 from hydroilqr.control.playback import PlanSampler, PlaybackSettings, feedforward, playback
 from hydroilqr.problem.config import ConfigError
 from hydroilqr.problem.task import Task
-from tests.conftest import write_task
+from tests.conftest import rollout_plan, write_task
 
 
 @pytest.fixture(scope="module")
 def acrobot(tmp_path_factory):
     """The tiny acrobot task (gravity loads its actuated elbow) and a hand-made plan on it:
     a rollout of a swinging elbow torque, no solve."""
-    from hydroilqr.solver.solution import PHASES, Solution
-
     task = Task.load(
         str(
             write_task(
@@ -24,14 +22,9 @@ def acrobot(tmp_path_factory):
             )
         )
     )
-    dyn, N = task.dynamics, task.steps
+    N = task.steps
     U = np.array([[2.0 * np.sin(0.7 * k)] for k in range(N)])
-    X = dyn.rollout(task.x0, U)
-    sol = Solution(
-        X, U, np.zeros((N, dyn.nu, dyn.nx)), np.zeros((N, dyn.nu)), dyn.dt * np.arange(N + 1),
-        np.array([0.0]), [], {p: [] for p in PHASES}, False, "max_iterations", "autodiff",
-    )  # fmt: skip
-    return task, sol
+    return task, rollout_plan(task, U, cost=0.0)
 
 
 def _settings(**kw):
