@@ -188,10 +188,6 @@ class EnsembleCost:
         with np.errstate(over="ignore", invalid="ignore"):
             return float(np.sum(self.stage_costs(X, U, t0)))
 
-    def member_totals(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> list[float]:
-        """Each member's own (unweighted) cost J_m(X_m, U)."""
-        return [c.total(X[:, b], U, t0) for c, b in zip(self.members, self.blocks)]
-
     def breakdown(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> dict[str, float]:
         """Each named term (Q.<block>, Qf.<block>, R) summed over the members with weights."""
         out: dict[str, float] = {}
