@@ -110,6 +110,7 @@ def test_ensemble_cost_is_the_weighted_sum(robust):
 
 
 def test_robust_solve_decreases_the_summed_cost(robust):
+    robust = robust.with_overrides({"ensemble_warm_start": False})  # from the guess itself
     robust.validate()
     sol = solve(robust)
     n = robust.dynamics.nx
@@ -125,6 +126,26 @@ def test_robust_solve_decreases_the_summed_cost(robust):
     assert sum(m["weight"] * m["final_cost"] for m in members) == pytest.approx(sol.final_cost)
     assert members[0]["final_cost"] == pytest.approx(robust.cost.total(sol.X, sol.U))
     assert all(np.isfinite(m["terminal_error"]) for m in members)
+
+
+def test_warm_start_solves_the_task_alone_first(task, robust):
+    warm = solve(task)  # the task alone, from its initial guess
+    sol = solve(robust)  # ensemble_warm_start: true (the default)
+    problem = ensemble_problem(robust)
+    ensemble_cost = lambda U: problem.cost.total(problem.dynamics.rollout(problem.x0, U), U)  # noqa: E731
+    info = sol.extra["ensemble"]
+    assert info["warm_start"]["iterations"] == warm.iterations
+    assert info["warm_start"]["final_cost"] == pytest.approx(warm.final_cost)
+    # the history: the warm start's (the task's own cost), then the ensemble solve's
+    np.testing.assert_array_equal(sol.costs[: warm.iterations + 1], warm.costs)
+    assert sol.iterations > warm.iterations
+    assert info["ensemble_start_cost"] == pytest.approx(ensemble_cost(warm.U))
+    assert sol.final_cost == pytest.approx(ensemble_cost(sol.U))
+    assert sol.final_cost <= info["ensemble_start_cost"]
+    # the status is judged from the ensemble objective of the guess, not the task's own cost
+    assert info["guess_ensemble_cost"] == pytest.approx(ensemble_cost(robust.initial_guess(10)))
+    assert sol.final_cost < info["guess_ensemble_cost"]
+    assert sol.status in ("converged", "stalled", "max_iterations")
 
 
 def test_without_ensemble_the_solve_is_unchanged(task):

@@ -3,6 +3,9 @@ size, played back open loop (PD+, the paper's gains, half speed) on the "real" s
 and the object's resting gap (where it rests against where the plan puts it to rest) and its
 distance to the target at rest must not exceed the committed baseline (a ratchet: a gap
 that has been reached must stay reached); a lift must keep its fraction of the planned rise.
+Tasks with ``mismatch`` baselines are also played back with the plan's feedback policy at full
+speed on "real" systems whose ball differs from the planned one (friction -30 % / +30 %, mass
+-20 % / +20 %: the baseline file's ``mismatch.cases``), each resting gap held to its baseline.
 
 Baselines and tolerance: tests/transfer_baseline.json. After a change that makes transfer
 better, lower the baseline to the new numbers (``python tests/integration/test_transfer.py`` prints
@@ -17,6 +20,8 @@ import json
 import os
 from pathlib import Path
 
+import hydroilqr
+
 import numpy as np
 import pytest
 
@@ -25,6 +30,7 @@ from hydroilqr.control.playback import PlaybackSettings, playback
 from hydroilqr.solver.api import solve
 
 BASELINE = Path(__file__).parents[1] / "transfer_baseline.json"
+MODELS = Path(hydroilqr.__file__).parent / "models"  # {models} in a mismatch case
 
 
 def _baseline() -> dict:
@@ -58,7 +64,20 @@ def measure(name: str) -> dict:
         "kept_lift_fraction": float((z_end - z0) / lift) if abs(lift) > 0.02 else None,
         "rested": ob["rest"]["actual"]["rested"],
         "warnings": r.metrics["warnings"],
+        **_mismatch(task, sol, spec, name),
     }
+
+
+def _mismatch(task, sol, spec: dict, name: str) -> dict:
+    """Resting gap per mismatch case of the baseline file, for a task that has them."""
+    if "mismatch_resting_gap_m" not in spec["tasks"][name]:
+        return {}
+    mm, gaps = spec["mismatch"], {}
+    for case, overrides in mm["cases"].items():
+        truth = [o.replace("{models}", str(MODELS)) for o in overrides]
+        st = PlaybackSettings(policy=mm["policy"], speed=mm["speed"], truth_overrides=truth)
+        gaps[case] = playback(task, sol, st).metrics["object"]["resting_gap"]
+    return {"mismatch_resting_gap_m": gaps}
 
 
 @pytest.mark.parametrize("name", sorted(_baseline()["tasks"]))
@@ -83,6 +102,13 @@ def test_transfer_does_not_regress(name):
             f"{name}: the plan rests the ball {got['planned_resting_target_error_m']:.4f} m from "
             f"its target > baseline {want['planned_resting_target_error_m']:.4f} m "
             f"(limit {limit:.4f} m)"
+        )
+    for case, gap in want.get("mismatch_resting_gap_m", {}).items():
+        limit = gap * (1 + rel) + floor
+        got_gap = got["mismatch_resting_gap_m"][case]
+        assert got_gap <= limit, (
+            f"{name}, {case} (--policy {spec['mismatch']['policy']}): resting gap "
+            f"{got_gap:.4f} m > baseline {gap:.4f} m (limit {limit:.4f} m)"
         )
     if want.get("kept_lift_fraction") is not None:
         keep = want["kept_lift_fraction"] - spec["tolerance"]["lift_fraction"]

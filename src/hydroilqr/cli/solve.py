@@ -233,6 +233,12 @@ def _print_header(task, out: Path) -> None:
         console.print(
             f"ensemble: one plan against the task and {len(cfg.ensemble)} perturbed model(s) "
             f"({members}), each weighted {cfg.ensemble_weight:g}; costs are the weighted sum"
+            + (
+                ", after the task alone has been solved (ensemble_warm_start; the iteration "
+                "count restarts at the ensemble stage)"
+                if cfg.ensemble_warm_start
+                else ""
+            )
         )
 
 

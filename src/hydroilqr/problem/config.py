@@ -52,6 +52,7 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
                                   # [{ball.friction: 0.14}, {ball.friction: 0.26}]) that one
                                   # control sequence is optimized against with the task itself
     ensemble_weight: 1.0          # cost weight of each perturbed member (the task's: 1)
+    ensemble_warm_start: true     # solve the task alone first and start the ensemble from it
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
@@ -393,6 +394,9 @@ class TaskConfig:
     ensemble: list[dict[str, Any]] = field(default_factory=list)
     # The cost weight of each perturbed member relative to the nominal's 1 (>= 0).
     ensemble_weight: float = 1.0
+    # Solve the task alone first (from its initial guess) and start the ensemble solve from
+    # that plan; false: the ensemble solve starts from the initial guess itself.
+    ensemble_warm_start: bool = True
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
@@ -1222,7 +1226,13 @@ def validate(cfg: TaskConfig) -> None:
 
 # Keys a continuation stage or an ensemble member cannot override (the time grid and start).
 _FIXED_KEYS = ("continuation", "receding_horizon", "smoke", "name", "horizon", "num_steps")
-_FIXED_KEYS += ("initial_state", "initial_guess", "ensemble", "ensemble_weight")
+_FIXED_KEYS += (
+    "initial_state",
+    "initial_guess",
+    "ensemble",
+    "ensemble_weight",
+    "ensemble_warm_start",
+)
 
 
 def _check_overrides(section: str, i: int, item: Any, why: str, fixed=()) -> None:

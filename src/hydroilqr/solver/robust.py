@@ -2,8 +2,10 @@
 
 The stacked problem (the task itself, the nominal, first; then each member of
 ``Task.members()``) is solved from the task's initial state x0 given to every member (the
-real start does not depend on which model is right) with the task's initial guess, by the
-ordinary iLQR loop. The Solution is then put in the nominal's terms:
+real start does not depend on which model is right), by the ordinary iLQR loop. With
+``ensemble_warm_start`` (the default) the task alone is solved first from the initial guess
+and the ensemble solve starts from that plan; otherwise from the initial guess itself.
+The Solution is then put in the nominal's terms:
 
 * X: [N+1, n], the nominal member's states; U, kappa, costs, status, reason as solved (the
   costs are those of the ensemble objective Σ_m w_m J_m, which the stopping tests judged);
@@ -13,7 +15,15 @@ ordinary iLQR loop. The Solution is then put in the nominal's terms:
   K_m (x̄_m − x̄_nominal) of the perturbed members' trajectories. The stored K_eff is about
   the nominal trajectory (the offsets are dropped, so u = ū at x = x̄_nominal);
 * ``extra["ensemble"]``: the weight, and per member (nominal first, overrides {}) its
-  overrides, weight, final cost J_m, terminal cost and terminal error.
+  overrides, weight, final cost J_m, terminal cost and terminal error; after a warm start,
+  ``warm_start`` (the task-alone solve: iterations, costs, seconds, reason) and
+  ``ensemble_start_cost`` (the ensemble objective of the warm plan).
+
+After a warm start the iteration histories (costs, times, step sizes) are the warm start's
+(the task's own cost) followed by the ensemble solve's (the ensemble objective); the status
+is judged from the ensemble objective of the initial guess to its final value, so a robust
+stage that only keeps the warm plan still counts the warm start's progress, while a guess
+whose ensemble rollout fails is judged from the warm plan's ensemble cost.
 """
 
 from __future__ import annotations
@@ -23,10 +33,12 @@ import dataclasses
 import numpy as np
 
 from hydroilqr.model.ensemble import EnsembleCost, EnsembleDynamics, EnsembleLinearizer
+from hydroilqr.model.plant import SimulationError
 from hydroilqr.problem.task import Task
+from hydroilqr.solver import stopping
 from hydroilqr.solver.ilqr import Problem
 from hydroilqr.solver.loop import solve as ilqr_solve
-from hydroilqr.solver.solution import Solution
+from hydroilqr.solver.solution import PHASES, Solution
 
 
 def ensemble_problem(task: Task, x0: np.ndarray | None = None) -> Problem:
@@ -44,13 +56,67 @@ def solve_ensemble(
 ) -> Solution:
     """Solves ``task``'s ensemble problem from U0: [N, nu] (x0: [n] or None for the task's);
     the Solution in the nominal's terms (module docstring). Callbacks see the stacked
-    iterates (IterationInfo.X: [N+1, M·n])."""
+    iterates (IterationInfo.X: [N+1, M·n]), after those of the warm start (the task's own,
+    [N+1, n]). Interrupted or stopped by a callback during the warm start: that plan, as the
+    task's own solve (no ensemble stage)."""
     problem = ensemble_problem(task, x0)
+    warm = None
+    if task.config.ensemble_warm_start:
+        guess_cost = _objective(problem, U0)
+        warm = ilqr_solve(task.problem(x0=x0), U0, settings, callbacks, stop_on_interrupt=True)
+        if warm.reason in ("interrupted", "callback"):
+            if warm.reason == "interrupted" and not stop_on_interrupt:
+                raise KeyboardInterrupt
+            return warm
+        U0 = warm.U
     lin = EnsembleLinearizer.from_settings(problem.dynamics, settings)
     sol = ilqr_solve(
         problem, U0, settings, callbacks, stop_on_interrupt=stop_on_interrupt, linearizer=lin
     )
-    return nominal_solution(task, problem, sol)
+    sol = nominal_solution(task, problem, sol)
+    return sol if warm is None else _after_warm_start(warm, sol, guess_cost)
+
+
+def _objective(problem: Problem, U: np.ndarray) -> float | None:
+    """The ensemble objective of U: [N, nu] (None if a member's rollout fails)."""
+    try:
+        X = problem.dynamics.rollout(problem.x0, U)
+    except SimulationError:
+        return None
+    return float(problem.cost.total(X, U, problem.t0))
+
+
+def _after_warm_start(warm: Solution, sol: Solution, guess_cost: float | None) -> Solution:
+    """The ensemble Solution ``sol`` with the warm start's history put before its own and its
+    status judged from the guess's ensemble objective (module docstring)."""
+    start = sol.costs[0] if guess_cost is None else guess_cost
+    status = stopping.status(sol.reason, [start, sol.costs[-1]])
+    ensemble = {
+        **sol.extra["ensemble"],
+        "costs": "the task's own cost over the warm start's iterations, then the ensemble "
+        "objective (the weighted sum over the members); final_cost is the ensemble's",
+        "warm_start": {
+            "iterations": warm.iterations,
+            "start_cost": float(warm.costs[0]),
+            "final_cost": warm.final_cost,
+            "seconds": warm.total_seconds,
+            "reason": warm.reason,
+        },
+        "ensemble_start_cost": float(sol.costs[0]),
+        **({"guess_ensemble_cost": guess_cost} if guess_cost is not None else {}),
+    }
+    steps = [*warm.extra.get("derivative_steps", []), *sol.extra.get("derivative_steps", [])]
+    return dataclasses.replace(
+        sol,
+        costs=np.concatenate([warm.costs, sol.costs[1:]]),
+        iteration_seconds=[*warm.iteration_seconds, *sol.iteration_seconds],
+        phase_seconds={k: [*warm.phase_seconds[k], *sol.phase_seconds[k]] for k in PHASES},
+        eps=[*warm.eps, *sol.eps],
+        mu=[*warm.mu, *sol.mu],
+        status=status,
+        converged=stopping.is_converged(status),
+        extra={**sol.extra, "derivative_steps": steps, "ensemble": ensemble},
+    )
 
 
 def nominal_solution(task: Task, problem: Problem, sol: Solution) -> Solution:
