@@ -20,11 +20,10 @@ import json
 import os
 from pathlib import Path
 
-import hydroilqr
-
 import numpy as np
 import pytest
 
+import hydroilqr
 from hydroilqr import Task
 from hydroilqr.control.playback import PlaybackSettings, playback
 from hydroilqr.solver.api import solve
