@@ -146,6 +146,11 @@ def _print_header(task, settings) -> None:
     )
     if settings.truth_overrides:
         console.print(f"simulated plant differs: {', '.join(settings.truth_overrides)}")
+    if task.config.ensemble:
+        console.print(
+            f"ensemble: not used; mpc re-plans on the task's own model (the task's "
+            f"{len(task.config.ensemble)} perturbed member(s) are for `solve`)"
+        )
 
 
 def _simulate(task, settings):

@@ -80,12 +80,8 @@ MPCSettings = MPCConfig
 
 
 def check_settings(settings: MPCSettings, task) -> None:
-    """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``)."""
-    if task.config.ensemble:
-        raise ConfigError(
-            "ensemble: robust (ensemble) solves are for single solves, not mpc "
-            "(--set 'ensemble=[]' plans against the nominal model only)"
-        )
+    """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``).
+    A task's ``ensemble:`` is not used: MPC re-plans on the task's own model."""
     dt = task.config.plant.time_step
     _check_timing(settings, dt)
     _check_iteration(settings)
