@@ -192,6 +192,10 @@ CASES = [
         edit(ensemble=[{"plant.gravity": [0, 0, -9]}], continuation=[{"plant.gravity": [0, 0, 1]}]),
         "ensemble: not supported together with continuation",
     ),
+    ("mismatch-not-a-mapping", edit(mismatch={"lighter": 0.8}), "mismatch.lighter: expected"),
+    ("mismatch-bad-name", edit(mismatch={"a b": {"tip.friction": 0.1}}), "mismatch: 'a b'"),
+    ("mismatch-solver", edit(mismatch={"x": {"solver.max_iterations": 2}}), "mismatch.x: solver"),
+    ("mismatch-unknown-body", edit(mismatch={"x": {"tipp.friction": 0.1}}), "mismatch.x: geom"),
 ]
 
 

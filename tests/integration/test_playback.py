@@ -299,3 +299,26 @@ def test_pd_loop_options_with_the_ilqr_policy_are_refused_not_ignored(run_dir, t
     assert rc == 2 and "--kp: options of the PD+ loop" in capsys.readouterr().err
     rc = main(["playback", str(run_dir), "--policy", "ilqr", "--kd", "1", "--rate", "200"])
     assert rc == 2 and "--kd, --rate: options" in capsys.readouterr().err
+
+
+def test_mismatch_case_plays_as_its_truth_overrides(tmp_path, capsys):
+    from hydroilqr.cli import main
+
+    task = Task.load(
+        "cartpole-wall",
+        ["num_steps=20", "solver.max_iterations=2", "mismatch={soft: {tip.friction: 0.05}}"],
+        smoke=True,
+    )
+    run = tmp_path / "run"
+    report.write_outputs(task, solve(task), run, replay=False)
+    args = ["playback", str(run), "--policy", "ilqr", "--no-replay", "--out"]
+    assert main([*args, str(tmp_path / "a"), "--mismatch", "soft"]) == 0
+    assert main([*args, str(tmp_path / "b"), "--truth-set", "tip.friction=0.05"]) == 0
+    a, b = (json.loads((tmp_path / d / "playback.json").read_text()) for d in "ab")
+    assert a["truth"]["overrides"] == b["truth"]["overrides"] == ["tip.friction=0.05"]
+    assert a["object"]["final_gap"] == b["object"]["final_gap"]
+    capsys.readouterr()
+    assert main([*args, str(tmp_path / "c"), "--mismatch", "hard"]) == 2
+    err = capsys.readouterr().err
+    assert "--mismatch hard: cartpole-wall has no such case (it has: soft)" in err
+    assert len(err.strip().splitlines()) == 1

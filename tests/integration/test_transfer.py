@@ -3,9 +3,9 @@ size, played back open loop (PD+, the paper's gains, half speed) on the "real" s
 and the object's resting gap (where it rests against where the plan puts it to rest) and its
 distance to the target at rest must not exceed the committed baseline (a ratchet: a gap
 that has been reached must stay reached); a lift must keep its fraction of the planned rise.
-Tasks with ``mismatch`` baselines are also played back with the plan's feedback policy at full
-speed on "real" systems whose ball differs from the planned one (friction -30 % / +30 %, mass
--20 % / +20 %: the baseline file's ``mismatch.cases``), each resting gap held to its baseline.
+Tasks with ``mismatch_resting_gap_m`` baselines are also played back with the plan's feedback
+policy at full speed on each of the task's ``mismatch:`` cases (the Kinova tasks: the ball's
+friction -30 % / +30 %, mass -20 % / +20 %), each resting gap held to its baseline.
 
 Baselines and tolerance: tests/transfer_baseline.json. After a change that makes transfer
 better, lower the baseline to the new numbers (``python tests/integration/test_transfer.py`` prints
@@ -23,13 +23,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hydroilqr
 from hydroilqr import Task
 from hydroilqr.control.playback import PlaybackSettings, playback
+from hydroilqr.problem.config import mismatch_overrides
 from hydroilqr.solver.api import solve
 
 BASELINE = Path(__file__).parents[1] / "transfer_baseline.json"
-MODELS = Path(hydroilqr.__file__).parent / "models"  # {models} in a mismatch case
 
 
 def _baseline() -> dict:
@@ -68,12 +67,12 @@ def measure(name: str) -> dict:
 
 
 def _mismatch(task, sol, spec: dict, name: str) -> dict:
-    """Resting gap per mismatch case of the baseline file, for a task that has them."""
+    """Resting gap per mismatch case of the task, for a task whose baseline has them."""
     if "mismatch_resting_gap_m" not in spec["tasks"][name]:
         return {}
     mm, gaps = spec["mismatch"], {}
-    for case, overrides in mm["cases"].items():
-        truth = [o.replace("{models}", str(MODELS)) for o in overrides]
+    for case in task.config.mismatch:
+        truth = mismatch_overrides(task.config, case)
         st = PlaybackSettings(policy=mm["policy"], speed=mm["speed"], truth_overrides=truth)
         gaps[case] = playback(task, sol, st).metrics["object"]["resting_gap"]
     return {"mismatch_resting_gap_m": gaps}
@@ -104,6 +103,7 @@ def test_transfer_does_not_regress(name):
         )
     for case, gap in want.get("mismatch_resting_gap_m", {}).items():
         limit = gap * (1 + rel) + floor
+        assert case in got["mismatch_resting_gap_m"], f"{name}: no mismatch case {case!r}"
         got_gap = got["mismatch_resting_gap_m"][case]
         assert got_gap <= limit, (
             f"{name}, {case} (--policy {spec['mismatch']['policy']}): resting gap "

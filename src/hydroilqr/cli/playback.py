@@ -69,6 +69,14 @@ def setup(p) -> None:
         help="override a task key of the 'real' system only, e.g. ball.friction=0.3 (repeatable)",
     )
     p.add_argument(
+        "--mismatch",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="play against one of the task's named model errors (its mismatch: section, e.g. "
+        "friction-30 on the Kinova tasks): its overrides go before any --truth-set (repeatable)",
+    )
+    p.add_argument(
         "--object",
         help="state block compared planned vs actual (default: the "
         "floating body, else the unactuated joint the plan moves most, else the first joint)",
@@ -126,6 +134,7 @@ def run(args) -> int:
 def _settings(args):
     """The solved run's task and solution, and the PlaybackSettings the options ask for."""
     from hydroilqr.control.playback import PlaybackSettings, load_run
+    from hydroilqr.problem.config import mismatch_overrides
 
     pd_loop = {
         k: getattr(args, k)
@@ -138,6 +147,7 @@ def _settings(args):
             "applies the plan's own gains K once per plan step"
         )
     task, sol, _ = load_run(args.dir)
+    mismatch = [o for name in args.mismatch for o in mismatch_overrides(task.config, name)]
     settings = PlaybackSettings(
         speed=args.speed,
         **pd_loop,  # the rest: PlaybackSettings' defaults
@@ -145,7 +155,7 @@ def _settings(args):
         policy=args.policy,
         truth_time_step=args.truth_time_step,
         truth_contact=args.truth_contact,
-        truth_overrides=list(args.truth_set or []),
+        truth_overrides=[*mismatch, *(args.truth_set or [])],
         clip_torques=not args.no_clip,
         scale_velocity_reference=not args.no_velocity_scaling,
         object=args.object,
@@ -173,6 +183,8 @@ def _print_header(task, settings, out: Path) -> None:
         f"(plan dt={task.config.plant.time_step:g} "
         f"contact={task.config.plant.contact_approximation}) -> {out}"
     )
+    if settings.truth_overrides:
+        console.print(f"real system differs: {', '.join(settings.truth_overrides)}")
     from hydroilqr.control.playback import damping_note
 
     note = damping_note(task.config.plant.contact_approximation, truth_contact)

@@ -53,6 +53,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
                                   # control sequence is optimized against with the task itself
     ensemble_weight: 1.0          # cost weight of each perturbed member (the task's: 1)
     ensemble_warm_start: true     # solve the task alone first and start the ensemble from it
+    mismatch: {}                  # named model errors a plan is played back against
+                                  # (`playback --mismatch NAME`, results page), e.g.
+                                  # {friction-30: {ball.friction: 0.14}}
     mpc:                          # defaults for `hydroilqr mpc` (see MPCConfig, docs/mpc.md)
       {rate: 50, horizon: 0.3, iterations_per_update: 1, duration: 2.0,
        shrinking_horizon: false, derivative_reuse_tolerance: 0, derivative_steps_per_update: 0}
@@ -71,6 +74,7 @@ import copy
 import dataclasses
 import difflib
 import enum
+import json
 import math
 import re
 import types
@@ -397,6 +401,10 @@ class TaskConfig:
     # Solve the task alone first (from its initial guess) and start the ensemble solve from
     # that plan; false: the ensemble solve starts from the initial guess itself.
     ensemble_warm_start: bool = True
+    # Named model errors to check a plan against: each a mapping of dotted overrides of the
+    # "real" system in playback (the keys --truth-set takes), e.g. {friction-30: {ball.friction:
+    # 0.14}}; `playback --mismatch NAME` applies one, the results page plays back every one.
+    mismatch: dict[str, dict[str, Any]] = field(default_factory=dict)
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
@@ -936,6 +944,13 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     # dotted overrides (smoke:, continuation stages) name paths too
     if isinstance(data.get("smoke"), dict):
         data["smoke"] = {k: cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
+    if isinstance(data.get("mismatch"), dict):
+        data["mismatch"] = {
+            name: {k: cwd_path(k, v, base_dir) for k, v in case.items()}
+            if isinstance(case, dict)
+            else case
+            for name, case in data["mismatch"].items()
+        }
     for section in ("continuation", "ensemble"):
         if isinstance(data.get(section), list):
             data[section] = [
@@ -1201,6 +1216,7 @@ def validate(cfg: TaskConfig) -> None:
     """Checks that do not need the model (the model-dependent ones live in plant.py/state.py)."""
     _validate_continuation(cfg)
     _validate_ensemble(cfg)
+    _validate_mismatch(cfg)
     if not cfg.models:
         raise ConfigError("models: at least one model file is required")
     _validate_names(cfg)
@@ -1232,6 +1248,7 @@ _FIXED_KEYS += (
     "ensemble",
     "ensemble_weight",
     "ensemble_warm_start",
+    "mismatch",
 )
 
 
@@ -1270,6 +1287,36 @@ def _validate_ensemble(cfg: TaskConfig) -> None:
         raise ConfigError("ensemble: for single solves (not with receding_horizon)")
     if cfg.ensemble and cfg.continuation:
         raise ConfigError("ensemble: not supported together with continuation (use one of them)")
+
+
+def _validate_mismatch(cfg: TaskConfig) -> None:
+    """Each case: a name usable on the command line and a mapping of dotted keys of the
+    sections the simulated plant uses (as --truth-set)."""
+    if not isinstance(cfg.mismatch, dict):
+        raise ConfigError("mismatch: expected a mapping of names to mappings of dotted keys")
+    for name, case in cfg.mismatch.items():
+        if not (isinstance(name, str) and name and all(c.isalnum() or c in "+-_." for c in name)):
+            raise ConfigError(f"mismatch: {name!r}: a name of letters, digits and + - _ . only")
+        if not isinstance(case, dict) or not case:
+            raise ConfigError(
+                f"mismatch.{name}: expected a mapping of dotted keys to values, e.g. "
+                "{ball.friction: 0.14}"
+            )
+        try:
+            check_truth_overrides([f"{k}=0" for k in case])
+        except ConfigError as e:
+            raise ConfigError(f"mismatch.{name}: {str(e).removeprefix('--truth-set ')}") from None
+
+
+def mismatch_overrides(cfg: TaskConfig, name: str) -> list[str]:
+    """The ``KEY=VALUE`` truth overrides of the task's mismatch case ``name``, relative paths
+    in it made absolute (relative to the task file); ConfigError if it has none."""
+    if name not in cfg.mismatch:
+        known = ", ".join(cfg.mismatch) or "none"
+        raise ConfigError(f"--mismatch {name}: {cfg.name} has no such case (it has: {known})")
+    base = Path(cfg.base_dir) if cfg.base_dir else None
+    case = {k: cwd_path(k, v, base) for k, v in cfg.mismatch[name].items()}
+    return [f"{k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in case.items()]
 
 
 def _validate_names(cfg: TaskConfig) -> None:

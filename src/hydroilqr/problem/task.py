@@ -18,7 +18,14 @@ import numpy as np
 
 from hydroilqr.model.cost import QuadraticCost
 from hydroilqr.model.plant import Dynamics, SimulationError
-from hydroilqr.problem.config import ConfigError, TaskConfig, build_task, load_task, with_overrides
+from hydroilqr.problem.config import (
+    ConfigError,
+    TaskConfig,
+    build_task,
+    load_task,
+    mismatch_overrides,
+    with_overrides,
+)
 from hydroilqr.solver.ilqr import Problem, check_finite
 
 
@@ -144,12 +151,23 @@ class Task:
         self.initial_guess(self.steps)
         self._check_variants("continuation", self.stages())
         self._check_variants("ensemble", self.members())
+        self._check_mismatch()
         from hydroilqr import metrics as metrics_mod
 
         metrics_mod.validate(self)  # metric names and metric_params
         from hydroilqr.metrics.goals import check_names
 
         check_names(self)  # a goal names metrics the task reports
+
+    def _check_mismatch(self) -> None:
+        """Each mismatch case builds: its keys and files exist (the plant it changes)."""
+        for name in self.config.mismatch:
+            try:
+                _ = Task(
+                    with_overrides(self.config, mismatch_overrides(self.config, name))
+                ).dynamics
+            except ConfigError as e:
+                raise ConfigError(f"mismatch.{name}: {e}") from None
 
     def _check_variants(self, section: str, tasks: list[Task]) -> None:
         """Each continuation stage or ensemble member builds, with this task's nx and nu."""
