@@ -146,6 +146,10 @@ def test_warm_start_solves_the_task_alone_first(task, robust):
     assert info["guess_ensemble_cost"] == pytest.approx(ensemble_cost(robust.initial_guess(10)))
     assert sol.final_cost < info["guess_ensemble_cost"]
     assert sol.status in ("converged", "stalled", "max_iterations")
+    # its explanation names the objective it was judged on, from the guess's value
+    from hydroilqr.solver.explain import explain
+
+    assert f"ensemble objective {info['guess_ensemble_cost']:.6g} -> " in explain(sol, robust)
 
 
 def test_without_ensemble_the_solve_is_unchanged(task):

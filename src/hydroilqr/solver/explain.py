@@ -14,7 +14,7 @@ def explain(sol: Solution, task) -> str:
     """A one-sentence explanation of ``sol.status`` (see ``hydroilqr.solver.stopping``) for a
     solve of ``task``, with the likely cause; for a receding-horizon run, of its worst
     window."""
-    costs = f"cost {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
+    costs = _costs(sol)
     status = sol.status
     if status == "no_progress":
         return _no_progress(sol, task, costs)
@@ -41,6 +41,20 @@ def explain(sol: Solution, task) -> str:
     if "resolves" in sol.extra:
         text = f"{sol.reason}; the worst window: {text}"
     return text
+
+
+def _costs(sol: Solution) -> str:
+    """'cost A -> B': from the initial guess's cost to the final one; for an ensemble solve,
+    of the ensemble objective (what its status was judged on; after a warm start whose guess
+    could not be rolled out on every member, from the warm plan's)."""
+    ens = sol.extra.get("ensemble")
+    if not isinstance(ens, dict):
+        return f"cost {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
+    if "warm_start" not in ens:
+        start = float(sol.costs[0])
+    else:
+        start = ens.get("guess_ensemble_cost", ens["ensemble_start_cost"])
+    return f"ensemble objective {start:.6g} -> {sol.final_cost:.6g}"
 
 
 def touches_tracked(task, X: np.ndarray) -> bool:
