@@ -196,6 +196,16 @@ CASES = [
     ("mismatch-bad-name", edit(mismatch={"a b": {"tip.friction": 0.1}}), "mismatch: 'a b'"),
     ("mismatch-solver", edit(mismatch={"x": {"solver.max_iterations": 2}}), "mismatch.x: solver"),
     ("mismatch-unknown-body", edit(mismatch={"x": {"tipp.friction": 0.1}}), "mismatch.x: geom"),
+    (
+        "mismatch-time-step",
+        edit(mismatch={"x": {"plant.time_step": 0.001}}),
+        "mismatch.x: plant.time_step: playback sets it with --truth-time-step",
+    ),
+    (
+        "mismatch-nested-contact",
+        edit(mismatch={"x": {"plant": {"contact_approximation": "sap"}}}),
+        "mismatch.x: plant.contact_approximation: playback sets it with --truth-contact",
+    ),
 ]
 
 

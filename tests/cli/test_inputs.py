@@ -39,3 +39,22 @@ def test_empty_guess_file_is_one_line(tmp_path, capsys):
     rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "empty.csv is empty")
+
+
+def test_command_line_paths_inside_override_sections_are_relative_to_the_working_directory(
+    tmp_path, monkeypatch
+):
+    from hydroilqr.problem.task import Task
+
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    overrides = ["mismatch={a: {models.0.file: m.urdf}}", "mismatch.b={models.0.file: n.urdf}"]
+    cfg = Task.load("kinova-left", overrides=overrides).config
+    assert cfg.mismatch["a"]["models.0.file"] == str(work / "m.urdf")
+    assert cfg.mismatch["b"]["models.0.file"] == str(work / "n.urdf")
+    kin = Task.load("kinova-left", overrides=["ensemble=[{models.1.file: b.sdf}]"]).config
+    assert kin.ensemble == [{"models.1.file": str(work / "b.sdf")}]
+    # a task file's own relative paths stay relative to it
+    base = Task.load("kinova-left").config
+    assert base.mismatch["mass-20"]["models.1.file"] == "../models/kinova_gen3/ball_light.sdf"

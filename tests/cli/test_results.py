@@ -65,7 +65,9 @@ def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
     assert [c["case"] for c in cases] == ["friction-30", "friction+30", "mass-20", "mass+20"]
     assert cases[0]["truth_overrides"] == ["ball.friction=0.14"]
     assert cases[2]["truth_overrides"][0].endswith("kinova_gen3/ball_light.sdf")
-    assert all(c["resting_gap_m"] >= 0 for c in cases)
+    assert all(c["resting_gap"] >= 0 and c["unit"] == "m" for c in cases)
     assert "## Transfer under model mismatch" in md and "| `kinova-forward` | `mass+20` |" in md
+    row = next(ln for ln in md.splitlines() if "| `friction-30` |" in ln)
+    assert row.split("|")[3].strip().endswith(" cm")
     assert "| `kinova-forward` | 0.520 | 0.530 | 0.380 | 1.4x | 1.4x | 1.6x |" in md
     assert "(load 0.4)" in md

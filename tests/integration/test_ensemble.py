@@ -136,10 +136,13 @@ def test_warm_start_solves_the_task_alone_first(task, robust):
     info = sol.extra["ensemble"]
     assert info["warm_start"]["iterations"] == warm.iterations
     assert info["warm_start"]["final_cost"] == pytest.approx(warm.final_cost)
-    # the history: the warm start's (the task's own cost), then the ensemble solve's
-    np.testing.assert_array_equal(sol.costs[: warm.iterations + 1], warm.costs)
+    # the history: the warm start's (the task's own cost), then from the warm plan on the
+    # ensemble objective
+    np.testing.assert_array_equal(sol.costs[: warm.iterations], warm.costs[:-1])
     assert sol.iterations > warm.iterations
     assert info["ensemble_start_cost"] == pytest.approx(ensemble_cost(warm.U))
+    assert sol.costs[warm.iterations] == info["ensemble_start_cost"]
+    assert sol.initial_cost == info["guess_ensemble_cost"]  # as final_cost: the ensemble's
     assert sol.final_cost == pytest.approx(ensemble_cost(sol.U))
     assert sol.final_cost <= info["ensemble_start_cost"]
     # the status is judged from the ensemble objective of the guess, not the task's own cost
@@ -190,3 +193,12 @@ def test_a_member_whose_coordinates_mean_other_joints_is_refused(tmp_path):
     task = Task.load(str(write_task(tmp_path, base, num_steps=5, ensemble=[member])))
     with pytest.raises(ConfigError, match=r"ensemble\[0\]: orders or names the state"):
         task.validate()
+
+
+def test_stopped_in_the_warm_start_says_the_plan_is_not_robust(robust):
+    from hydroilqr.solver.explain import explain
+
+    sol = solve(robust, callbacks=lambda info: True)  # stops after the first iteration
+    assert sol.reason == "callback" and sol.extra["ensemble"]["stopped_in"] == "warm_start"
+    assert sol.X.shape == (robust.steps + 1, robust.dynamics.nx)  # the task's own plan
+    assert "warm start: the plan is the task's own, not robust" in explain(sol, robust)

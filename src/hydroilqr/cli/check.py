@@ -73,6 +73,9 @@ def _continuation(r: dict) -> None:
         keys = ", ".join(f"{k}={v}" for k, v in member["overrides"].items())
         state = "guess rollout fails" if member.get("warning") else "guess rollout ok"
         console.print(f"  ensemble[{i}] (weight {member['weight']:g}, {state}): {keys}")
+    for name, case in r.get("mismatch", {}).items():
+        keys = ", ".join(f"{k}={v}" for k, v in case.items())
+        console.print(f"  mismatch {name} (playback --mismatch {name}): {keys}")
 
 
 def _floating_bodies(r: dict) -> None:

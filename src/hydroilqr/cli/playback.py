@@ -104,7 +104,7 @@ def run(args) -> int:
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
     task, sol, settings = _settings(args)
     out = _output_dir(task, args)
-    _print_header(task, settings, out)
+    _print_header(task, settings, out, args.mismatch)
     early = advisories(task.dynamics.plant, settings)
     for w in early:
         warn(w)
@@ -174,7 +174,12 @@ def _output_dir(task, args) -> Path:
     )
 
 
-def _print_header(task, settings, out: Path) -> None:
+def _repeats(settings) -> bool:
+    keys = [t.split("=", 1)[0] for t in settings.truth_overrides]
+    return len(set(keys)) < len(keys)
+
+
+def _print_header(task, settings, out: Path, mismatch: list[str]) -> None:
     truth_contact = settings.truth_contact_for(task)
     console.print(
         f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}"
@@ -184,7 +189,11 @@ def _print_header(task, settings, out: Path) -> None:
         f"contact={task.config.plant.contact_approximation}) -> {out}"
     )
     if settings.truth_overrides:
-        console.print(f"real system differs: {', '.join(settings.truth_overrides)}")
+        cases = f" (mismatch {', '.join(mismatch)})" if mismatch else ""
+        console.print(
+            f"real system differs{cases}: {', '.join(settings.truth_overrides)}"
+            + (" (a later setting of the same key wins)" if _repeats(settings) else "")
+        )
     from hydroilqr.control.playback import damping_note
 
     note = damping_note(task.config.plant.contact_approximation, truth_contact)

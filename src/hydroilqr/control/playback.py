@@ -58,7 +58,6 @@ from hydroilqr.problem.config import (
     TASKS_DIR,
     ConfigError,
     check_truth_overrides,
-    parse_override,
     task_from_dict,
     with_overrides,
 )
@@ -125,15 +124,7 @@ class PlaybackSettings:
     def check_against(self, task, plan_duration: float | None = None) -> None:
         """Settings that cannot fit ``task``'s plan (ConfigError); with ``plan_duration`` (s),
         also a playback too short (under one truth step) or too long to simulate."""
-        check_truth_overrides(self.truth_overrides)
-        own = {
-            "plant.time_step": "--truth-time-step",
-            "plant.contact_approximation": "--truth-contact",
-        }
-        for text in self.truth_overrides:
-            key = parse_override(text)[0]
-            if key in own:
-                raise ConfigError(f"--truth-set {key}: playback sets it with {own[key]}")
+        check_truth_overrides(self.truth_overrides)  # also the keys playback sets itself
         dt = task.config.plant.time_step
         if self.truth_time_step > dt * (1 + 1e-9):
             raise ConfigError(

@@ -175,8 +175,10 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         )
     done("model")
 
-    if cfg.continuation or cfg.ensemble:
-        task.validate()  # builds every stage and member: bad keys or sizes are named here
+    if cfg.continuation or cfg.ensemble or cfg.mismatch:
+        task.validate()  # builds every stage, member and mismatch case: bad keys named here
+    if cfg.mismatch:
+        out["mismatch"] = {name: dict(case) for name, case in cfg.mismatch.items()}
     if cfg.continuation:
         out["continuation"] = [dict(s) for s in cfg.continuation]
     if cfg.ensemble:

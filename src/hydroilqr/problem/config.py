@@ -609,6 +609,8 @@ def _group_free_keys(parts: list[str]) -> list[str]:
             return [*prefix, ".".join(parts[n:])]
     if parts[0] == "geometry" and len(parts) > 3:
         return ["geometry", ".".join(parts[1:-1]), parts[-1]]
+    if parts[0] == "mismatch" and len(parts) > 3:  # mismatch.CASE.ball.friction
+        return ["mismatch", parts[1], ".".join(parts[2:])]
     if parts[0] == "goal" and len(parts) > 3:  # a goal on a nested metric (duty_factor.FL)
         return ["goal", ".".join(parts[1:-1]), parts[-1]]
     return parts
@@ -688,16 +690,28 @@ TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant", "actuat
 
 
 def check_truth_overrides(overrides: list[str]) -> None:
-    """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...)."""
+    """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...)
+    or that playback sets itself (the time step and contact approximation)."""
     top = {f.name for f in dataclasses.fields(TaskConfig)}
     for text in overrides:
-        key, _ = parse_override(text)
+        key, value = parse_override(text)
         first = key.split(".")[0]
         if first in top and first not in TRUTH_SECTIONS:
             raise ConfigError(
                 f"--truth-set {key}: the simulated plant only uses {', '.join(TRUTH_SECTIONS)} "
                 "(and geometry/scene shorthands)"
             )
+        nested = value if key == "plant" and isinstance(value, dict) else {}
+        for own, option in PLAYBACK_OWN.items():
+            if key == own or own.split(".")[1] in nested:
+                raise ConfigError(f"--truth-set {own}: playback sets it with {option}")
+
+
+# Keys of the simulated plant that playback's own options set.
+PLAYBACK_OWN = {
+    "plant.time_step": "--truth-time-step",
+    "plant.contact_approximation": "--truth-contact",
+}
 
 
 def with_overrides(
@@ -962,8 +976,17 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
 def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
     """A relative file path given on the command line is relative to the working directory
     (``base``: to that directory instead, e.g. a task file's for its continuation stages).
-    An empty path stays empty (``cost.reference`` / ``mpc.warm_start_plan``: none)."""
+    An empty path stays empty (``cost.reference`` / ``mpc.warm_start_plan``: none). The paths
+    inside a whole section of overrides (``ensemble``, ``continuation``, ``mismatch`` or one
+    of its cases) are anchored the same way."""
     parts = key.split(".")
+    if parts[0] in ("ensemble", "continuation") and len(parts) == 1 and isinstance(value, list):
+        return [_anchor_mapping(v, base) for v in value]
+    if parts[0] == "mismatch" and isinstance(value, dict):
+        if len(parts) == 1:
+            return {name: _anchor_mapping(case, base) for name, case in value.items()}
+        if len(parts) == 2:
+            return _anchor_mapping(value, base)
     is_path = (
         key in ("initial_guess", "cost.reference", "mpc.warm_start_plan")
         or parts[0] == "package_map"
@@ -979,6 +1002,13 @@ def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
     ):
         return value
     return str((base or Path.cwd()) / Path(value).expanduser())
+
+
+def _anchor_mapping(overrides: Any, base: Path | None) -> Any:
+    """A mapping of dotted overrides with its relative paths anchored (``cwd_path``)."""
+    if not isinstance(overrides, dict):
+        return overrides
+    return {k: cwd_path(str(k), v, base) for k, v in overrides.items()}
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -1295,15 +1325,18 @@ def _validate_mismatch(cfg: TaskConfig) -> None:
     if not isinstance(cfg.mismatch, dict):
         raise ConfigError("mismatch: expected a mapping of names to mappings of dotted keys")
     for name, case in cfg.mismatch.items():
-        if not (isinstance(name, str) and name and all(c.isalnum() or c in "+-_." for c in name)):
-            raise ConfigError(f"mismatch: {name!r}: a name of letters, digits and + - _ . only")
+        ok = isinstance(name, str) and name and all(c.isalnum() or c in "+-_" for c in name)
+        if not ok or name.startswith("-"):
+            raise ConfigError(
+                f"mismatch: {name!r}: a name of letters, digits and + - _ only, not starting with -"
+            )
         if not isinstance(case, dict) or not case:
             raise ConfigError(
                 f"mismatch.{name}: expected a mapping of dotted keys to values, e.g. "
                 "{ball.friction: 0.14}"
             )
         try:
-            check_truth_overrides([f"{k}=0" for k in case])
+            check_truth_overrides([_override_text(k, v) for k, v in case.items()])
         except ConfigError as e:
             raise ConfigError(f"mismatch.{name}: {str(e).removeprefix('--truth-set ')}") from None
 
@@ -1312,11 +1345,21 @@ def mismatch_overrides(cfg: TaskConfig, name: str) -> list[str]:
     """The ``KEY=VALUE`` truth overrides of the task's mismatch case ``name``, relative paths
     in it made absolute (relative to the task file); ConfigError if it has none."""
     if name not in cfg.mismatch:
-        known = ", ".join(cfg.mismatch) or "none"
+        if not cfg.mismatch:
+            raise ConfigError(
+                f"--mismatch {name}: {cfg.name} names no mismatch cases (its task file has no "
+                "mismatch: section); --truth-set KEY=VALUE changes the real system directly"
+            )
+        known = ", ".join(cfg.mismatch)
         raise ConfigError(f"--mismatch {name}: {cfg.name} has no such case (it has: {known})")
     base = Path(cfg.base_dir) if cfg.base_dir else None
     case = {k: cwd_path(k, v, base) for k, v in cfg.mismatch[name].items()}
-    return [f"{k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in case.items()]
+    return [_override_text(k, v) for k, v in case.items()]
+
+
+def _override_text(key: str, value: Any) -> str:
+    """``KEY=VALUE`` as the command line writes it (a value that is not a string as JSON)."""
+    return f"{key}={value if isinstance(value, str) else json.dumps(value)}"
 
 
 def _validate_names(cfg: TaskConfig) -> None:

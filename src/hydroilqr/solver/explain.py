@@ -38,6 +38,9 @@ def explain(sol: Solution, task) -> str:
         "failed": f"failed ({sol.reason}; {costs})",
     }
     text = sentences.get(status, f"stopped ({sol.reason}; {costs})")
+    ens = sol.extra.get("ensemble")
+    if isinstance(ens, dict) and ens.get("stopped_in") == "warm_start":
+        text += "; this was the ensemble's warm start: the plan is the task's own, not robust"
     if "resolves" in sol.extra:
         text = f"{sol.reason}; the worst window: {text}"
     return text
@@ -48,12 +51,9 @@ def _costs(sol: Solution) -> str:
     of the ensemble objective (what its status was judged on; after a warm start whose guess
     could not be rolled out on every member, from the warm plan's)."""
     ens = sol.extra.get("ensemble")
-    if not isinstance(ens, dict):
+    if not isinstance(ens, dict) or "members" not in ens:  # (not a robust plan)
         return f"cost {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
-    if "warm_start" not in ens:
-        start = float(sol.costs[0])
-    else:
-        start = ens.get("guess_ensemble_cost", ens["ensemble_start_cost"])
+    start = ens.get("guess_ensemble_cost", ens.get("ensemble_start_cost", sol.costs[0]))
     return f"ensemble objective {start:.6g} -> {sol.final_cost:.6g}"
 
 

@@ -19,10 +19,12 @@ The Solution is then put in the nominal's terms:
   ``warm_start`` (the task-alone solve: iterations, costs, seconds, reason) and
   ``ensemble_start_cost`` (the ensemble objective of the warm plan).
 
-After a warm start the iteration histories (costs, times, step sizes) are the warm start's
-(the task's own cost) followed by the ensemble solve's (the ensemble objective); the status
-is judged from the ensemble objective of the initial guess to its final value, so a robust
-stage that only keeps the warm plan still counts the warm start's progress, while a guess
+After a warm start the iteration histories (times, step sizes) are the warm start's followed
+by the ensemble solve's; the costs are the task's own over the warm start's iterations, then
+the ensemble objective from the warm plan on (the warm start's last entry is the ensemble
+objective of its plan, so the final cost is always the ensemble's). The status is judged
+from the ensemble objective of the initial guess (``initial_cost``) to its final value, so a
+robust stage that only keeps the warm plan still counts the warm start's progress; a guess
 whose ensemble rollout fails is judged from the warm plan's ensemble cost.
 """
 
@@ -57,8 +59,9 @@ def solve_ensemble(
     """Solves ``task``'s ensemble problem from U0: [N, nu] (x0: [n] or None for the task's);
     the Solution in the nominal's terms (module docstring). Callbacks see the stacked
     iterates (IterationInfo.X: [N+1, M·n]), after those of the warm start (the task's own,
-    [N+1, n]). Interrupted or stopped by a callback during the warm start: that plan, as the
-    task's own solve (no ensemble stage)."""
+    [N+1, n]). Interrupted or stopped by a callback during the warm start: that plan, the
+    task's own (no ensemble stage ran), with ``extra["ensemble"]["stopped_in"] ==
+    "warm_start"``."""
     problem = ensemble_problem(task, x0)
     warm = None
     if task.config.ensemble_warm_start:
@@ -67,7 +70,8 @@ def solve_ensemble(
         if warm.reason in ("interrupted", "callback"):
             if warm.reason == "interrupted" and not stop_on_interrupt:
                 raise KeyboardInterrupt
-            return warm
+            stopped = {"weight": task.config.ensemble_weight, "stopped_in": "warm_start"}
+            return dataclasses.replace(warm, extra={**warm.extra, "ensemble": stopped})
         U0 = warm.U
     lin = EnsembleLinearizer.from_settings(problem.dynamics, settings)
     sol = ilqr_solve(
@@ -94,7 +98,8 @@ def _after_warm_start(warm: Solution, sol: Solution, guess_cost: float | None) -
     ensemble = {
         **sol.extra["ensemble"],
         "costs": "the task's own cost over the warm start's iterations, then the ensemble "
-        "objective (the weighted sum over the members); final_cost is the ensemble's",
+        "objective (the weighted sum over the members) from the warm plan on; initial_cost "
+        "and final_cost are the ensemble objective's",
         "warm_start": {
             "iterations": warm.iterations,
             "start_cost": float(warm.costs[0]),
@@ -108,7 +113,7 @@ def _after_warm_start(warm: Solution, sol: Solution, guess_cost: float | None) -
     steps = [*warm.extra.get("derivative_steps", []), *sol.extra.get("derivative_steps", [])]
     return dataclasses.replace(
         sol,
-        costs=np.concatenate([warm.costs, sol.costs[1:]]),
+        costs=np.concatenate([warm.costs[:-1], sol.costs]),
         iteration_seconds=[*warm.iteration_seconds, *sol.iteration_seconds],
         phase_seconds={k: [*warm.phase_seconds[k], *sol.phase_seconds[k]] for k in PHASES},
         eps=[*warm.eps, *sol.eps],

@@ -241,32 +241,43 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
             truth = mismatch_overrides(r.task.config, name)
             st = PlaybackSettings(policy="ilqr", speed=1.0, truth_overrides=truth)
             pb = playback(r.task, r.sol, st)
-            rest = pb.metrics["object"].get("resting_gap")
+            ob = pb.metrics["object"]
+            rest = ob.get("resting_gap")
             g = executed_goal(r.task, r.sol, pb)["goal"]
             verdict = "" if g["met"] is None else ("PASS" if g["met"] else "FAIL")
-            gap = "" if rest is None else f"{100 * rest:.1f}"
-            rows.append(f"| `{r.name}` | `{name}` | {gap} | {verdict} |")
+            rows.append(f"| `{r.name}` | `{name}` | {_gap(rest, ob['unit'])} | {verdict} |")
             data.append(
                 {
                     "task": r.name,
                     "case": name,
                     "truth_overrides": truth,
-                    "resting_gap_m": rest,
+                    "object": ob["name"],
+                    "unit": ob["unit"],
+                    "resting_gap": rest,
                     "goal_on_executed_motion": g,
                 }
             )
     if not rows:
         return None
-    head = "| task | mismatch | resting gap cm | goal |\n|---|---|---|---|"
+    head = "| task | mismatch | resting gap | goal |\n|---|---|---|---|"
     note = (
         "The plan's own feedback (`--policy ilqr`, eq. 8) at speed 1 on the finer simulation "
         "with the other contact approximation, whose model differs from the planned one as the "
         "task's `mismatch:` case says (`hydroilqr playback RUN --policy ilqr --mismatch NAME`). "
-        "Resting gap and goal as in the transfer table."
+        "Resting gap: where the compared object (`results.json`: `object`) comes to rest "
+        "against where the plan, extended the same way, puts it to rest; goal: the task's goal "
+        "judged on the executed motion, at rest."
     )
     return Section(
         "mismatch", "Transfer under model mismatch", "\n".join([head, *rows, "", note]), data
     )
+
+
+def _gap(value, unit: str) -> str:
+    """A resting gap cell: centimetres for a position, else in the object's own unit."""
+    if value is None:
+        return ""
+    return f"{100 * value:.1f} cm" if unit == "m" else f"{value:.3g} {unit}"
 
 
 def bench_table(results: Sequence[TaskResult], context: Context) -> Section | None:
