@@ -124,7 +124,7 @@ class PlaybackSettings:
     def check_against(self, task, plan_duration: float | None = None) -> None:
         """Settings that cannot fit ``task``'s plan (ConfigError); with ``plan_duration`` (s),
         also a playback too short (under one truth step) or too long to simulate."""
-        check_truth_overrides(self.truth_overrides)  # also the keys playback sets itself
+        check_truth_overrides(self.truth_overrides, playback=True)
         dt = task.config.plant.time_step
         if self.truth_time_step > dt * (1 + 1e-9):
             raise ConfigError(

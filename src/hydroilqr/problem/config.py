@@ -689,9 +689,10 @@ def parse_override(text: str) -> tuple[str, Any]:
 TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant", "actuators")
 
 
-def check_truth_overrides(overrides: list[str]) -> None:
-    """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...)
-    or that playback sets itself (the time step and contact approximation)."""
+def check_truth_overrides(overrides: list[str], playback: bool = False) -> None:
+    """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...);
+    with ``playback``, also for a key playback sets with its own options (the time step and
+    contact approximation)."""
     top = {f.name for f in dataclasses.fields(TaskConfig)}
     for text in overrides:
         key, value = parse_override(text)
@@ -701,6 +702,8 @@ def check_truth_overrides(overrides: list[str]) -> None:
                 f"--truth-set {key}: the simulated plant only uses {', '.join(TRUTH_SECTIONS)} "
                 "(and geometry/scene shorthands)"
             )
+        if not playback:
+            continue
         nested = value if key == "plant" and isinstance(value, dict) else {}
         for own, option in PLAYBACK_OWN.items():
             if key == own or own.split(".")[1] in nested:
@@ -1336,7 +1339,7 @@ def _validate_mismatch(cfg: TaskConfig) -> None:
                 "{ball.friction: 0.14}"
             )
         try:
-            check_truth_overrides([_override_text(k, v) for k, v in case.items()])
+            check_truth_overrides([_override_text(k, v) for k, v in case.items()], playback=True)
         except ConfigError as e:
             raise ConfigError(f"mismatch.{name}: {str(e).removeprefix('--truth-set ')}") from None
 
@@ -1347,8 +1350,9 @@ def mismatch_overrides(cfg: TaskConfig, name: str) -> list[str]:
     if name not in cfg.mismatch:
         if not cfg.mismatch:
             raise ConfigError(
-                f"--mismatch {name}: {cfg.name} names no mismatch cases (its task file has no "
-                "mismatch: section); --truth-set KEY=VALUE changes the real system directly"
+                f"--mismatch {name}: {cfg.name} names no mismatch cases (the task as solved, in "
+                "its summary.json, has no mismatch: section); --truth-set KEY=VALUE changes the "
+                "real system directly"
             )
         known = ", ".join(cfg.mismatch)
         raise ConfigError(f"--mismatch {name}: {cfg.name} has no such case (it has: {known})")
