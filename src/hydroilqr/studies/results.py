@@ -181,30 +181,27 @@ def transfer_table(results: Sequence[TaskResult], context: Context) -> Section |
     """Open-loop playback (``hydroilqr playback RUN --speed 0.5``) of every task that moves an
     object: where the object comes to rest against where the plan puts it to rest, the gap at
     the plan's end, and the task's goal judged on the executed motion."""
-    from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+    from hydroilqr.control.playback import PlaybackSettings
 
     rows, data = [], []
     for r in results:
         if not _moves_an_object(r.task):
             continue
-        pb = playback(r.task, r.sol, PlaybackSettings(**TRANSFER_PLAYBACK))
-        ob = pb.metrics["object"]
-        judged = executed_goal(r.task, r.sol, pb)
-        g = judged["goal"]
-        verdict = "" if g["met"] is None else ("PASS" if g["met"] else "FAIL")
+        m, g, verdict = _play(r, PlaybackSettings(**TRANSFER_PLAYBACK))
+        ob = m["object"]
         rest = ob.get("resting_gap")
         rows.append(
             f"| `{r.name}` | {'' if rest is None else f'{100 * rest:.1f}'} | "
-            f"{100 * ob['final_gap']:.1f} | {100 * pb.metrics['saturated_fraction']:.1f} | "
-            f"{len(pb.metrics.get('warnings', []))} | {verdict} |"
+            f"{100 * ob['final_gap']:.1f} | {100 * m['saturated_fraction']:.1f} | "
+            f"{len(m.get('warnings', []))} | {verdict} |"
         )
         data.append(
             {
                 "task": r.name,
                 "resting_gap_m": rest,
                 "final_gap_m": ob["final_gap"],
-                "saturated_fraction": pb.metrics["saturated_fraction"],
-                "warnings": pb.metrics.get("warnings", []),
+                "saturated_fraction": m["saturated_fraction"],
+                "warnings": m.get("warnings", []),
                 "goal_on_executed_motion": g,
             }
         )
@@ -232,19 +229,18 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
     """Playback of every task that names model errors (its ``mismatch:`` cases) with the plan's
     own feedback at full speed (``hydroilqr playback RUN --policy ilqr --mismatch NAME``):
     the resting gap on each mismatched "real" system and the goal judged there."""
-    from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+    from hydroilqr.control.playback import PlaybackSettings
     from hydroilqr.problem.config import mismatch_overrides
 
     rows, data = [], []
     for r in results:
         for name in r.task.config.mismatch:
             truth = mismatch_overrides(r.task.config, name)
-            st = PlaybackSettings(policy="ilqr", speed=1.0, truth_overrides=truth)
-            pb = playback(r.task, r.sol, st)
-            ob = pb.metrics["object"]
+            m, g, verdict = _play(
+                r, PlaybackSettings(policy="ilqr", speed=1.0, truth_overrides=truth)
+            )
+            ob = m["object"]
             rest = ob.get("resting_gap")
-            g = executed_goal(r.task, r.sol, pb)["goal"]
-            verdict = "" if g["met"] is None else ("PASS" if g["met"] else "FAIL")
             rows.append(f"| `{r.name}` | `{name}` | {_gap(rest, ob['unit'])} | {verdict} |")
             data.append(
                 {
@@ -271,6 +267,16 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
     return Section(
         "mismatch", "Transfer under model mismatch", "\n".join([head, *rows, "", note]), data
     )
+
+
+def _play(r: TaskResult, settings) -> tuple[dict, dict, str]:
+    """Plays ``r``'s plan back: the playback metrics, the task's goal judged on the executed
+    motion, and its verdict (PASS, FAIL, or '' when not judged)."""
+    from hydroilqr.control.playback import executed_goal, playback
+
+    pb = playback(r.task, r.sol, settings)
+    g = executed_goal(r.task, r.sol, pb)["goal"]
+    return pb.metrics, g, "" if g["met"] is None else ("PASS" if g["met"] else "FAIL")
 
 
 def _gap(value, unit: str) -> str:
