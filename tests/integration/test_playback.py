@@ -322,3 +322,12 @@ def test_mismatch_case_plays_as_its_truth_overrides(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--mismatch hard: cartpole-wall has no such case (it has: soft)" in err
     assert len(err.strip().splitlines()) == 1
+    assert main([*args, str(tmp_path / "d"), "--mismatch", "soft", "--mismatch", "soft"]) == 2
+    assert "--mismatch soft: given more than once" in capsys.readouterr().err
+    # by default a mismatch playback writes beside the nominal one, not over it
+    default_out = ["playback", str(run), "--policy", "ilqr", "--no-replay"]
+    assert main(default_out) == 0 and main([*default_out, "--mismatch", "soft"]) == 0
+    nominal = json.loads((run / "playback-ilqr" / "playback.json").read_text())
+    assert nominal["truth"]["overrides"] == []
+    changed = json.loads((run / "playback-ilqr-soft" / "playback.json").read_text())
+    assert changed["truth"]["overrides"] == ["tip.friction=0.05"]

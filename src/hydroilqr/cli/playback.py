@@ -94,7 +94,10 @@ def setup(p) -> None:
         help="use the plan's v̄_J unscaled (default scales it by the speed)",
     )
     p.add_argument("--no-replay", action="store_true", help="skip playback.html")
-    p.add_argument("--out", help="output directory (default DIR/playback-POLICY)")
+    p.add_argument(
+        "--out",
+        help="output directory (default DIR/playback-POLICY, with -NAME appended per --mismatch)",
+    )
 
 
 def run(args) -> int:
@@ -147,6 +150,9 @@ def _settings(args):
             "applies the plan's own gains K once per plan step"
         )
     task, sol, _ = load_run(args.dir)
+    repeated = sorted({n for n in args.mismatch if args.mismatch.count(n) > 1})
+    if repeated:
+        raise ConfigError(f"--mismatch {repeated[0]}: given more than once")
     mismatch = [o for name in args.mismatch for o in mismatch_overrides(task.config, name)]
     settings = PlaybackSettings(
         speed=args.speed,
@@ -169,8 +175,10 @@ def _settings(args):
 def _output_dir(task, args) -> Path:
     from hydroilqr.output.report import output_dir
 
+    # a mismatch playback gets its own directory: it does not replace the nominal one's files
+    cases = "".join(f"-{name}" for name in args.mismatch)
     return output_dir(
-        args.out or Path(args.dir) / f"playback-{args.policy}", task.name, playback=True
+        args.out or Path(args.dir) / f"playback-{args.policy}{cases}", task.name, playback=True
     )
 
 
