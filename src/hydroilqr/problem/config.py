@@ -687,6 +687,11 @@ def parse_override(text: str) -> tuple[str, Any]:
 
 # What a "real" (simulated) system may differ in from the controller's model: --truth-set.
 TRUTH_SECTIONS = ("models", "package_map", "scene", "geometry", "plant", "actuators")
+# Keys of the simulated plant that playback's own options set.
+PLAYBACK_OWN = {
+    "plant.time_step": "--truth-time-step",
+    "plant.contact_approximation": "--truth-contact",
+}
 
 
 def check_truth_overrides(overrides: list[str], playback: bool = False) -> None:
@@ -708,13 +713,6 @@ def check_truth_overrides(overrides: list[str], playback: bool = False) -> None:
         for own, option in PLAYBACK_OWN.items():
             if key == own or own.split(".")[1] in nested:
                 raise ConfigError(f"--truth-set {own}: playback sets it with {option}")
-
-
-# Keys of the simulated plant that playback's own options set.
-PLAYBACK_OWN = {
-    "plant.time_step": "--truth-time-step",
-    "plant.contact_approximation": "--truth-contact",
-}
 
 
 def with_overrides(
@@ -961,19 +959,9 @@ def _anchor_paths(data: dict[str, Any], base_dir: Path) -> None:
     # dotted overrides (smoke:, continuation stages) name paths too
     if isinstance(data.get("smoke"), dict):
         data["smoke"] = {k: cwd_path(k, v, base_dir) for k, v in data["smoke"].items()}
-    if isinstance(data.get("mismatch"), dict):
-        data["mismatch"] = {
-            name: {k: cwd_path(k, v, base_dir) for k, v in case.items()}
-            if isinstance(case, dict)
-            else case
-            for name, case in data["mismatch"].items()
-        }
-    for section in ("continuation", "ensemble"):
-        if isinstance(data.get(section), list):
-            data[section] = [
-                {k: cwd_path(k, v, base_dir) for k, v in st.items()} if isinstance(st, dict) else st
-                for st in data[section]
-            ]
+    for section in ("continuation", "ensemble", "mismatch"):
+        if section in data:
+            data[section] = cwd_path(section, data[section], base_dir)
 
 
 def cwd_path(key: str, value: Any, base: Path | None = None) -> Any:
@@ -1356,8 +1344,7 @@ def mismatch_overrides(cfg: TaskConfig, name: str) -> list[str]:
             )
         known = ", ".join(cfg.mismatch)
         raise ConfigError(f"--mismatch {name}: {cfg.name} has no such case (it has: {known})")
-    base = Path(cfg.base_dir) if cfg.base_dir else None
-    case = {k: cwd_path(k, v, base) for k, v in cfg.mismatch[name].items()}
+    case = _anchor_mapping(cfg.mismatch[name], Path(cfg.base_dir) if cfg.base_dir else None)
     return [_override_text(k, v) for k, v in case.items()]
 
 

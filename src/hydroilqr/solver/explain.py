@@ -51,10 +51,9 @@ def _costs(sol: Solution) -> str:
     of the ensemble objective (what its status was judged on; after a warm start whose guess
     could not be rolled out on every member, from the warm plan's)."""
     ens = sol.extra.get("ensemble")
-    if not isinstance(ens, dict) or "members" not in ens:  # (not a robust plan)
-        return f"cost {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
-    start = ens.get("guess_ensemble_cost", ens.get("ensemble_start_cost", sol.costs[0]))
-    return f"ensemble objective {start:.6g} -> {sol.final_cost:.6g}"
+    robust = isinstance(ens, dict) and "members" in ens  # (a stop in the warm start: not)
+    what = "ensemble objective" if robust else "cost"
+    return f"{what} {sol.initial_cost:.6g} -> {sol.final_cost:.6g}"
 
 
 def touches_tracked(task, X: np.ndarray) -> bool:

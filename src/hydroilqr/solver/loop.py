@@ -94,15 +94,6 @@ class State:
     mu_hist: list = field(default_factory=list)
     derivative_steps: list = field(default_factory=list)
 
-    @property
-    def s_secant(self) -> SolverConfig:
-        """The settings of a line search along secant partials: only its longer steps (if
-        none is accepted, exact partials are cheaper than the rest of the search); made once."""
-        if getattr(self, "_s_secant", None) is None:
-            n = min(SECANT_TRIALS, self.s.line_search_max_steps)
-            self._s_secant = replace(self.s, line_search_max_steps=n)
-        return self._s_secant
-
 
 @dataclass
 class Step:
@@ -351,7 +342,10 @@ def descend(st: State, ph: dict, deadline: float | None) -> Step:
             step.expected = step.expected_full
             break
         t = time.perf_counter()
-        s_ls = st.s_secant if _secant(st) else s
+        # along secant partials only the longer steps (if none is accepted, exact partials
+        # are cheaper than the rest of the search)
+        s_ls = replace(s, line_search_max_steps=min(SECANT_TRIALS, s.line_search_max_steps))
+        s_ls = s_ls if _secant(st) else s
         ls = line_search(st.problem, st.X, st.U, st.J, st.K, st.kappa, bp.dV, s_ls, deadline)
         ph["line_search"] += time.perf_counter() - t
         if ls.tried:

@@ -120,7 +120,13 @@ def _after_warm_start(warm: Solution, sol: Solution, guess_cost: float | None) -
         mu=[*warm.mu, *sol.mu],
         status=status,
         converged=stopping.is_converged(status),
-        extra={**sol.extra, "derivative_steps": steps, "ensemble": ensemble},
+        # the cost the status was judged from, on the objective of the final cost
+        extra={
+            **sol.extra,
+            "derivative_steps": steps,
+            "ensemble": ensemble,
+            "task_initial_cost": float(start),
+        },
     )
 
 

@@ -92,12 +92,8 @@ class Solution:
     @property
     def initial_cost(self) -> float:
         """The cost of the initial guess on the task's model (a continuation's first cost is
-        its first stage model's; the task's own is kept in ``extra``), as in summary.json. For
-        an ensemble solve after a warm start: the ensemble objective of the guess, as its
-        final cost (``solver.robust``)."""
-        ens = self.extra.get("ensemble")
-        if isinstance(ens, dict) and "guess_ensemble_cost" in ens:
-            return float(ens["guess_ensemble_cost"])
+        its first stage model's; the task's own is kept in ``extra``; for an ensemble solve
+        after a warm start, its objective's), as in summary.json."""
         return float(self.extra.get("task_initial_cost", self.costs[0]))
 
     @property
