@@ -144,14 +144,17 @@ class Task:
         rh = self.config.receding_horizon
         return rh.window_steps if rh is not None else self.config.steps
 
-    def validate(self) -> None:
-        """Builds everything that can fail on bad input, before any solve starts."""
+    def validate(self, mismatch: bool = True) -> None:
+        """Builds everything that can fail on bad input, before any solve starts;
+        ``mismatch=False`` skips building a plant per mismatch case (a sweep's jobs: checked
+        once before them)."""
         _ = self.dynamics, self.cost, self.x0
         self.check_memory()
         self.initial_guess(self.steps)
         self._check_variants("continuation", self.stages())
         self._check_variants("ensemble", self.members())
-        self._check_mismatch()
+        if mismatch:
+            self._check_mismatch()
         from hydroilqr import metrics as metrics_mod
 
         metrics_mod.validate(self)  # metric names and metric_params
