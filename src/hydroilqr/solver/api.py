@@ -43,12 +43,12 @@ def solve(
 
     ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
     state (default: the task's; a quaternion in it that is not of unit norm is normalized, as
-    in a task file). Single solves only: a receding-horizon task takes both from
-    its task file. ``settings``: solver settings for this solve, a SolverConfig or a dict of
-    changes to the task's ``solver`` section (default: that section; the task itself is not
-    changed). ``callbacks``: a function
-    f(info) or a list of them, info an ``ilqr.IterationInfo``; one returning True stops the
-    solve (single solves) or the current window (receding horizon).
+    in a task file). A receding-horizon task takes x0 from its task file; its U0 is the first
+    window's guess, [W, nu]. ``settings``: solver settings for this solve, a SolverConfig or
+    a dict of changes to the task's ``solver`` section (default: that section; the task
+    itself is not changed). ``callbacks``: a function f(info) or a list of them, info an
+    ``ilqr.IterationInfo``; one returning True stops the solve (single solves) or the current
+    window (receding horizon).
 
     ``stop_on_interrupt``: Ctrl+C ends a single solve with the best trajectory so far
     (``reason == "interrupted"``); a receding run raises KeyboardInterrupt and keeps its
@@ -72,12 +72,18 @@ def solve(
     stages = [] if task.config.receding_horizon is not None else task.stages()
     stage_solvers = [_settings_for(st.config.solver, settings) for st in stages]
     if task.config.receding_horizon is not None:
-        if U0 is not None or x0 is not None:
+        if x0 is not None:
             raise ValueError(
-                f"{task.name} is a receding-horizon task: U0 and x0 come from its task file "
-                "(initial_guess, initial_state)"
+                f"{task.name} is a receding-horizon task: x0 comes from its task file "
+                "(initial_state)"
             )
-        return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver)
+        W = task.config.receding_horizon.window_steps
+        if U0 is not None and np.shape(U0)[:1] != (W,):
+            raise ValueError(
+                f"U0 of a receding-horizon task is its first window's guess: shape [{W}, "
+                f"{task.dynamics.nu}], got {np.shape(U0)}"
+            )
+        return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver, U0)
     x0, U0 = _start(task, U0, x0)
     if task.config.ensemble:  # (not with continuation or receding_horizon: config.validate)
         return solve_ensemble(task, U0, x0, solver, callbacks, stop_on_interrupt)

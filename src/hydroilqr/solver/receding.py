@@ -95,8 +95,12 @@ def solve_receding(
     checkpoint_dir: str | Path | None = None,
     on_resolve: Callable[[int, int, Solution], None] | None = None,
     solver: SolverConfig | None = None,
+    U0: np.ndarray | None = None,
 ) -> Solution:
     """Runs the task's receding-horizon schedule. Returns the stitched Solution.
+
+    ``U0``: the first window's guess, [W, nu] (default: the task's initial guess); a
+    checkpoint being resumed keeps its own.
 
     ``solver``: the solver settings of every window (default: the task's ``solver``
     section); they are part of the checkpoint's fingerprint. The status of the stitched
@@ -106,7 +110,7 @@ def solve_receding(
     minimum); the first window, and one started cold, must improve on the task's guess."""
     solver = solver or task.config.solver
     R = task.config.receding_horizon.resolves
-    st = _start(task, checkpoint_dir, solver)
+    st = _start(task, checkpoint_dir, solver, U0)
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
     while st.done < R:
         sol, cold, wall, t_roll = _solve_window(task, solver, st, callbacks)
@@ -118,14 +122,17 @@ def solve_receding(
     return _stitched(task, st, solver)
 
 
-def _start(task, checkpoint_dir: str | Path | None, solver: SolverConfig) -> Checkpoint:
+def _start(
+    task, checkpoint_dir: str | Path | None, solver: SolverConfig, U0: np.ndarray | None = None
+) -> Checkpoint:
     """The run's state before its next window: a fresh start, or the checkpoint in
     ``checkpoint_dir`` (if there is one), with the environment computing the windows to
     come recorded."""
     cfg = task.config
     W = cfg.receding_horizon.window_steps
     dyn = task.dynamics
-    st = Checkpoint.start(task.x0, task.initial_guess(W), dyn.nx, dyn.nu)
+    guess = task.initial_guess(W) if U0 is None else np.array(U0, float)
+    st = Checkpoint.start(task.x0, guess, dyn.nx, dyn.nu)
     ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
     run_id = fingerprint(cfg, solver)
     if ck is not None and ck.exists():

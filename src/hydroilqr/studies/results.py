@@ -333,6 +333,34 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
     return Section("bench", "Speed per iteration", "\n".join([head, *rows, "", note]), doc)
 
 
+def robustness_table(results: Sequence[TaskResult], context: Context) -> Section | None:
+    """The latest ``hydroilqr robustness ... --out OUT/robustness`` (its own command and
+    environment), if one was run into the results directory: per task, how many of its
+    perturbed solves met the goal and each of its checks."""
+    from hydroilqr.studies.robustness import table
+
+    path = Path(context.out) / "robustness" / "robustness.json"
+    if not path.is_file():
+        return None
+    doc = json.loads(path.read_text())
+    env = doc.get("environment", {})
+    note = (
+        f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
+        f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
+        f"load {env.get('load_average', 'not recorded')}): each task solved {doc['runs']} times "
+        f"from its initial guess perturbed by a relative {doc['noise']:g} (a stand-in for "
+        "last-bit differences between machines), each run judged by the task's goal. Other "
+        "BLAS kernel sets and CPUs land in other, equally valid local minima: these pass rates, "
+        "not the single solves above, are the numbers to expect on another machine."
+    )
+    return Section(
+        "robustness",
+        "Robustness to last-bit differences",
+        "\n".join([table(doc), "", note]),
+        doc,
+    )
+
+
 def _ratio(v) -> str:
     """A speed-up cell: '1.5x', or '-' where the bench file has none (an older bench.json)."""
     return "-" if v is None else f"{v:.1f}x"
@@ -342,6 +370,7 @@ SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [
     solve_table,
     transfer_table,
     mismatch_table,
+    robustness_table,
     bench_table,
 ]
 

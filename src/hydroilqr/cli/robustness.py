@@ -1,0 +1,135 @@
+"""``hydroilqr robustness``: how often tasks meet their goals under last-bit perturbations."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from hydroilqr.cli.common import GOAL_NOT_MET, command_line, console
+from hydroilqr.problem.config import ConfigError
+
+HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
+
+#: The most runs per task one command may ask for (each run is a whole solve).
+MAX_RUNS = 1000
+
+
+def setup(p) -> None:
+    p.add_argument(
+        "tasks",
+        nargs="*",
+        metavar="TASK",
+        help="built-in task names or task files (default: every built-in task)",
+    )
+    p.add_argument("--runs", type=int, default=10, help="perturbed solves per task (default 10)")
+    p.add_argument(
+        "--noise",
+        type=float,
+        default=1e-9,
+        help="relative perturbation of the initial guess (default 1e-9: last-bit sized)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="the perturbations' seed (default 0)")
+    p.add_argument(
+        "--min-rate",
+        type=float,
+        default=0.9,
+        help="exit 4 when a task with a goal meets it in fewer than this fraction of its runs "
+        "(default 0.9)",
+    )
+    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests, quick tries)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a key of every task (repeatable)",
+    )
+    p.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="an existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)",
+    )
+    p.add_argument("--workers", type=int, help="worker processes of the local cluster")
+    p.add_argument(
+        "--out",
+        default="runs/robustness",
+        help="directory for robustness.json (default runs/robustness)",
+    )
+
+
+def _check(args) -> None:
+    """Refuses arguments that cannot work, before any work."""
+    if not 1 <= args.runs <= MAX_RUNS:
+        raise ConfigError(f"--runs: must be between 1 and {MAX_RUNS}, got {args.runs}")
+    if not (math.isfinite(args.noise) and 0 <= args.noise <= 1):
+        raise ConfigError(f"--noise: must be a number in [0, 1], got {args.noise}")
+    if args.seed < 0:
+        raise ConfigError(f"--seed: must be >= 0, got {args.seed}")
+    if not (math.isfinite(args.min_rate) and 0 <= args.min_rate <= 1):
+        raise ConfigError(f"--min-rate: must be a number in [0, 1], got {args.min_rate}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError("--workers: must be at least 1")
+    if args.scheduler and args.workers is not None:
+        raise ConfigError("--workers sizes the local cluster; it does not go with --scheduler")
+
+
+def run(args) -> int:
+    from hydroilqr.problem.config import load_task
+    from hydroilqr.studies.results import DEFAULT_TASKS
+
+    _check(args)
+    names = list(args.tasks or DEFAULT_TASKS)
+    refs = []
+    for name in names:  # every task loads and validates before any solve starts
+        cfg = load_task(name, list(args.set), None, args.smoke)
+        refs.append(
+            {
+                "label": cfg.name,
+                "name": name,
+                "overrides": list(args.set),
+                "config": None,
+                "smoke": bool(args.smoke),
+            }
+        )
+    if len({r["label"] for r in refs}) != len(refs):
+        raise ConfigError("a task is named twice")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from hydroilqr.output.files import atomic_write
+    from hydroilqr.studies.robustness import run_robustness, table
+
+    where = args.scheduler or "a local Dask cluster"
+    console.print(
+        f"robustness: {len(refs)} task(s) x {args.runs} solves, guess perturbed by a relative "
+        f"{args.noise:g} (seed {args.seed}), on {where}"
+    )
+
+    def done(r) -> None:
+        rec = r.record()
+        goal = {True: "goal PASS", False: "goal FAIL", None: "no goal"}[rec["goal_met"]]
+        failed = f" ({', '.join(rec['failed_checks'])})" if rec["failed_checks"] else ""
+        detail = f" [{r.error}]" if r.error else ""
+        console.print(
+            f"  {r.task} run {r.index}: {rec['status']}, {rec['iterations']} iterations, "
+            f"{goal}{failed}, {r.seconds:.1f} s{detail}"
+        )
+
+    report = run_robustness(
+        refs, args.runs, args.noise, args.seed, args.scheduler, args.workers, done
+    )
+    report["command"] = command_line(args)
+    report["smoke"] = bool(args.smoke)
+    report["overrides"] = list(args.set)
+    path = atomic_write(out / "robustness.json", json.dumps(report, indent=1) + "\n")
+    console.print(table(report))
+    console.print(f"wrote {path}")
+    low = [
+        t["task"]
+        for t in report["tasks"]
+        if t["goal_declared"] and t["pass_rate"] is not None and t["pass_rate"] < args.min_rate
+    ]
+    if low and not args.smoke:
+        console.print(f"below the pass rate {args.min_rate:g}: {', '.join(low)}")
+        return GOAL_NOT_MET
+    return 0

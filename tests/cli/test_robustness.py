@@ -1,0 +1,93 @@
+"""``hydroilqr robustness``: perturbed solves on Dask, pass rates, the results-page section."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from hydroilqr import Task, cli, solve
+from hydroilqr.studies import results
+from hydroilqr.studies.multistart import perturbation
+from hydroilqr.studies.robustness import RunResult, summarize, table
+
+
+def _run(k, met, checks, status="stalled"):
+    return RunResult(
+        task="t",
+        index=k,
+        status=status,
+        iterations=3,
+        final_cost=1.0,
+        goal_met=met,
+        checks=[{"metric": m, "passed": p, "value": 1.0} for m, p in checks],
+    )
+
+
+def test_summary_counts_the_goal_and_each_check():
+    runs = [
+        _run(1, True, [("a", True), ("b", True)]),
+        _run(2, False, [("a", True), ("b", False)]),
+        _run(3, False, [("a", False), ("b", False)], status="no_progress"),
+    ]
+    s = summarize("t", runs)
+    assert (s["runs"], s["goal_met"], s["checks_met"]) == (3, 1, {"a": 2, "b": 1})
+    assert abs(s["pass_rate"] - 1 / 3) < 1e-12
+    assert s["statuses"] == {"no_progress": 1, "stalled": 2}
+    assert s["results"][1]["failed_checks"] == ["b"]
+    assert "| `t` | 1 of 3 | a 2/3, b 1/3 |" in table({"tasks": [s]})
+
+
+def test_perturbation_is_relative_reproducible_and_differs_per_run():
+    U = np.array([[1.0, -2.0]] * 20)
+    a, b = (perturbation(U, np.full(2, np.inf), 1e-9, 0, k) for k in (1, 2))
+    assert np.array_equal(a, perturbation(U, np.full(2, np.inf), 1e-9, 0, 1))
+    assert not np.array_equal(a, b) and not np.array_equal(a, U)
+    assert np.max(np.abs(a - U) / np.abs(U)) < 1e-8
+
+
+def test_receding_task_takes_its_first_windows_guess():
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    W = task.config.receding_horizon.window_steps
+    U0 = task.initial_guess(W)
+    same = solve(task, U0=U0)
+    again = solve(Task.load("cheetah-trot-1.0", smoke=True))
+    assert np.array_equal(same.X, again.X)
+    try:
+        solve(task, U0=U0[:-1])
+    except ValueError as e:
+        assert "first window's guess" in str(e)
+    else:
+        raise AssertionError("a guess of the wrong length was accepted")
+
+
+def test_robustness_command_writes_pass_rates_and_the_results_section(tmp_path, capsys):
+    out = tmp_path / "docs"
+    argv = ["robustness", "cartpole-wall", "--smoke", "--runs", "2", "--workers", "2"]
+    assert cli.main([*argv, "--out", str(out / "robustness")]) == 0
+    text = capsys.readouterr().out
+    assert "cartpole-wall run 1:" in text and "cartpole-wall run 2:" in text
+    doc = json.loads((out / "robustness" / "robustness.json").read_text())
+    (t,) = doc["tasks"]
+    assert t["task"] == "cartpole-wall" and t["runs"] == 2
+    assert [r["index"] for r in t["results"]] == [1, 2]
+    assert doc["noise"] == 1e-9 and doc["environment"]["drake"]
+    assert doc["command"].startswith("hydroilqr robustness cartpole-wall")
+    page = results.generate(["cartpole-wall"], out=out, smoke=True)
+    md = page["md"].read_text()
+    assert "## Robustness to last-bit differences" in md and "equally valid local minima" in md
+
+
+def test_robustness_arguments_are_refused_before_work(tmp_path, capsys):
+    for extra, message in [
+        (["--runs", "0"], "--runs: must be between 1 and"),
+        (["--noise", "nan"], "--noise: must be a number in [0, 1]"),
+        (["--seed", "-1"], "--seed: must be >= 0"),
+        (["--workers", "0"], "--workers: must be at least 1"),
+        (["--min-rate", "2"], "--min-rate"),
+        (["--set", "solver.max_iterations=-3"], "max_iterations"),
+    ]:
+        rc = cli.main(["robustness", "cartpole-wall", "--out", str(tmp_path / "r"), *extra])
+        assert rc == 2, extra
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
