@@ -31,3 +31,12 @@ def test_kinova_reach_smoke_solve_reduces_the_hand_error_and_reports_its_goal_me
 def test_the_terms_metric_needs_terms():
     with pytest.raises(ConfigError, match="metrics: the terms metric needs cost.terms"):
         Task.load("cartpole-wall", ["metrics=[default, terms]", "num_steps=5"]).validate()
+
+
+def test_check_lists_the_terms_on_the_initial_guess(capsys):
+    from hydroilqr import cli
+
+    assert cli.main(["check", "kinova-reach", "--smoke"]) == 0
+    out = capsys.readouterr().out
+    # the hand starts 0.59 m from its target (the guess holds the arm still)
+    assert "cost term hand (position): |r| = 0.593" in out

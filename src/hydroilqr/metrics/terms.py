@@ -25,6 +25,22 @@ def term_metrics(task, sol) -> dict:
     }
 
 
+def terms_on_guess(task) -> list[dict]:
+    """Each task-space term on the rollout of the task's initial guess over its horizon (or
+    first window): name, type, cost, error and final (as in ``report``); ``hydroilqr check``
+    lists them. Empty for a task without terms."""
+    terms = task.cost.task_terms
+    if terms is None:
+        return []
+    X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
+    report = terms.report(X, 0.0)
+    out = []
+    for t in terms.terms:
+        r = report.get(t.name, {"cost": 0.0, "error": None, "final": None})
+        out.append({"name": t.name, "type": t.cfg.type, **r})
+    return out
+
+
 def validate_terms(task) -> None:
     if not task.config.cost.terms:
         raise ConfigError("metrics: the terms metric needs cost.terms (the task has none)")
