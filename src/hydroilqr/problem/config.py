@@ -39,6 +39,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
       reference: ''               # a solved run to track (its states are the nominal)
       reference_blocks: []        # blocks taken from the reference (empty: all)
+      terms: []                   # task-space terms (TermConfig, model/terms.py), e.g.
+                                  # [{name: hand, type: position, body: gripper,
+                                  #   target: [0.4, 0.3, 0.5], weight: 1000, terminal: true}]
     solver: {max_iterations: 100, derivatives: central}
     receding_horizon: null        # {window_steps: W, shift_steps: S, resolves: R, max_iterations}:
                                   # R windows of W steps, each keeps its first S steps, so the
