@@ -183,7 +183,8 @@ class TaskSpaceTerms:
         for g in ids:
             body = self.plant.GetBodyFromFrameId(inspector.GetFrameId(g))
             frame = body.body_frame() if body is not None else self.plant.world_frame()
-            self._gframe[g] = (frame, inspector.GetPoseInFrame(g))
+            X = inspector.GetPoseInFrame(g)  # geometry in its body's frame, as (R, p)
+            self._gframe[g] = (frame, X.rotation().matrix(), X.translation())
 
     # ------------------------------------------------------------------ residuals
     def _set(self, x: np.ndarray) -> None:
@@ -267,10 +268,10 @@ class TaskSpaceTerms:
         s = float(sd.distance)
         r, d = self._scalar(t, s)
         if jac and d:
-            fa, X_AG = self._gframe[sd.id_A]
-            fb, X_BG = self._gframe[sd.id_B]
-            Ja = self._jq(fa, X_AG @ np.asarray(sd.p_ACa))
-            Jb = self._jq(fb, X_BG @ np.asarray(sd.p_BCb))
+            fa, Ra, pa = self._gframe[sd.id_A]
+            fb, Rb, pb = self._gframe[sd.id_B]
+            Ja = self._jq(fa, Ra @ sd.p_ACa + pa)  # the witness points on their bodies
+            Jb = self._jq(fb, Rb @ sd.p_BCb + pb)
             J[0, :nq] = d * (np.asarray(sd.nhat_BA_W).ravel() @ (Ja - Jb))
         return np.array([r]), J, s
 
