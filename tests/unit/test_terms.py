@@ -124,6 +124,9 @@ def test_windows_ramps_and_breakdown(kinova):
         max(0.0, 0.5 - rep["lift"]["final"])
     )
     assert rep["near"]["error"] == pytest.approx(abs(rep["near"]["final"]))
+    # states sampled on another grid (an MPC run's): their own times decide the windows
+    assert terms.report(X, 0.0, times=[0.0, 0.02, 0.04, 0.06])["apart"]["step"] == 0
+    assert rep["apart"]["step"] == 1
 
 
 def test_position_term_targets_relative_to_start_and_moving(kinova):

@@ -18,7 +18,7 @@ def term_metrics(task, sol) -> dict:
     terms = task.cost.task_terms
     if terms is None:
         return {}
-    report = terms.report(sol.X, float(sol.t[0]))
+    report = terms.report(sol.X, float(sol.t[0]), sol.t)  # (an MPC run's own time grid)
     return {
         "term_error": {name: r["error"] for name, r in report.items()},
         "term_final": {name: r["final"] for name, r in report.items()},

@@ -293,11 +293,12 @@ class TaskSpaceTerms:
         return out
 
     # ------------------------------------------------------------------ over a trajectory
-    def windows(self, N: int, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    def windows(self, N: int, t0: float, times=None) -> tuple[np.ndarray, np.ndarray]:
         """(active [n_terms, N+1] bool, factor [n_terms, N+1]): where each term counts in an
         N-step solve from t0 and its weight factor there (ramp × dt for running terms with
-        running_cost_dt; 0 outside the window)."""
-        times = t0 + self.dt * np.arange(N + 1)
+        running_cost_dt; 0 outside the window). ``times``: [N+1] the states' times, if not
+        t0 + k·dt (e.g. a closed-loop run sampled otherwise)."""
+        times = self._times(N, t0, times)
         active = np.zeros((len(self.terms), N + 1), bool)
         factor = np.zeros((len(self.terms), N + 1))
         eps = 1e-9
@@ -321,16 +322,21 @@ class TaskSpaceTerms:
             factor[i] = np.where(on, ramp * (self.dt if self.running_cost_dt else 1.0), 0.0)
         return active, factor
 
-    def _evaluate(self, X: np.ndarray, t0: float, jac: bool):
+    def _times(self, N: int, t0: float, times=None) -> np.ndarray:
+        if times is not None and len(times) == N + 1:
+            return np.asarray(times, float)
+        return t0 + self.dt * np.arange(N + 1)
+
+    def _evaluate(self, X: np.ndarray, t0: float, jac: bool, times=None):
         """Per term: residuals R [N+1, m] (0 outside its window), Jacobians [N+1, m, nx] (with
         ``jac``) and the measured quantity at each active step (dict k -> value)."""
         X = np.asarray(X, float)
         N = X.shape[0] - 1
-        active, factor = self.windows(N, t0)
+        active, factor = self.windows(N, t0, times)
         R = [np.zeros((N + 1, t.size)) for t in self.terms]
         Js = [np.zeros((N + 1, t.size, self.nx)) for t in self.terms] if jac else None
         meas: list[dict] = [{} for _ in self.terms]
-        times = t0 + self.dt * np.arange(N + 1)
+        times = self._times(N, t0, times)
         for k in np.flatnonzero(active.any(axis=0)):
             self._set(X[k])
             for i in np.flatnonzero(active[:, k]):
@@ -372,11 +378,12 @@ class TaskSpaceTerms:
             lxx += 2.0 * f[:, :, None] * np.einsum("kmj,m,kml->kjl", Js[i], t.weights, Js[i])
         return lx, lxx
 
-    def report(self, X: np.ndarray, t0: float = 0.0) -> dict[str, dict]:
+    def report(self, X: np.ndarray, t0: float = 0.0, times=None) -> dict[str, dict]:
         """Per term, at the last step of its window in X: ``error`` (|r|, unweighted: m, m/s),
         ``final`` (the point's position or velocity [3], the height or distance), ``step``;
-        and ``cost`` (its cost along X). Empty for a term whose window holds no step."""
-        active, factor, R, _, meas = self._evaluate(X, t0, False)
+        and ``cost`` (its cost along X). Empty for a term whose window holds no step.
+        ``times``: [N+1] the states' times, if not t0 + k·dt."""
+        active, factor, R, _, meas = self._evaluate(X, t0, False, times)
         out = {}
         for i, t in enumerate(self.terms):
             steps = np.flatnonzero(active[i])
