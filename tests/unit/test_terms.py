@@ -21,6 +21,11 @@ TERMS = [
     {"name": "rel", "type": "position", "body": "gripper", "relative_to": "ball",
      "axes": ["x", "z"], "relative_to_start": True, "target": [0.02, 0, 0.01], "weight": 5.0,
      "after": 0.01},
+    {"name": "turn", "type": "orientation", "body": "gripper", "target": [0.1, 0.2, 0.3],
+     "weight": [1.0, 2.0, 3.0]},
+    {"name": "roll", "type": "orientation", "body": "ball", "relative_to": "gripper",
+     "relative_to_start": True, "target": [0.9, 0.1, 0.2, 0.1], "axes": ["x", "y"],
+     "weight": 0.5},
     {"name": "slide", "type": "velocity", "body": "bracelet_link", "point": [0.01, 0.02, 0.03],
      "axes": ["x", "z"], "weight": 0.3},
     {"name": "ballv", "type": "velocity", "body": "ball", "point": [0.03, 0.02, 0.05],
@@ -66,7 +71,8 @@ def _fd(f, X, h=1e-6):
 
 
 def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
-    """J = ∂r/∂x of each term (position, velocity incl. its q-dependence, height, distance),
+    """J = ∂r/∂x of each term (position, orientation, velocity incl. its q-dependence,
+    height, distance),
     where its weight is positive, against central differences (h = 1e-6) of its residual over
     every coordinate, quaternion ones included: within 1e-8 (measured: 1e-10)."""
     task, X, _ = kinova
@@ -205,6 +211,10 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
          "cost.terms.t: give a target, or min and/or max (not both)"),
         ({"name": "t", "type": "height", "body": "b", "min": 0, "geometry_a": "g"},
          "cost.terms.t.geometry_a: a height term has no geometry_a"),
+        ({"name": "t", "type": "orientation", "body": "b", "target": [1, 2]},
+         "cost.terms.t.target: expected 3 numbers (roll, pitch, yaw) or 4"),
+        ({"name": "t", "type": "orientation", "body": "b", "target": [0, 0, 0],
+          "point": [0, 0, 1]}, "cost.terms.t.point: an orientation term has no point"),
         ({"name": "t", "type": "velocity", "body": "b", "axes": ["x", "w"]},
          "cost.terms.t.axes: expected distinct axes"),
         ({"name": "t", "type": "velocity", "body": "b", "axes": ["x", "y"], "weight": [1, 2, 3]},
@@ -228,3 +238,22 @@ def test_two_terms_with_one_name_are_refused(tmp_path):
     t = {"name": "t", "type": "velocity", "body": "b"}
     with pytest.raises(ConfigError, match="cost.terms\\[1\\].name: two terms are named 't'"):
         Task.load(str(write_case(tmp_path, edit(cost__terms=[t, t]))))
+
+
+def test_orientation_error_is_two_sin_half_the_angle_from_the_target(kinova):
+    from pydrake.math import RollPitchYaw, RotationMatrix
+
+    task, X, _ = kinova
+    terms = task.cost.task_terms
+    plant = task.dynamics.plant
+    ctx = plant.CreateDefaultContext()
+    target = RotationMatrix(RollPitchYaw([0.1, 0.2, 0.3]))
+    rep = terms.report(X)  # turn: running, last step N - 1
+    plant.SetPositionsAndVelocities(ctx, X[N - 1])
+    R = plant.CalcRelativeRotationMatrix(ctx, plant.world_frame(), plant.GetFrameByName("gripper"))
+    angle = target.InvertAndCompose(R).ToAngleAxis().angle()
+    assert rep["turn"]["error"] == pytest.approx(2 * np.sin(angle / 2), rel=1e-9)
+    np.testing.assert_allclose(rep["turn"]["final"], RollPitchYaw(R).vector(), atol=1e-9)
+    # relative to the start, no extra rotation: no error at the initial state
+    start = task.with_overrides(["cost.terms.roll.target=null"]).cost.task_terms
+    assert start.report(np.tile(task.x0, (N + 1, 1)))["roll"]["error"] < 1e-12

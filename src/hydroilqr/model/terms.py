@@ -9,6 +9,10 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
   that is fixed, moves linearly (``p*(t) = target + target_velocity · t``) or is an offset from
   P's position in the initial state (``relative_to_start``); in the world or in frame A
   (``relative_to``); S selects ``axes``.
+* ``orientation``: ``r = S e``, ``e = 2 sign(w) vec(q*⁻¹ ⊗ q_AB) = 2 sin(θ/2)·axis`` (the state
+  difference's error of ``state.py``: the rotation from the target to frame B's orientation in
+  A, in the target's axes), against a target roll-pitch-yaw or quaternion, or the start
+  orientation (``relative_to_start``, then ``target`` is a rotation after it).
 * ``velocity``: ``r = S (v_AP(q, v) − v*)``, P's translational velocity measured and expressed in
   A (default the world).
 * ``height``: ``s = n · p_WP`` (height above the plane through the origin with unit normal n),
@@ -21,7 +25,8 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
 Derivatives are Gauss-Newton, ``l_x = 2 f Jᵀ W r`` and ``l_xx = 2 f Jᵀ W J`` with
 ``J = ∂r/∂x`` in the state's coordinates x = [q; v], from MultibodyPlant kinematics: position
 Jacobians with respect to q̇ (``JacobianWrtVariable.kQDot``: the partials in q itself, also
-for quaternion coordinates, which Drake normalizes), the witness points' Jacobians projected
+for quaternion coordinates, which Drake normalizes), for an orientation the angular-velocity
+Jacobian mapped through ∂e/∂ω (q̇_AB = ½ [0; ω] ⊗ q_AB), the witness points' Jacobians projected
 on the distance's gradient direction ``nhat_BA_W`` for a distance, and for a velocity the
 Jacobian with respect to v, its change with q by central differences of that Jacobian over
 the coordinates that move the point. One plant context (of its own diagram context, for the
@@ -37,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 
+from hydroilqr.model.state import left_mul_matrix, quat_conj
 from hydroilqr.problem.config import AXES, ConfigError, TermConfig, unknown_key
 
 # Central-difference step (in q's units) of a velocity term's ∂v_P/∂q.
@@ -97,6 +103,10 @@ class TaskSpaceTerms:
             if t.cfg.type == "position" and t.cfg.relative_to_start:
                 p0 = self._position(t)
                 t.target0 = p0 + (np.zeros(3) if t.cfg.target is None else t.target0)
+            if t.cfg.type == "orientation" and t.cfg.relative_to_start:
+                q0 = self._quaternion(t)
+                extra = np.array([1.0, 0, 0, 0]) if t.cfg.target is None else t.target0
+                t.target0 = _quat_product(q0, extra)
             if t.cfg.type == "distance":
                 self._distance(t)  # every pair is supported (a ConfigError names it)
 
@@ -143,7 +153,7 @@ class TaskSpaceTerms:
 
     def _resolve(self, c: TermConfig) -> _Term:
         key = f"cost.terms.{c.name}"
-        vector = c.type in ("position", "velocity")
+        vector = c.type in ("position", "orientation", "velocity")
         sel = [AXES.index(a) for a in c.axes] if vector else [0]
         w = np.asarray(c.weight, float).reshape(-1)
         weights = np.full(len(sel), w[0]) if w.size == 1 else w
@@ -168,6 +178,8 @@ class TaskSpaceTerms:
         )
         if c.type == "position" and c.target is not None:
             t.target0 = np.asarray(c.target, float)
+        if c.type == "orientation" and c.target is not None:
+            t.target0 = _quaternion(c.target)
         if c.type == "velocity":
             t.target0 = np.zeros(3) if c.target is None else np.asarray(c.target, float)
             t.q_moving = self._moving_coordinates([t.frame, t.frame_a])
@@ -192,6 +204,11 @@ class TaskSpaceTerms:
 
     def _position(self, t: _Term) -> np.ndarray:
         return self.plant.CalcPointsPositions(self._pc, t.frame, t.point, t.frame_a).ravel()
+
+    def _quaternion(self, t: _Term) -> np.ndarray:
+        """Frame B's orientation in A as a unit quaternion [w, x, y, z]."""
+        q = self.plant.CalcRelativeRotationMatrix(self._pc, t.frame_a, t.frame).ToQuaternion()
+        return np.array([q.w(), q.x(), q.y(), q.z()])
 
     def _jq(self, frame, point, frame_a=None) -> np.ndarray:
         """∂p_AP/∂q (expressed in A, default world): [3, nq]."""
@@ -247,6 +264,19 @@ class TaskSpaceTerms:
             if jac:
                 J[:, :nq] = self._jq(t.frame, t.point, t.frame_a)[t.sel]
             return r, J, p
+        if kind == "orientation":
+            q = self._quaternion(t)
+            L = left_mul_matrix(quat_conj(t.target0))
+            qe = L @ q
+            s = -1.0 if qe[0] < 0 else 1.0
+            r = (2.0 * s * qe[1:])[t.sel]
+            if jac:
+                # ė = s (L(q*⁻¹) R(q))[1:, 1:] ω_AB (q̇ = ½ [0; ω] ⊗ q), ω_AB = J_ω q̇
+                Jw = self.plant.CalcJacobianAngularVelocity(
+                    self._pc, JacobianWrtVariable.kQDot, t.frame, t.frame_a, t.frame_a
+                )
+                J[:, :nq] = (s * (L @ _right_mul_matrix(q))[1:, 1:] @ Jw)[t.sel]
+            return r, J, _rpy(q)
         if kind == "velocity":
             Jv = self._jv(t)
             v = Jv @ x[nq:]
@@ -399,3 +429,33 @@ class TaskSpaceTerms:
                 "cost": cost,
             }
         return out
+
+
+# ---------------------------------------------------------------------------------- rotations
+def _quaternion(target) -> np.ndarray:
+    """A unit quaternion [w, x, y, z] from roll-pitch-yaw [3] (rad) or a quaternion [4]."""
+    from pydrake.math import RollPitchYaw
+
+    v = np.asarray(target, float)
+    if v.size == 3:
+        q = RollPitchYaw(v).ToQuaternion()
+        v = np.array([q.w(), q.x(), q.y(), q.z()])
+    return v / np.linalg.norm(v)
+
+
+def _quat_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return left_mul_matrix(a) @ b
+
+
+def _right_mul_matrix(b: np.ndarray) -> np.ndarray:
+    """R(b) such that a ⊗ b = R(b) a (quaternions [w, x, y, z])."""
+    w, x, y, z = b
+    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
+
+
+def _rpy(q: np.ndarray) -> list[float]:
+    """Roll, pitch, yaw (rad) of a unit quaternion [w, x, y, z]."""
+    from pydrake.common.eigen_geometry import Quaternion
+    from pydrake.math import RollPitchYaw
+
+    return RollPitchYaw(Quaternion(q / np.linalg.norm(q))).vector().tolist()

@@ -174,7 +174,7 @@ class ActuatorConfig:
 NOMINAL_TIMES = ("step", "horizon_end")
 
 # Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
-TERM_TYPES = ("position", "velocity", "height", "distance")
+TERM_TYPES = ("position", "orientation", "velocity", "height", "distance")
 AXES = ("x", "y", "z")
 
 
@@ -185,19 +185,23 @@ class TermConfig:
     its window (running) or at the last state (``terminal``)."""
 
     name: str = ""
-    type: str = ""  # position | velocity | height | distance
-    # A number, or one per axis of ``axes`` (position, velocity).
+    type: str = ""  # position | orientation | velocity | height | distance
+    # A number, or one per axis of ``axes`` (position, orientation, velocity).
     weight: Any = 1.0
     # position, velocity, height: the point, fixed on ``body`` (a body or frame name) at
-    # ``point`` (xyz in that frame, m).
+    # ``point`` (xyz in that frame, m); orientation: the frame ``body``.
     body: str = ""
     point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
-    # position, velocity: measured in (and expressed in) this body or frame; default world.
+    # position, orientation, velocity: measured in (and expressed in) this body or frame;
+    # default world.
     relative_to: str = ""
-    # position, velocity: the residual's axes (of the world or ``relative_to`` frame).
+    # position, orientation, velocity: the residual's axes (of the world or ``relative_to``
+    # frame; an orientation's: of the target frame).
     axes: list[str] = field(default_factory=lambda: ["x", "y", "z"])
     # position: target xyz (m) at t = 0, moving at ``target_velocity`` (m/s); with
     # ``relative_to_start`` an offset from the point's position in the initial state.
+    # orientation: roll-pitch-yaw [3] (rad) or a quaternion [w, x, y, z], with
+    # ``relative_to_start`` a rotation after the start orientation (default none).
     # velocity: the target velocity (m/s; default 0). height, distance: a number (m).
     target: Any = None
     target_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
@@ -1535,6 +1539,7 @@ def _validate_cost(cost: CostConfig) -> None:
 _TERM_KEYS = {
     "position": {"body", "point", "relative_to", "axes", "target", "target_velocity",
                  "relative_to_start"},
+    "orientation": {"body", "relative_to", "axes", "target", "relative_to_start"},
     "velocity": {"body", "point", "relative_to", "axes", "target"},
     "height": {"body", "point", "target", "min", "max", "normal"},
     "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
@@ -1555,10 +1560,11 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     default = TermConfig()
     for f in sorted(_TERM_KEYS["position"] | _TERM_KEYS["distance"] | {"normal", "min", "max"}):
         if f not in _TERM_KEYS[term.type] and getattr(term, f) != getattr(default, f):
-            raise ConfigError(f"{key}.{f}: a {term.type} term has no {f}")
-    vector = term.type in ("position", "velocity")
+            article = "an" if term.type[0] in "aeiou" else "a"
+            raise ConfigError(f"{key}.{f}: {article} {term.type} term has no {f}")
+    vector = term.type in ("position", "orientation", "velocity")
     _validate_term_weight(term, key, vector)
-    if term.type in ("position", "velocity", "height") and not term.body:
+    if term.type != "distance" and not term.body:
         raise ConfigError(f"{key}.body: required (the body or frame the point is fixed on)")
     if term.type == "distance" and not (term.geometry_a and term.geometry_b):
         raise ConfigError(f"{key}: a distance term needs geometry_a and geometry_b")
@@ -1595,18 +1601,29 @@ def _validate_term_weight(term: TermConfig, key: str, vector: bool) -> None:
 
 
 def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
-    """position: a target of 3 numbers (optional with relative_to_start: offset 0); velocity:
-    none (0) or 3 numbers; height, distance: a target number, or min and/or max."""
+    """position: a target of 3 numbers (optional with relative_to_start: offset 0);
+    orientation: 3 (roll, pitch, yaw) or 4 (quaternion) numbers (optional with
+    relative_to_start); velocity: none (0) or 3 numbers; height, distance: a target number, or
+    min and/or max."""
     t = term.target
     if vector:
         if t is None:
-            if term.type == "position" and not term.relative_to_start:
-                raise ConfigError(f"{key}.target: required (xyz in m), or relative_to_start")
+            if term.type in ("position", "orientation") and not term.relative_to_start:
+                what = "xyz in m" if term.type == "position" else "roll, pitch, yaw in rad"
+                raise ConfigError(f"{key}.target: required ({what}), or relative_to_start")
             return
-        if not isinstance(t, list) or len(t) != 3:
-            raise ConfigError(f"{key}.target: expected 3 numbers (x, y, z), got {t!r}")
+        sizes = (3, 4) if term.type == "orientation" else (3,)
+        if not isinstance(t, list) or len(t) not in sizes:
+            want = (
+                "3 numbers (roll, pitch, yaw) or 4 (a quaternion w, x, y, z)"
+                if term.type == "orientation"
+                else "3 numbers (x, y, z)"
+            )
+            raise ConfigError(f"{key}.target: expected {want}, got {t!r}")
         for x in t:
             _check_weight(x, t, f"{key}.target", False)
+        if len(t) == 4 and math.hypot(*t) < 1e-9:
+            raise ConfigError(f"{key}.target: a quaternion must be non-zero")
         return
     bounds = term.min is not None or term.max is not None
     if (t is None) == (not bounds):
