@@ -56,10 +56,11 @@ class _Term:
     cfg: TermConfig
     weights: np.ndarray  # [m] per residual component
     sel: list[int]  # the axes (position, velocity)
-    frame: object = None  # the point's frame (position, velocity, height)
+    frame: object = None  # the point's frame (position, velocity, height; orientation's B)
     point: np.ndarray | None = None  # P in that frame
-    frame_a: object = None  # measured in (position, velocity)
-    target0: np.ndarray | None = None  # position: target at t = 0; velocity: target
+    frame_a: object = None  # measured in (position, orientation, velocity)
+    # position: the target at t = 0; orientation: the target quaternion; velocity: the target
+    target0: np.ndarray | None = None
     q_moving: np.ndarray | None = None  # velocity: coordinates of q that move P or A
     normal: np.ndarray | None = None  # height
     pairs: list | None = None  # distance: (GeometryId a, GeometryId b)

@@ -1279,13 +1279,14 @@ def validate_for_solve(cfg: TaskConfig) -> None:
     its dynamics, need not): ConfigError for a cost without terms."""
     if not _has_cost_terms(cfg.cost):
         raise ConfigError(
-            "cost: no terms (every weight in Q, Qf and R is zero or missing): there is nothing "
-            "to optimize; give the cost some positive weights"
+            "cost: no terms (every weight in Q, Qf, R and cost.terms is zero or missing): there "
+            "is nothing to optimize; give the cost some positive weights"
         )
 
 
 def _has_cost_terms(cost: CostConfig) -> bool:
-    """Some weight of Q, Qf or R is positive (a malformed R counts: its own check says why)."""
+    """Some weight of Q, Qf, R or a task-space term is positive (a malformed R counts: its own
+    check says why)."""
 
     def positive(w: Any) -> bool:
         if isinstance(w, dict):
