@@ -17,10 +17,10 @@ receding-horizon window (the paper's public cheetah code sets its target this wa
 ``r = x ⊖ x_nom`` and ``Jr = ∂r/∂x``, ``l_x = 2 Jrᵀ Q r`` and ``l_xx = 2 Jrᵀ Q Jr``
 (Gauss-Newton on quaternion blocks, exact elsewhere).
 
-Task-space terms (``cost.terms``: positions, velocities and heights of points on bodies,
-distances between geometries; ``model/terms.py``) are added to these when a task has them
-(``task_terms``): their costs to each step's, their Gauss-Newton derivatives to l_x and l_xx,
-their values to ``breakdown`` as ``terms.<name>``. Without them nothing changes.
+Task-space terms (``cost.terms``: positions, velocities and heights of points on bodies, frame
+orientations, distances between geometries; ``model/terms.py``) are added to these when a task
+has them (``task_terms``): their costs to each step's, their Gauss-Newton derivatives to l_x
+and l_xx, their values to ``breakdown`` as ``terms.<name>``. Without them nothing changes.
 """
 
 from __future__ import annotations
