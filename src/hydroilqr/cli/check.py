@@ -231,6 +231,9 @@ def _simulation(r: dict) -> None:
         )
     else:
         console.print("  no contact along the rollout of the initial guess")
+    for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
+        err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
+        console.print(f"  cost term {t['name']} ({t['type']}): {err}, cost {t['cost']:.4g}")
 
 
 def _warnings(r: dict) -> None:

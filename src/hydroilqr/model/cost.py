@@ -16,6 +16,11 @@ receding-horizon window (the paper's public cheetah code sets its target this wa
 ``quadratize`` returns the derivatives iLQR needs in Drake's coordinates: with
 ``r = x ⊖ x_nom`` and ``Jr = ∂r/∂x``, ``l_x = 2 Jrᵀ Q r`` and ``l_xx = 2 Jrᵀ Q Jr``
 (Gauss-Newton on quaternion blocks, exact elsewhere).
+
+Task-space terms (``cost.terms``: positions, velocities and heights of points on bodies, frame
+orientations, distances between geometries; ``model/terms.py``) are added to these when a task
+has them (``task_terms``): their costs to each step's, their Gauss-Newton derivatives to l_x
+and l_xx, their values to ``breakdown`` as ``terms.<name>``. Without them nothing changes.
 """
 
 from __future__ import annotations
@@ -67,13 +72,23 @@ class QuadraticCost:
         self.dt = dt
         self.terms = terms or {}
         self.nominal_time = nominal_time
+        self.task_terms = None  # model.terms.TaskSpaceTerms, when the task has cost.terms
 
     @staticmethod
     def from_config(
-        layout: StateLayout, cfg: CostConfig, dt: float, resolve=None, models=None
+        layout: StateLayout,
+        cfg: CostConfig,
+        dt: float,
+        resolve=None,
+        models=None,
+        dynamics=None,
+        x0=None,
+        end_time: float = 0.0,
     ) -> QuadraticCost:
         """``resolve(path) -> Path`` locates ``cfg.reference`` (default: as given); ``models``
-        (the task's model files) must match the reference run's, when its summary names them."""
+        (the task's model files) must match the reference run's, when its summary names them.
+        ``cfg.terms`` need the plant (``dynamics``), the initial state ``x0`` and the task's
+        ``end_time`` (model/terms.py)."""
         q = layout.tangent_vector(cfg.Q, "cost.Q")
         qf = layout.tangent_vector(cfg.Qf, "cost.Qf")
         r = QuadraticCost._control_weights(layout, cfg.R)
@@ -89,6 +104,15 @@ class QuadraticCost:
             cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
         elif cfg.reference_blocks:
             raise ConfigError("cost.reference_blocks: given without cost.reference")
+        if cfg.terms:
+            if dynamics is None:
+                raise ConfigError("cost.terms: task-space terms need the task's plant")
+            from hydroilqr.model.terms import TaskSpaceTerms
+
+            x0 = dynamics.initial_state() if x0 is None else x0
+            cost.task_terms = TaskSpaceTerms(
+                dynamics, cfg.terms, dt, cfg.running_cost_dt, x0, end_time
+            )
         return cost
 
     @staticmethod
@@ -204,6 +228,8 @@ class QuadraticCost:
                 "ki,i,ki->k", U, self.r, U
             )
             c[N] = R[N] @ (self.qf * R[N])
+            if self.task_terms is not None:
+                c += self.task_terms.stage_costs(X, t0)
         return c
 
     def total(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> float:
@@ -223,6 +249,8 @@ class QuadraticCost:
             else:
                 out[name] = float(np.sum(R[N, idx] ** 2 * self.qf[idx]))
         out["R"] = float(np.sum(U**2 * self.r))
+        if self.task_terms is not None:
+            out.update(self.task_terms.breakdown(X, t0))
         return out
 
     def quadratize(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> Quadratization:
@@ -246,6 +274,9 @@ class QuadraticCost:
             lx[:, c] = 2.0 * W[:, t] * R[:, t]
             lxx = np.zeros((N + 1, nx, nx))
             lxx[:, c, c] = 2.0 * W[:, t]
+        if self.task_terms is not None:
+            tx, txx = self.task_terms.quadratize(X, t0)
+            lx, lxx = lx + tx, lxx + txx
         lu = 2.0 * U * self.r
         luu = np.zeros((N, U.shape[1], U.shape[1]))
         iu = np.arange(U.shape[1])

@@ -225,6 +225,10 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("contacts")
 
     _simulation(task, pairs, rollout_steps, out)
+    if cfg.cost.terms:  # the task-space cost terms on the guess's rollout over the horizon
+        from hydroilqr.metrics.terms import terms_on_guess
+
+        out["terms"] = terms_on_guess(task)
     done("simulation")
     _rollout_warnings(pairs, out, warn)
     done("warnings")

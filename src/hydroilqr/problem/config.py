@@ -39,6 +39,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
       reference: ''               # a solved run to track (its states are the nominal)
       reference_blocks: []        # blocks taken from the reference (empty: all)
+      terms: []                   # task-space terms (TermConfig, model/terms.py), e.g.
+                                  # [{name: hand, type: position, body: gripper,
+                                  #   target: [0.4, 0.3, 0.5], weight: 1000, terminal: true}]
     solver: {max_iterations: 100, derivatives: central}
     receding_horizon: null        # {window_steps: W, shift_steps: S, resolves: R, max_iterations}:
                                   # R windows of W steps, each keeps its first S steps, so the
@@ -170,6 +173,58 @@ class ActuatorConfig:
 
 NOMINAL_TIMES = ("step", "horizon_end")
 
+# Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
+TERM_TYPES = ("position", "orientation", "velocity", "height", "distance")
+AXES = ("x", "y", "z")
+
+
+@dataclass
+class TermConfig:
+    """One task-space cost term (``cost.terms``; model/terms.py): a residual r(x) of a point on
+    a body (or of two geometries' signed distance), costing ``weight · |r|²`` at every step of
+    its window (running) or at the last state (``terminal``)."""
+
+    name: str = ""
+    type: str = ""  # position | orientation | velocity | height | distance
+    # A number, or one per axis of ``axes`` (position, orientation, velocity).
+    weight: Any = 1.0
+    # position, velocity, height: the point, fixed on ``body`` (a body or frame name) at
+    # ``point`` (xyz in that frame, m); orientation: the frame ``body``.
+    body: str = ""
+    point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    # position, orientation, velocity: measured in (and expressed in) this body or frame;
+    # default world.
+    relative_to: str = ""
+    # position, orientation, velocity: the residual's axes (of the world or ``relative_to``
+    # frame; an orientation's: of the target frame).
+    axes: list[str] = field(default_factory=lambda: ["x", "y", "z"])
+    # position: target xyz (m) at t = 0, moving at ``target_velocity`` (m/s); with
+    # ``relative_to_start`` an offset from the point's position in the initial state.
+    # orientation: roll-pitch-yaw [3] (rad) or a quaternion [w, x, y, z], with
+    # ``relative_to_start`` a rotation after the start orientation (default none).
+    # velocity: the target velocity (m/s; default 0). height, distance: a number (m).
+    target: Any = None
+    target_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    relative_to_start: bool = False
+    # height, distance: one-sided bounds instead of a target: a cost only below ``min`` or
+    # above ``max`` (height: a clearance ``min``; distance: an approach ``max``).
+    min: float | None = None
+    max: float | None = None
+    # height: the plane's unit normal through the world origin (height = normal · p).
+    normal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.0])
+    # distance: the two geometries (names as in ``geometry:``: a body, a collision name, or
+    # BODY/GEOMETRY; the closest pair counts).
+    geometry_a: str = ""
+    geometry_b: str = ""
+    # The time window of a running term (s, inclusive; default the whole trajectory), or the
+    # last state only.
+    after: float | None = None
+    until: float | None = None
+    terminal: bool = False
+    # Weight factors [at the window's start, at its end], linear in between (default [1, 1]);
+    # a window without ``until`` ends at the task's end.
+    ramp: list[float] = field(default_factory=list)
+
 
 @dataclass
 class CostConfig:
@@ -190,6 +245,9 @@ class CostConfig:
     # the last state is held. Other blocks keep nominal / nominal_rate.
     reference: str = ""
     reference_blocks: list[str] = field(default_factory=list)
+    # Task-space terms (TermConfig): named residuals of points, velocities, heights and
+    # distances, beside the quadratic terms above.
+    terms: list[TermConfig] = field(default_factory=list)
 
 
 class DerivativeMethod(enum.Enum):
@@ -648,10 +706,7 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     for i, p in enumerate(parts[:-1]):
         where = ".".join(parts[: i + 1])
         if isinstance(node, list):
-            try:
-                node = node[int(p)]
-            except (ValueError, IndexError):
-                raise ConfigError(f"{key}: no list element {where}") from None
+            node = _list_element(node, p, f"{key}: no list element {where}")
             continue
         if not isinstance(node, dict):
             raise ConfigError(f"{key}: {where} is not a section")
@@ -671,6 +726,18 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
             f"{key}: {parent} is a single value here; set it as a mapping instead: "
             f"--set '{parent}={{{parts[-1]}: ...}}'"
         )
+
+
+def _list_element(node: list, p: str, missing: str) -> Any:
+    """Element ``p`` of a list in a dotted key: an index, or the one element (a mapping) whose
+    ``name`` is ``p`` (``cost.terms.reach.weight``)."""
+    named = [e for e in node if isinstance(e, dict) and e.get("name") == p]
+    if len(named) == 1 and not p.isdigit():
+        return named[0]
+    try:
+        return node[int(p)]
+    except (ValueError, IndexError):
+        raise ConfigError(missing) from None
 
 
 def parse_override(text: str) -> tuple[str, Any]:
@@ -1212,13 +1279,14 @@ def validate_for_solve(cfg: TaskConfig) -> None:
     its dynamics, need not): ConfigError for a cost without terms."""
     if not _has_cost_terms(cfg.cost):
         raise ConfigError(
-            "cost: no terms (every weight in Q, Qf and R is zero or missing): there is nothing "
-            "to optimize; give the cost some positive weights"
+            "cost: no terms (every weight in Q, Qf, R and cost.terms is zero or missing): there "
+            "is nothing to optimize; give the cost some positive weights"
         )
 
 
 def _has_cost_terms(cost: CostConfig) -> bool:
-    """Some weight of Q, Qf or R is positive (a malformed R counts: its own check says why)."""
+    """Some weight of Q, Qf, R or a task-space term is positive (a malformed R counts: its own
+    check says why)."""
 
     def positive(w: Any) -> bool:
         if isinstance(w, dict):
@@ -1230,7 +1298,9 @@ def _has_cost_terms(cost: CostConfig) -> bool:
         except (TypeError, ValueError):
             return True
 
-    return any(positive(w) for w in (cost.Q, cost.Qf, cost.R))
+    return any(positive(w) for w in (cost.Q, cost.Qf, cost.R)) or any(
+        positive(t.weight) for t in cost.terms
+    )
 
 
 def validate(cfg: TaskConfig) -> None:
@@ -1461,6 +1531,108 @@ def _validate_cost(cost: CostConfig) -> None:
             vals = v if isinstance(v, list) else [v]
             for x in vals:
                 _check_weight(x, v, f"cost.{section}.{k}", section != "nominal_rate")
+    names: set[str] = set()
+    for i, term in enumerate(cost.terms):
+        _validate_term(term, f"cost.terms[{i}]", names)
+
+
+# The keys each term type reads (besides name, type, weight and the window keys).
+_TERM_KEYS = {
+    "position": {"body", "point", "relative_to", "axes", "target", "target_velocity",
+                 "relative_to_start"},
+    "orientation": {"body", "relative_to", "axes", "target", "relative_to_start"},
+    "velocity": {"body", "point", "relative_to", "axes", "target"},
+    "height": {"body", "point", "target", "min", "max", "normal"},
+    "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
+}  # fmt: skip
+
+
+def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
+    """A term's name (unique), type, weight, the keys its type reads (and no other key set),
+    target and window; the model's names are checked when the plant is built."""
+    if not term.name or not all(c.isalnum() or c in "-_" for c in term.name):
+        raise ConfigError(f"{key}.name: required: letters, digits, - and _ (got {term.name!r})")
+    if term.name in names:
+        raise ConfigError(f"{key}.name: two terms are named {term.name!r}")
+    names.add(term.name)
+    key = f"cost.terms.{term.name}"
+    if term.type not in TERM_TYPES:
+        raise ConfigError(f"{key}.type: {unknown_key(term.type, list(TERM_TYPES), 'term type')}")
+    default = TermConfig()
+    for f in sorted(_TERM_KEYS["position"] | _TERM_KEYS["distance"] | {"normal", "min", "max"}):
+        if f not in _TERM_KEYS[term.type] and getattr(term, f) != getattr(default, f):
+            article = "an" if term.type[0] in "aeiou" else "a"
+            raise ConfigError(f"{key}.{f}: {article} {term.type} term has no {f}")
+    vector = term.type in ("position", "orientation", "velocity")
+    _validate_term_weight(term, key, vector)
+    if term.type != "distance" and not term.body:
+        raise ConfigError(f"{key}.body: required (the body or frame the point is fixed on)")
+    if term.type == "distance" and not (term.geometry_a and term.geometry_b):
+        raise ConfigError(f"{key}: a distance term needs geometry_a and geometry_b")
+    _check_length(term.point, 3, f"{key}.point")
+    _check_length(term.target_velocity, 3, f"{key}.target_velocity")
+    _check_length(term.normal, 3, f"{key}.normal")
+    if math.hypot(*term.normal) < 1e-9:
+        raise ConfigError(f"{key}.normal: must be non-zero")
+    _validate_term_target(term, key, vector)
+    if term.terminal and (term.after is not None or term.until is not None or term.ramp):
+        raise ConfigError(f"{key}.terminal: a terminal term has no after, until or ramp")
+    if term.after is not None and term.after < 0:
+        raise ConfigError(f"{key}.after: must be >= 0 s, got {term.after}")
+    if term.after is not None and term.until is not None and term.until < term.after:
+        raise ConfigError(f"{key}.until: {term.until} s is before after ({term.after} s)")
+    if term.ramp:
+        _check_length(term.ramp, 2, f"{key}.ramp")
+        if min(term.ramp) < 0:
+            raise ConfigError(f"{key}.ramp: factors must be non-negative, got {term.ramp}")
+
+
+def _validate_term_weight(term: TermConfig, key: str, vector: bool) -> None:
+    """Distinct axes among x, y, z (position, velocity); a weight >= 0, or one per axis."""
+    axes = term.axes
+    if vector and (not axes or any(a not in AXES for a in axes) or len(set(axes)) < len(axes)):
+        raise ConfigError(f"{key}.axes: expected distinct axes among x, y, z, got {axes}")
+    n = len(axes) if vector else 1
+    w = term.weight
+    ws = w if isinstance(w, list) and vector else [w]
+    for x in ws:
+        _check_weight(x, w, f"{key}.weight", True)
+    if len(ws) not in (1, n):
+        raise ConfigError(f"{key}.weight: expected a number or {n} values (one per axis)")
+
+
+def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
+    """position: a target of 3 numbers (optional with relative_to_start: offset 0);
+    orientation: 3 (roll, pitch, yaw) or 4 (quaternion) numbers (optional with
+    relative_to_start); velocity: none (0) or 3 numbers; height, distance: a target number, or
+    min and/or max."""
+    t = term.target
+    if vector:
+        if t is None:
+            if term.type in ("position", "orientation") and not term.relative_to_start:
+                what = "xyz in m" if term.type == "position" else "roll, pitch, yaw in rad"
+                raise ConfigError(f"{key}.target: required ({what}), or relative_to_start")
+            return
+        sizes = (3, 4) if term.type == "orientation" else (3,)
+        if not isinstance(t, list) or len(t) not in sizes:
+            want = (
+                "3 numbers (roll, pitch, yaw) or 4 (a quaternion w, x, y, z)"
+                if term.type == "orientation"
+                else "3 numbers (x, y, z)"
+            )
+            raise ConfigError(f"{key}.target: expected {want}, got {t!r}")
+        for x in t:
+            _check_weight(x, t, f"{key}.target", False)
+        if len(t) == 4 and math.hypot(*t) < 1e-9:
+            raise ConfigError(f"{key}.target: a quaternion must be non-zero")
+        return
+    bounds = term.min is not None or term.max is not None
+    if (t is None) == (not bounds):
+        raise ConfigError(f"{key}: give a target, or min and/or max (not both)")
+    if t is not None:
+        _check_weight(t, t, f"{key}.target", False)
+    if term.min is not None and term.max is not None and term.min > term.max:
+        raise ConfigError(f"{key}.min: {term.min} is above max {term.max}")
 
 
 def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:

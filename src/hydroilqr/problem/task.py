@@ -132,7 +132,16 @@ class Task:
             self.config.plant.time_step,
             self.config.resolve_path,
             [m.file for m in self.config.models],
+            dynamics=self.dynamics if self.config.cost.terms else None,
+            x0=self.x0 if self.config.cost.terms else None,
+            end_time=self._end_time(),
         )
+
+    def _end_time(self) -> float:
+        """The end of the task's trajectory (s): its horizon, or a receding run's kept steps."""
+        cfg, rh = self.config, self.config.receding_horizon
+        steps = rh.resolves * rh.shift_steps if rh is not None else cfg.steps
+        return steps * cfg.plant.time_step
 
     @functools.cached_property
     def x0(self) -> np.ndarray:

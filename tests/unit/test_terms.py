@@ -1,0 +1,259 @@
+"""model.terms: task-space cost terms (cost.terms): derivatives against central finite
+differences, windows and ramps, the cost breakdown, and configuration errors."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from hydroilqr import Task
+from hydroilqr.problem.config import ConfigError
+from tests.conftest import edit, write_case
+
+# Every term type on the Kinova arm and its ball (a quaternion floating body), with the
+# options that change the residual: per-axis weights, a moving target, a relative frame,
+# relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window.
+TERMS = [
+    {"name": "reach", "type": "position", "body": "end_effector_link", "point": [0, 0, 0.12],
+     "target": [0.5, 0.1, 0.3], "target_velocity": [0.1, 0, 0], "weight": [1.0, 2.0, 3.0]},
+    {"name": "rel", "type": "position", "body": "gripper", "relative_to": "ball",
+     "axes": ["x", "z"], "relative_to_start": True, "target": [0.02, 0, 0.01], "weight": 5.0,
+     "after": 0.01},
+    {"name": "turn", "type": "orientation", "body": "gripper", "target": [0.1, 0.2, 0.3],
+     "weight": [1.0, 2.0, 3.0]},
+    {"name": "roll", "type": "orientation", "body": "ball", "relative_to": "gripper",
+     "relative_to_start": True, "target": [0.9, 0.1, 0.2, 0.1], "axes": ["x", "y"],
+     "weight": 0.5},
+    {"name": "slide", "type": "velocity", "body": "bracelet_link", "point": [0.01, 0.02, 0.03],
+     "axes": ["x", "z"], "weight": 0.3},
+    {"name": "ballv", "type": "velocity", "body": "ball", "point": [0.03, 0.02, 0.05],
+     "relative_to": "gripper", "target": [0.1, 0, 0], "weight": 0.2},
+    {"name": "lift", "type": "height", "body": "ball", "min": 0.5, "weight": 10.0,
+     "terminal": True},
+    {"name": "tilt", "type": "height", "body": "gripper", "target": 0.2,
+     "normal": [0.2, 0.1, 1.0], "ramp": [0.5, 2.0]},
+    {"name": "near", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
+     "target": 0.0, "weight": 7.0},
+    {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
+     "max": 0.01, "weight": 2.0, "until": 0.015},
+]  # fmt: skip
+
+N = 3
+
+
+@pytest.fixture(scope="module")
+def kinova():
+    """A 3-step Kinova task with every term, and states with the arm moved, velocities, and
+    the ball turned and lifted (so that every term is active): (task, X, U)."""
+    task = Task.load("kinova-forward", smoke=True, overrides={"cost.terms": TERMS, "num_steps": N})
+    lay = task.dynamics.layout
+    rng = np.random.default_rng(3)
+    X = np.tile(task.x0, (N + 1, 1))
+    X[:, :7] += 0.1 * rng.standard_normal((N + 1, 7))
+    X[:, 14:] += 0.5 * rng.standard_normal((N + 1, 13))
+    X[:, list(lay.primitives["ball.orientation"].coords)] = rng.standard_normal((N + 1, 4))
+    X[:, list(lay.primitives["ball.position"].coords)] += [0.0, 0.0, 0.05]
+    return task, lay.normalize(X), np.zeros((N, 7))
+
+
+def _fd(f, X, h=1e-6):
+    """Central differences of f(X) -> array over every entry of X: [*f.shape, *X.shape]."""
+    f0 = np.asarray(f(X))
+    out = np.zeros(f0.shape + X.shape)
+    for idx in np.ndindex(X.shape):
+        Xp, Xm = X.copy(), X.copy()
+        Xp[idx] += h
+        Xm[idx] -= h
+        out[(...,) + idx] = (np.asarray(f(Xp)) - np.asarray(f(Xm))) / (2 * h)
+    return out
+
+
+def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
+    """J = ∂r/∂x of each term (position, orientation, velocity incl. its q-dependence,
+    height, distance),
+    where its weight is positive, against central differences (h = 1e-6) of its residual over
+    every coordinate, quaternion ones included: within 1e-8 (measured: 1e-10)."""
+    task, X, _ = kinova
+    terms = task.cost.task_terms
+    active, factor, R, Js, _ = terms._evaluate(X, 0.0, True)
+    assert active.any(axis=1).all()
+    for i, term in enumerate(terms.terms):
+        for k in np.flatnonzero(factor[i] > 0):
+
+            def residual(x, i=i, k=k):
+                Xk = X.copy()
+                Xk[k] = x
+                return terms._evaluate(Xk, 0.0, False)[2][i][k]
+
+            J_fd = _fd(residual, X[k])
+            np.testing.assert_allclose(Js[i][k], J_fd, atol=1e-8, err_msg=term.name)
+
+
+def test_term_gradient_and_gauss_newton_hessian(kinova):
+    """l_x of the whole cost (quadratic + terms) against central differences of the total
+    cost (1e-7 relative); the terms' l_xx is the Gauss-Newton 2 Jᵀ W J (symmetric, PSD)."""
+    task, X, U = kinova
+    cost = task.cost
+    quad = cost.quadratize(X, U)
+    lx_fd = _fd(lambda Y: cost.total(Y, U), X)
+    # (quaternion blocks of the quadratic part are Gauss-Newton in the tangent space, exact
+    # in l_x: compare everything)
+    np.testing.assert_allclose(quad.lx, lx_fd, rtol=1e-7, atol=1e-7 * np.abs(lx_fd).max())
+    _, lxx = cost.task_terms.quadratize(X)
+    np.testing.assert_allclose(lxx, np.swapaxes(lxx, 1, 2), atol=1e-12)
+    assert np.linalg.eigvalsh(lxx).min() > -1e-9 * np.abs(lxx).max()
+
+
+def test_windows_ramps_and_breakdown(kinova):
+    task, X, U = kinova
+    terms = task.cost.task_terms
+    dt = task.config.plant.time_step
+    active, factor = terms.windows(N, 0.0)
+    names = [t.name for t in terms.terms]
+    # running terms: steps 0..N-1 (times 0, .01, .02), times dt (running_cost_dt)
+    np.testing.assert_array_equal(active[names.index("reach")], [1, 1, 1, 0])
+    np.testing.assert_array_equal(active[names.index("rel")], [0, 1, 1, 0])  # after 0.01
+    np.testing.assert_array_equal(active[names.index("apart")], [1, 1, 0, 0])  # until .015
+    np.testing.assert_array_equal(active[names.index("lift")], [0, 0, 0, 1])  # terminal
+    assert factor[names.index("lift"), N] == 1.0  # terminal: no dt
+    # ramp 0.5 -> 2 over [0, the task's end (N dt)]
+    np.testing.assert_allclose(factor[names.index("tilt")], dt * np.array([0.5, 1.0, 1.5, 0.0]))
+    # receding windows: the task's times (t0) decide
+    np.testing.assert_array_equal(terms.windows(N, 0.01)[0][names.index("apart")], [1, 0, 0, 0])
+    br = task.cost.breakdown(X, U)
+    assert sum(br.values()) == pytest.approx(task.cost.total(X, U), rel=1e-12)
+    assert set(names) == {k.split(".", 1)[1] for k in br if k.startswith("terms.")}
+    rep = terms.report(X)
+    assert rep["lift"]["step"] == N and rep["lift"]["error"] == pytest.approx(
+        max(0.0, 0.5 - rep["lift"]["final"])
+    )
+    assert rep["near"]["error"] == pytest.approx(abs(rep["near"]["final"]))
+    # states sampled on another grid (an MPC run's): their own times decide the windows
+    assert terms.report(X, 0.0, times=[0.0, 0.02, 0.04, 0.06])["apart"]["step"] == 0
+    assert rep["apart"]["step"] == 1
+
+
+def test_position_term_targets_relative_to_start_and_moving(kinova):
+    task, _, _ = kinova
+    terms = task.cost.task_terms
+    plant = task.dynamics.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositionsAndVelocities(ctx, task.x0)
+    p0 = plant.CalcPointsPositions(
+        ctx, plant.GetFrameByName("gripper"), np.zeros(3), plant.GetFrameByName("ball")
+    ).ravel()
+    rel = next(t for t in terms.terms if t.name == "rel")
+    np.testing.assert_allclose(rel.target0, p0 + [0.02, 0, 0.01])
+    X = np.tile(task.x0, (N + 1, 1))
+    rep = terms.report(X, 0.0)
+    # reach: target [0.5, 0.1, 0.3] moving at 0.1 m/s in x; last running step at t = 0.02
+    err = (np.array(rep["reach"]["final"]) - [0.502, 0.1, 0.3]) * [1.0, 1.0, 1.0]
+    assert rep["reach"]["error"] == pytest.approx(np.linalg.norm(err))
+
+
+def test_a_cost_without_terms_is_unchanged():
+    task = Task.load("cartpole-wall", ["num_steps=5"])
+    assert task.cost.task_terms is None
+
+
+def test_terms_on_the_acrobot_and_overrides_by_name(tmp_path):
+    """A model without collision geometry, a term given with --set by name, and terms as the
+    only cost (Q, Qf, R all zero)."""
+    spec = edit(
+        cost={
+            "R": 0.0,
+            "terms": [
+                {
+                    "name": "tip",
+                    "type": "position",
+                    "body": "lower_link",
+                    "point": [0, 0, -2],
+                    "target": [0, 0, 3],
+                    "terminal": True,
+                },
+            ],
+        }  # fmt: skip
+    )
+    task = Task.load(str(write_case(tmp_path, spec)), ["cost.terms.tip.weight=4"])
+    assert task.config.cost.terms[0].weight == 4
+    X = np.tile(task.x0, (6, 1))
+    assert task.cost.total(X, np.zeros((5, 1))) > 0
+
+
+@pytest.mark.parametrize(
+    ("term", "message"),
+    [
+        ({"type": "position", "body": "lower_lnk", "target": [0, 0, 0]},
+         "cost.terms.t.body: unknown body or frame (did you mean 'lower_link'?"),
+        ({"type": "position", "body": "lower_link", "relative_to": "nowhere",
+          "target": [0, 0, 0]}, "cost.terms.t.relative_to: unknown body or frame"),
+        ({"type": "distance", "geometry_a": "lower_link", "geometry_b": "nothing", "target": 0},
+         "cost.terms.t.geometry_b: no collision geometry or body named 'nothing'"),
+    ],
+)  # fmt: skip
+def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message):
+    spec = edit(cost__terms=[{"name": "t", **term}])
+    task = Task.load(str(write_case(tmp_path, spec)))
+    with pytest.raises(ConfigError, match=re.escape(message)) as e:
+        _ = task.cost
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    ("term", "message"),
+    [
+        ({"name": "t", "type": "pose", "body": "b"}, "cost.terms.t.type: unknown term type"),
+        ({"type": "position", "body": "b"}, "cost.terms[0].name: required"),
+        ({"name": "t", "type": "position", "body": "b"}, "cost.terms.t.target: required"),
+        ({"name": "t", "type": "height", "body": "b", "target": 1, "min": 0},
+         "cost.terms.t: give a target, or min and/or max (not both)"),
+        ({"name": "t", "type": "height", "body": "b", "min": 0, "geometry_a": "g"},
+         "cost.terms.t.geometry_a: a height term has no geometry_a"),
+        ({"name": "t", "type": "orientation", "body": "b", "target": [1, 2]},
+         "cost.terms.t.target: expected 3 numbers (roll, pitch, yaw) or 4"),
+        ({"name": "t", "type": "orientation", "body": "b", "target": [0, 0, 0],
+          "point": [0, 0, 1]}, "cost.terms.t.point: an orientation term has no point"),
+        ({"name": "t", "type": "velocity", "body": "b", "axes": ["x", "w"]},
+         "cost.terms.t.axes: expected distinct axes"),
+        ({"name": "t", "type": "velocity", "body": "b", "axes": ["x", "y"], "weight": [1, 2, 3]},
+         "cost.terms.t.weight: expected a number or 2 values"),
+        ({"name": "t", "type": "velocity", "body": "b", "weight": -1},
+         "cost.terms.t.weight: weights must be non-negative"),
+        ({"name": "t", "type": "velocity", "body": "b", "terminal": True, "until": 1},
+         "cost.terms.t.terminal: a terminal term has no after, until or ramp"),
+        ({"name": "t", "type": "velocity", "body": "b", "after": 1, "until": 0.5},
+         "cost.terms.t.until: 0.5 s is before after"),
+        ({"name": "t", "type": "distance", "geometry_a": "a", "max": 0.1},
+         "cost.terms.t: a distance term needs geometry_a and geometry_b"),
+    ],
+)  # fmt: skip
+def test_bad_terms_are_config_errors_before_the_plant_is_built(tmp_path, term, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        Task.load(str(write_case(tmp_path, edit(cost__terms=[term]))))
+
+
+def test_two_terms_with_one_name_are_refused(tmp_path):
+    t = {"name": "t", "type": "velocity", "body": "b"}
+    with pytest.raises(ConfigError, match="cost.terms\\[1\\].name: two terms are named 't'"):
+        Task.load(str(write_case(tmp_path, edit(cost__terms=[t, t]))))
+
+
+def test_orientation_error_is_two_sin_half_the_angle_from_the_target(kinova):
+    from pydrake.math import RollPitchYaw, RotationMatrix
+
+    task, X, _ = kinova
+    terms = task.cost.task_terms
+    plant = task.dynamics.plant
+    ctx = plant.CreateDefaultContext()
+    target = RotationMatrix(RollPitchYaw([0.1, 0.2, 0.3]))
+    rep = terms.report(X)  # turn: running, last step N - 1
+    plant.SetPositionsAndVelocities(ctx, X[N - 1])
+    R = plant.CalcRelativeRotationMatrix(ctx, plant.world_frame(), plant.GetFrameByName("gripper"))
+    angle = target.InvertAndCompose(R).ToAngleAxis().angle()
+    assert rep["turn"]["error"] == pytest.approx(2 * np.sin(angle / 2), rel=1e-9)
+    np.testing.assert_allclose(rep["turn"]["final"], RollPitchYaw(R).vector(), atol=1e-9)
+    # relative to the start, no extra rotation: no error at the initial state
+    start = task.with_overrides(["cost.terms.roll.target=null"]).cost.task_terms
+    assert start.report(np.tile(task.x0, (N + 1, 1)))["roll"]["error"] < 1e-12
