@@ -57,9 +57,10 @@ def _overrides() -> list[str]:
     return os.environ.get("HYDROILQR_TRANSFER_SET", "").split()
 
 
-def measure(name: str, k: int) -> dict:
+def measure(name: str, k: int, mismatch: bool | None = None) -> dict:
     """Solve the built-in task ``name`` from run ``k``'s perturbed guess, play it back and
-    return every property the guard asserts."""
+    return every property the guard asserts (``mismatch``: also play the task's mismatch
+    cases; default: for the tasks the guard holds to them)."""
     task = Task.load(name, _overrides())
     U0 = task.initial_guess(task.config.steps)
     sol = solve(task, U0=perturbation(U0, task.dynamics.effort_limits, DEFAULT_NOISE, 0, k))
@@ -78,7 +79,9 @@ def measure(name: str, k: int) -> dict:
         "kept_lift_fraction": float((z_end - z0) / lift) if abs(lift) > 0.02 else None,
         "mismatch": {},
     }
-    for case in task.config.mismatch:
+    if mismatch is None:
+        mismatch = name in MISMATCH_GUARDED
+    for case in task.config.mismatch if mismatch else ():
         truth = mismatch_overrides(task.config, case)
         st = PlaybackSettings(policy="ilqr", speed=1.0, truth_overrides=truth)
         pb = playback(task, sol, st)
@@ -133,7 +136,7 @@ def _study(name: str, runs: int) -> None:
 
     client, cluster = open_client(None, None)
     try:
-        futs = [client.submit(measure, name, k, pure=False) for k in range(1, runs + 1)]
+        futs = [client.submit(measure, name, k, True, pure=False) for k in range(1, runs + 1)]
         passed = 0
         for f in as_completed(futs):
             m = f.result()

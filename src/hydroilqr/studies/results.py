@@ -28,6 +28,7 @@ DEFAULT_TASKS = (
     "kinova-forward",
     "kinova-left",
     "kinova-up",
+    "kinova-reach",
     "cheetah-trot-1.0",
     "cheetah-trot-0.5",
 )
@@ -96,6 +97,9 @@ def headline(m: dict) -> str:
     add("lift cm", "max_ball_height_gain_m", ".1f", 100.0)
     add("v m/s", "mean_forward_velocity_mps", ".2f")
     add("body contact steps", "body_ground_contact_steps", "d")
+    for term, err in (m.get("term_error") or {}).items():  # task-space terms, in their units
+        if isinstance(err, (int, float)) and not isinstance(err, bool):
+            parts.append(f"term {term} err {err:.3g}")
     diag, lat = (
         _num(m, "diagonal_pair_overlap", ".3f"),
         _num(m, "lateral_pair_overlap", ".3f"),
@@ -334,30 +338,41 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
 
 
 def robustness_table(results: Sequence[TaskResult], context: Context) -> Section | None:
-    """The latest ``hydroilqr robustness ... --out OUT/robustness`` (its own command and
-    environment), if one was run into the results directory: per task, how many of its
-    perturbed solves met the goal and each of its checks."""
+    """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART]`` runs (each with
+    its own command and environment), if any were run into the results directory: per task,
+    how many of its perturbed solves met the goal and each of its checks."""
     from hydroilqr.studies.robustness import table
 
-    path = Path(context.out) / "robustness" / "robustness.json"
-    if not path.is_file():
+    root = Path(context.out) / "robustness"
+    paths = sorted(root.glob("robustness.json")) + sorted(root.glob("*/robustness.json"))
+    if not paths:
         return None
-    doc = json.loads(path.read_text())
-    env = doc.get("environment", {})
+    parts, docs = [], []
+    for path in paths:
+        doc = json.loads(path.read_text())
+        env = doc.get("environment", {})
+        parts += [
+            table(doc),
+            "",
+            f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
+            f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
+            f"load {env.get('load_average', 'not recorded')}): {doc['runs']} solves per task, "
+            f"each from the initial guess perturbed by a relative {doc['noise']:g}.",
+            "",
+        ]
+        docs.append(doc)
     note = (
-        f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
-        f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
-        f"load {env.get('load_average', 'not recorded')}): each task solved {doc['runs']} times "
-        f"from its initial guess perturbed by a relative {doc['noise']:g} (a stand-in for "
-        "last-bit differences between machines), each run judged by the task's goal. Other "
-        "BLAS kernel sets and CPUs land in other, equally valid local minima: these pass rates, "
-        "not the single solves above, are the numbers to expect on another machine."
+        "Each run is judged by the task's goal. The perturbation stands in for last-bit "
+        "differences between machines: other BLAS kernel sets and CPUs land in other, equally "
+        "valid local minima, so these pass rates, not the single solves above, are the numbers "
+        "to expect on another machine. Solve times here are of one Dask worker process each, "
+        "two at once."
     )
     return Section(
         "robustness",
         "Robustness to last-bit differences",
-        "\n".join([table(doc), "", note]),
-        doc,
+        "\n".join([*parts, note]),
+        docs,
     )
 
 
