@@ -36,3 +36,29 @@ def test_smoke_solve_makes_contact_and_turns_the_wheel():
     wheel = task.dynamics.layout.block("wheel_axle").coords[0]
     assert sol.X[-1, wheel] > 1e-3  # towards +2 rad
     assert evaluate(task.config.goal, metrics)["checks"][0]["metric"] == "final_error.wheel_axle"
+
+
+def test_no_progress_without_contact_names_the_approach_stage_and_check_says_the_same():
+    from hydroilqr import explain
+    from hydroilqr.problem.check import check_task
+
+    # without its approach stage the still start touches nothing: no gradient, no progress
+    bare = Task.load("finger-wheel", ["continuation=[]"], smoke=True)
+    sol = solve(bare)
+    assert sol.status == "no_progress"
+    text = explain(sol, bare)
+    assert "approach term (a distance term in cost.terms" in text
+    assert "in a first continuation stage" in text and "an initial guess that moves" in text
+    assert "closer start alone does not help" in text
+    (warning,) = [w for w in check_task(bare, rollout_steps=10)["warnings"] if "touches" in w]
+    assert "in a first continuation stage" in warning  # check gives solve's remedy
+    # with the stage, check says the approach term is there for it
+    task = Task.load("finger-wheel", smoke=True)
+    (warning,) = [w for w in check_task(task, rollout_steps=10)["warnings"] if "touches" in w]
+    assert "the approach term approach (cost.terms) should bring them into contact" in warning
+    # a stage too weak to reach the rim: solve says to strengthen the approach term
+    weak_stage = "continuation=[{cost.terms.approach.weight: 1.0e-6}]"
+    weak = Task.load("finger-wheel", [weak_stage], smoke=True)
+    sol = solve(weak)
+    assert sol.status == "no_progress"
+    assert "the approach term approach did not bring them into contact" in explain(sol, weak)
