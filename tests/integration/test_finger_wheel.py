@@ -62,3 +62,17 @@ def test_no_progress_without_contact_names_the_approach_stage_and_check_says_the
     sol = solve(weak)
     assert sol.status == "no_progress"
     assert "the approach term approach did not bring them into contact" in explain(sol, weak)
+
+
+def test_the_guide_shows_the_task_file_as_it_is():
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    from hydroilqr.problem.config import task_file
+
+    guide = (Path(__file__).resolve().parents[2] / "docs" / "guide.md").read_text()
+    section = guide[guide.index("## From no contact to contact") :]
+    block = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)
+    assert yaml.safe_load(block) == yaml.safe_load(task_file("finger-wheel").read_text())
