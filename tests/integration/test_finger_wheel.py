@@ -76,3 +76,18 @@ def test_the_guide_shows_the_task_file_as_it_is():
     section = guide[guide.index("## From no contact to contact") :]
     block = re.search(r"```yaml\n(.*?)```", section, re.S).group(1)
     assert yaml.safe_load(block) == yaml.safe_load(task_file("finger-wheel").read_text())
+
+
+def test_a_clearance_distance_term_is_not_an_approach_term():
+    from hydroilqr.solver.explain import no_contact_remedy
+
+    staged = Task.load("finger-wheel", smoke=True)
+    assert no_contact_remedy(staged).startswith("the approach term approach (cost.terms)")
+    clearance = [
+        "continuation=[]",
+        "cost.terms.approach.weight=1.0",
+        "cost.terms.approach.max=null",
+        "cost.terms.approach.min=0.01",
+    ]
+    task = Task.load("finger-wheel", clearance, smoke=True)
+    assert no_contact_remedy(task, None, "wheel").startswith("add an approach term")

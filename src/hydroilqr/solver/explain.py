@@ -127,8 +127,9 @@ def no_contact_remedy(task, X: np.ndarray | None = None, names: str = "the objec
 
 
 def _approach_terms(task) -> list[str]:
-    """Names of the distance terms with a positive weight in the task or in one of its
-    continuation stages."""
+    """Names of the approach terms (distance terms with a ``max`` or a ``target``, not a
+    clearance ``min`` alone) with a positive weight in the task or one of its continuation
+    stages."""
     tasks = [task]
     try:
         tasks += task.stages()
@@ -137,7 +138,8 @@ def _approach_terms(task) -> list[str]:
     names = []
     for t in tasks:
         for term in t.config.cost.terms:
-            if term.type == "distance" and np.any(np.asarray(term.weight, float) > 0):
+            pulls = term.max is not None or term.target is not None
+            if term.type == "distance" and pulls and np.any(np.asarray(term.weight, float) > 0):
                 if term.name not in names:
                     names.append(term.name)
     return names
