@@ -91,3 +91,12 @@ def test_a_clearance_distance_term_is_not_an_approach_term():
     ]
     task = Task.load("finger-wheel", clearance, smoke=True)
     assert no_contact_remedy(task, None, "wheel").startswith("add an approach term")
+
+
+def test_check_shows_the_approach_terms_weight_in_the_task_and_in_its_stage(capsys):
+    from hydroilqr import cli
+
+    assert cli.main(["check", "finger-wheel", "--smoke"]) == 0
+    out = capsys.readouterr().out
+    assert "cost term approach (distance)" in out
+    assert "(weight 0; continuation[0]: weight 100000)" in out
