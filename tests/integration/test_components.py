@@ -113,3 +113,38 @@ def test_groups_of_components_and_unknown_components(tmp_path):
     )
     with pytest.raises(ConfigError, match=r"cost.Q.base.w: unknown state block .*components"):
         _task(tmp_path, **{"cost": {"Q": {"base.w": 1.0}}}).validate()
+
+
+def test_nominal_relative_to_the_start_and_a_rate_that_stops(tmp_path):
+    cost_cfg = {
+        "Qf": {"base.x": 1.0, "base.y": 1.0},
+        "nominal": {"base.y": 0.2},  # an offset for base.y, relative to the start
+        "nominal_rate": {"base.x": 1.0},
+        "nominal_rate_until": 0.02,
+        "nominal_relative_to_start": ["base.y", "ball.position"],
+    }
+    task = _task(tmp_path, cost=cost_cfg)
+    task.validate()
+    layout, x0 = task.dynamics.layout, task.x0
+    (ix,), (iy,) = layout.block("base.x").coords, layout.block("base.y").coords
+    ball = list(layout.block("ball.position").coords)
+    xn = task.cost.nominal(np.array([0.0, 0.01, 0.05, 1.0]))
+    assert xn[:, iy] == pytest.approx(0.3 + 0.2)  # the start's 0.3 plus the offset
+    np.testing.assert_allclose(xn[:, ball], np.tile(x0[ball], (4, 1)))  # stay where it starts
+    np.testing.assert_allclose(xn[:, ix], [0.0, 0.01, 0.02, 0.02])  # the rate stops at 0.02 s
+
+
+@pytest.mark.parametrize(
+    "cost, message",
+    [
+        ({"nominal_rate_until": -1.0}, r"cost.nominal_rate_until: expected a time >= 0"),
+        ({"nominal_relative_to_start": ["nope"]}, r"cost.nominal_relative_to_start.nope: unknown"),
+        (
+            {"nominal_relative_to_start": ["ball.orientation"]},
+            r"cost.nominal_relative_to_start.ball.orientation: not supported for orientations",
+        ),
+    ],
+)
+def test_bad_relative_nominals_and_rate_ends_are_one_line_errors(tmp_path, cost, message):
+    with pytest.raises(ConfigError, match=message):
+        _task(tmp_path, cost={"Qf": {"base.x": 1.0}, **cost}).validate()
