@@ -233,7 +233,19 @@ def _simulation(r: dict) -> None:
         console.print("  no contact along the rollout of the initial guess")
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
-        console.print(f"  cost term {t['name']} ({t['type']}): {err}, cost {t['cost']:.4g}")
+        stages = "".join(
+            f"; continuation[{i}]: weight {_weight(w)}"
+            for i, w in (t.get("stage_weights") or {}).items()
+        )
+        console.print(
+            f"  cost term {t['name']} ({t['type']}): {err}, cost {t['cost']:.4g} "
+            f"(weight {_weight(t.get('weight'))}{stages})"
+        )
+
+
+def _weight(w) -> str:
+    """A term's weight: a number as %g, one per axis as a list."""
+    return f"{w:g}" if isinstance(w, (int, float)) else str(w)
 
 
 def _warnings(r: dict) -> None:

@@ -37,7 +37,26 @@ def terms_on_guess(task) -> list[dict]:
     out = []
     for t in terms.terms:
         r = report.get(t.name, {"cost": 0.0, "error": None, "final": None})
-        out.append({"name": t.name, "type": t.cfg.type, **r})
+        out.append(
+            {
+                "name": t.name,
+                "type": t.cfg.type,
+                "weight": t.cfg.weight,
+                "stage_weights": _stage_weights(task, t.name, t.cfg.weight),
+                **r,
+            }
+        )
+    return out
+
+
+def _stage_weights(task, name: str, weight) -> dict[int, object]:
+    """{stage index: the term's weight there} for the continuation stages that change it (an
+    approach term switched on in a first stage)."""
+    out = {}
+    for i, stage in enumerate(task.stages() if task.config.continuation else []):
+        w = next((c.weight for c in stage.config.cost.terms if c.name == name), None)
+        if w is not None and w != weight:
+            out[i] = w
     return out
 
 

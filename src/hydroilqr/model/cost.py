@@ -6,9 +6,11 @@
 2 sin(θ/2)·axis, the rotation vector to first order), so Q and Q_f are diagonal over the
 tangent space (size 2 nv) and given per named block in the task file. The nominal may move
 linearly in time,
-``x_nom(t) = nominal + nominal_rate · t`` (e.g. a base position advancing at a target speed),
-or follow a solved run (``cost.reference``: its states X_ref(t), linearly interpolated in time
-with quaternions renormalized, held after its end) on some or all blocks.
+``x_nom(t) = nominal + nominal_rate · min(t, nominal_rate_until)`` (e.g. a base position
+advancing at a target speed, then holding), with the blocks of ``nominal_relative_to_start``
+offset by their values in the task's initial state, or follow a solved run
+(``cost.reference``: its states X_ref(t), linearly interpolated in time with quaternions
+renormalized, held after its end) on some or all blocks.
 With ``nominal_time: horizon_end`` every step of a solve over [t0, t_N] is measured against
 x_nom(t_N) instead: a fixed goal at the horizon's end, which moves forward with each
 receding-horizon window (the paper's public cheetah code sets its target this way).
@@ -95,11 +97,17 @@ class QuadraticCost:
         if not np.all(np.isfinite(r)) or np.any(r < 0):
             raise ConfigError("cost.R: weights must be finite and non-negative")
         x_nom = layout.coordinate_vector(cfg.nominal, "cost.nominal", layout.default_nominal())
+        if cfg.nominal_relative_to_start:
+            if x0 is None and dynamics is None:
+                raise ConfigError("cost.nominal_relative_to_start: needs the task's initial state")
+            start = dynamics.initial_state() if x0 is None else np.asarray(x0, float)
+            x_nom = QuadraticCost._relative_to_start(layout, cfg, x_nom, start)
         rate = QuadraticCost._nominal_rate(layout, cfg.nominal_rate)
         if cfg.running_cost_dt:
             q, r = q * dt, r * dt
         terms = QuadraticCost._terms(layout, cfg)
         cost = QuadraticCost(layout, q, qf, r, x_nom, rate, dt, terms, cfg.nominal_time)
+        cost.rate_until = cfg.nominal_rate_until
         if cfg.reference:
             cost.set_reference(*_load_reference(layout, cfg, resolve, models), cfg.reference_blocks)
         elif cfg.reference_blocks:
@@ -141,6 +149,21 @@ class QuadraticCost:
             want = "1 value" if nu == 1 else f"a number or {nu} values (one per actuator)"
             raise ConfigError(f"cost.R: expected {want}, got a list of {vals.size}")
         return vals
+
+    @staticmethod
+    def _relative_to_start(layout: StateLayout, cfg: CostConfig, x_nom, x0) -> np.ndarray:
+        """x_nom with the blocks of cfg.nominal_relative_to_start shifted by their values in
+        the initial state x0 (``nominal`` gives the offset; 0 when it does not name them)."""
+        x_nom = np.array(x_nom, float)
+        key = "cost.nominal_relative_to_start"
+        for name in cfg.nominal_relative_to_start:
+            b = layout.block(name, f"{key}.{name}")
+            if b.kind == "quaternion":
+                raise ConfigError(f"{key}.{name}: not supported for orientations")
+        for name in cfg.nominal_relative_to_start:
+            c = list(layout.block(name).coords)
+            x_nom[c] += x0[c]
+        return x_nom
 
     @staticmethod
     def _nominal_rate(layout: StateLayout, nominal_rate: dict) -> np.ndarray:
@@ -185,6 +208,7 @@ class QuadraticCost:
         self.ref_t, self.ref_X, self.ref_mask = np.asarray(t, float), np.asarray(X, float), mask
 
     # ------------------------------------------------------------------------------------
+    rate_until: float | None = None  # cost.nominal_rate_until
     ref_t: np.ndarray | None = None
     ref_X: np.ndarray | None = None
     ref_mask: np.ndarray | None = None
@@ -192,7 +216,8 @@ class QuadraticCost:
     def nominal(self, t: np.ndarray) -> np.ndarray:
         """x_nom at times t: [T] -> [T, nx]."""
         t = np.asarray(t, float)
-        x = self.x_nom[None, :] + t[:, None] * self.rate[None, :]
+        tr = t if self.rate_until is None else np.minimum(t, self.rate_until)
+        x = self.x_nom[None, :] + tr[:, None] * self.rate[None, :]
         if self.ref_X is not None:
             # Linear interpolation in time (held at the ends); quaternions renormalized.
             rt = self.ref_t

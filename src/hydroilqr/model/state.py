@@ -8,8 +8,14 @@ Every joint of the plant contributes *primitive blocks*:
   ``B.velocity`` (3);
 * any other multi-DoF joint ``J``: ``J`` (positions) and ``J.v`` (velocities).
 
-A task may name *groups* of primitive blocks (``blocks: {arm_q: [joint_1, ..., joint_7]}``) and
-use either kind of name for weights, nominal values and initial states.
+Each coordinate of a multi-coordinate euclidean block is also a one-coordinate *component*:
+``B.position.x`` (``.y``, ``.z``; likewise ``B.velocity.*`` and ``B.angular_velocity.*``) of a
+floating body, and ``J.SUFFIX`` of another multi-DoF joint with Drake's coordinate suffixes
+(a planar joint: ``J.x``, ``J.y``, ``J.qz``, ``J.vx``, ``J.vy``, ``J.wz``). Components are
+found by name but not listed among the blocks.
+
+A task may name *groups* of primitive blocks or components (``blocks: {arm_q: [joint_1, ...,
+joint_7]}``) and use any of these names for weights, nominal values and initial states.
 
 The difference ``dx = x ⊖ x_ref`` lives in the tangent space, of size ``2 nv``: plain
 subtraction everywhere except quaternion blocks, whose error is
@@ -81,10 +87,20 @@ def left_mul_matrix(a: np.ndarray) -> np.ndarray:
 class StateLayout:
     """The state's named blocks. Built from a finalized MultibodyPlant by ``from_plant``."""
 
-    def __init__(self, nq: int, nv: int, primitives: list[Block], actuators: list[str]):
+    def __init__(
+        self,
+        nq: int,
+        nv: int,
+        primitives: list[Block],
+        actuators: list[str],
+        components: list[Block] = (),
+    ):
         self.nq, self.nv = nq, nv
         self.nx = nq + nv
         self.primitives = {b.name: b for b in primitives}
+        # One-coordinate blocks inside multi-coordinate primitives (``base_joint.x``,
+        # ``body.position.z``): addressable by name like any block, not listed among them.
+        self.components = {b.name: b for b in components if b.name not in self.primitives}
         self.groups: dict[str, Block] = {}
         self.actuators = list(actuators)
         self.quaternions = [b for b in primitives if b.kind == "quaternion"]
@@ -95,6 +111,7 @@ class StateLayout:
 
         nq, nv = plant.num_positions(), plant.num_velocities()
         blocks: list[Block] = []
+        components: list[Block] = []
         joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
         joints = [j for j in joints if j.num_positions() > 0 or j.num_velocities() > 0]
         names = [j.name() for j in joints]
@@ -128,6 +145,12 @@ class StateLayout:
                         tuple(range(nv + v0 + 3, nv + v0 + 6)),
                     ),
                 ]
+                for i, axis in enumerate("xyz"):  # body.position.x, ..., body.velocity.z
+                    components += [
+                        Block(f"{name}.position.{axis}", (q0 + 4 + i,), (v0 + 3 + i,)),
+                        Block(f"{name}.angular_velocity.{axis}", (nq + v0 + i,), (nv + v0 + i,)),
+                        Block(f"{name}.velocity.{axis}", (nq + v0 + 3 + i,), (nv + v0 + 3 + i,)),
+                    ]
             else:
                 if nqj != nvj:
                     raise ConfigError(
@@ -141,8 +164,14 @@ class StateLayout:
                         tuple(range(nv + v0, nv + v0 + nvj)),
                     ),
                 ]
+                if nqj > 1:  # Drake's coordinate names: planar_joint.x, .y, .qz, .vx, .vy, .wz
+                    for i in range(nqj):
+                        components += [
+                            Block(f"{name}.{j.position_suffix(i)}", (q0 + i,), (v0 + i,)),
+                            Block(f"{name}.{j.velocity_suffix(i)}", (nq + v0 + i,), (nv + v0 + i,)),
+                        ]
         actuators = [plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()]
-        return StateLayout(nq, nv, blocks, actuators)
+        return StateLayout(nq, nv, blocks, actuators, components)
 
     # ---------------------------------------------------------------------------- names
     def add_groups(self, groups: dict[str, list[str]]) -> None:
@@ -151,12 +180,13 @@ class StateLayout:
                 raise ConfigError(f"blocks.{gname}: name clashes with a joint/body block")
             parts = []
             for m in members:
-                if m not in self.primitives:
+                part = self.primitives.get(m) or self.components.get(m)
+                if part is None:
                     raise ConfigError(
                         f"blocks.{gname}: unknown joint/body block {m!r} "
-                        f"(known: {', '.join(self.primitives)})"
+                        f"(known: {', '.join(self.primitives)}{self._component_hint()})"
                     )
-                parts.append(self.primitives[m])
+                parts.append(part)
             kinds = {p.kind for p in parts}
             if "quaternion" in kinds and len(parts) > 1:
                 raise ConfigError(f"blocks.{gname}: a quaternion block cannot be grouped")
@@ -172,10 +202,21 @@ class StateLayout:
             return self.groups[name]
         if name in self.primitives:
             return self.primitives[name]
+        if name in self.components:
+            return self.components[name]
         known = list(self.groups) + list(self.primitives)
         raise ConfigError(
-            f"{key or name}: unknown state block {name!r} (known: {', '.join(known)})"
+            f"{key or name}: unknown state block {name!r} (known: {', '.join(known)}"
+            f"{self._component_hint()})"
         )
+
+    def _component_hint(self) -> str:
+        """'; components: a.x, ...' (a few) for an unknown-name error, or ''."""
+        if not getattr(self, "components", None):
+            return ""
+        names = list(self.components)
+        more = f", ... ({len(names)} in all)" if len(names) > 6 else ""
+        return f"; components: {', '.join(names[:6])}{more}"
 
     def names(self) -> list[str]:
         return list(self.groups) + list(self.primitives)

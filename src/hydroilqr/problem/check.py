@@ -252,7 +252,9 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
-    w = _untracked_contact_warning(out["touched_pairs"], set(out["tracked_objects"]))
+    w = _untracked_contact_warning(
+        out["touched_pairs"], set(out["tracked_objects"]), out.get("no_contact_remedy", "")
+    )
     if w:
         warn(w)
     if out["contact_faces"] > 500:
@@ -262,23 +264,24 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
         )
 
 
-def _untracked_contact_warning(touched: list[dict], tracked: set[str]) -> str:
+def _untracked_contact_warning(touched: list[dict], tracked: set[str], remedy: str = "") -> str:
     """A warning when the guess's rollout touches none of the objects the cost tracks
     (``tracked_objects``): gradients reach an object only through contact, so the solve could
-    not start moving it."""
+    not start moving it. ``remedy``: what to do (``solver.explain.no_contact_remedy``, as
+    solve's no-progress sentence says)."""
     if not tracked:
         return ""
+    remedy = remedy or "a guess that moves the robot into contact may be needed"
     if not touched:
         return (
             f"the initial-guess rollout touches nothing, and the cost tracks "
-            f"{', '.join(sorted(tracked))}: no gradient reaches it at the start; a guess that "
-            "makes contact (or a start closer to it) may be needed"
+            f"{', '.join(sorted(tracked))}: no gradient reaches it at the start; {remedy}"
         )
     if not any(set(p["bodies"]) & tracked for p in touched):
         return (
             "no pair touched along the initial-guess rollout involves a body the cost tracks "
             f"({', '.join(sorted(tracked))}): contact gives the solver no gradient at the "
-            "start; a guess that makes contact may be needed"
+            f"start; {remedy}"
         )
     return ""
 
@@ -428,12 +431,15 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
     from hydroilqr.metrics.contacts import touched_pairs, tracked_bodies, tracked_objects
+    from hydroilqr.solver.explain import no_contact_remedy  # (the words solve uses)
 
+    tracked = tracked_objects(task)
     out.update(
         {
+            "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),
             "touched_pairs": touched_pairs(task, X),
             "tracked_bodies": sorted(tracked_bodies(task)),
-            "tracked_objects": sorted(tracked_objects(task)),
+            "tracked_objects": sorted(tracked),
             "one_step_ok": bool(np.all(np.isfinite(x1))),
             "rollout_steps": N,
             "max_speed": speed,

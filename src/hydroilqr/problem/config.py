@@ -34,6 +34,8 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
       Qf: {pole_angle: 200}
       nominal: {pole_angle: 3.14159}
       nominal_rate: {}            # x_nom(t) = nominal + rate * t (per block)
+      nominal_rate_until: null    # s: the rate stops here (the nominal then holds)
+      nominal_relative_to_start: []   # blocks whose nominal is an offset from the initial state
       nominal_time: step          # step: x̃_k = x_k ⊖ x_nom(t_k); horizon_end: every step of a
                                   # solve aims at x_nom(t_N), the nominal at its horizon's end
       running_cost_dt: false      # true: running Q, R multiplied by dt (paper's code)
@@ -233,6 +235,12 @@ class CostConfig:
     Qf: dict[str, Any] = field(default_factory=dict)
     nominal: dict[str, Any] = field(default_factory=dict)
     nominal_rate: dict[str, Any] = field(default_factory=dict)
+    # The time (s) the rate stops: x_nom(t) = nominal + rate * min(t, nominal_rate_until)
+    # (None: never).
+    nominal_rate_until: float | None = None
+    # Blocks (or components) whose ``nominal`` is an offset from their value in the task's
+    # initial state (unnamed in ``nominal``: an offset of 0, i.e. stay where they start).
+    nominal_relative_to_start: list[str] = field(default_factory=list)
     # When the nominal is taken: "step" (each step's own time, x_nom(t_k)) or "horizon_end"
     # (every step of a solve against x_nom(t_N), the nominal at the end of its horizon: a goal
     # ahead that moves with each receding-horizon window, as in the paper's cheetah code).
@@ -1525,6 +1533,19 @@ def _validate_cost(cost: CostConfig) -> None:
         raise ConfigError(
             f"cost.nominal_time: expected one of {', '.join(NOMINAL_TIMES)}, "
             f"got {cost.nominal_time!r}"
+        )
+    until = cost.nominal_rate_until
+    if until is not None and (
+        isinstance(until, bool)
+        or not isinstance(until, (int, float))
+        or not math.isfinite(until)
+        or until < 0
+    ):
+        raise ConfigError(f"cost.nominal_rate_until: expected a time >= 0 (s), got {until!r}")
+    rel = cost.nominal_relative_to_start
+    if not isinstance(rel, list) or not all(isinstance(n, str) for n in rel):
+        raise ConfigError(
+            f"cost.nominal_relative_to_start: expected a list of block names, got {rel!r}"
         )
     for section in ("Q", "Qf", "nominal_rate"):
         for k, v in getattr(cost, section).items():

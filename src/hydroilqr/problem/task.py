@@ -133,7 +133,9 @@ class Task:
             self.config.resolve_path,
             [m.file for m in self.config.models],
             dynamics=self.dynamics if self.config.cost.terms else None,
-            x0=self.x0 if self.config.cost.terms else None,
+            x0=self.x0
+            if self.config.cost.terms or self.config.cost.nominal_relative_to_start
+            else None,
             end_time=self._end_time(),
         )
 
