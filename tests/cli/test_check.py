@@ -43,3 +43,71 @@ def test_check_lists_the_ensemble_members_and_rolls_the_guess_on_each(tmp_path, 
     out = capsys.readouterr().out
     assert "ensemble[0] (weight 0.5, guess rollout ok): plant.gravity=[0, 0, -8]" in out
     assert "check passed" in out
+
+
+STRIKE_URDF = """<?xml version="1.0"?>
+<robot name="pend">
+  <link name="base"/>
+  <link name="rod">
+    <inertial><origin xyz="0 0 -0.25"/><mass value="0.5"/>
+      <inertia ixx="0.01" iyy="0.01" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision name="rod_collision"><origin xyz="0 0 -0.25"/>
+      <geometry><box size="0.02 0.02 0.5"/></geometry></collision>
+  </link>
+  <joint name="theta" type="revolute">
+    <parent link="base"/><child link="rod"/><origin xyz="0 0 0.6"/><axis xyz="0 1 0"/>
+    <limit effort="10" velocity="100" lower="-10" upper="10"/>
+  </joint>
+  <transmission type="SimpleTransmission" name="t">
+    <actuator name="theta_motor"/><joint name="theta"/>
+    <mechanicalReduction>1</mechanicalReduction>
+  </transmission>
+  <link name="cube">
+    <inertial><mass value="0.2"/>
+      <inertia ixx="0.0003" iyy="0.0003" izz="0.0003" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision name="cube_collision"><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+  </link>
+</robot>
+"""
+
+
+def strike_task(tmp_path, steps: int = 120):
+    """A pendulum hanging still 1 cm beside a cube on a table that the cost wants moved."""
+    (tmp_path / "pend.urdf").write_text(STRIKE_URDF)
+    return write_case(
+        tmp_path,
+        {
+            "name": "strike",
+            "models": [{"file": "pend.urdf", "weld": {"parent": "world", "child": "base"}}],
+            "scene": [
+                {"name": "table", "shape": "box", "size": [2, 2, 0.1], "xyz": [0, 0, -0.05],
+                 "compliance": "compliant", "hydroelastic_modulus": 1.0e6}
+            ],
+            "plant": {"time_step": 0.01},
+            "num_steps": steps,
+            "initial_state": {"theta": 0.0, "cube.position": [0.07, 0, 0.05]},
+            "cost": {"Q": {"cube.position": 1.0}, "Qf": {"cube.position": 100.0}, "R": 0.01,
+                     "nominal": {"cube.position": [0.5, 0, 0.05]}},
+            "solver": {"max_iterations": 2},
+        },
+    )  # fmt: skip
+
+
+def test_check_and_solve_agree_on_no_contact_and_its_remedy(tmp_path, capsys):
+    """Issue 39, 1: a cube resting on the table, 1 cm from a still pendulum. check judges the
+    whole guess (not only its first 50 steps) by solve's test (contact with something that
+    moves), warns, and gives solve's remedy: a guess that moves, not a closer start."""
+    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY
+
+    path = strike_task(tmp_path)
+    assert cli.main(["check", str(path)]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "over the first 50 of the task's 120 steps" in out
+    assert "along the rollout of the initial guess (120 steps)" in out
+    assert "cube touches only what is fixed to the world" in out and NO_CONTACT_REMEDY in out
+    assert "check passed with 1 warning(s)" in out
+    run = ["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"]
+    assert cli.main(run) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "status no_progress after 1 iteration (stop test: expected_decrease)" in out
+    assert NO_CONTACT_REMEDY in out and "closer)" not in out

@@ -27,7 +27,7 @@ def commands() -> dict:
     hydroilqr.cli, which has HELP (one line), setup(parser) (the command's arguments) and
     run(args) -> exit code. A new command: one module, one import and one entry here.
     (Imported on first use: they import Drake and Dask.)"""
-    from hydroilqr.cli import bench, check, mpc, playback, results, solve, sweep, tasks
+    from hydroilqr.cli import bench, check, mpc, playback, results, schema, solve, sweep, tasks
 
     return {
         "tasks": tasks,
@@ -38,6 +38,7 @@ def commands() -> dict:
         "bench": bench,
         "mpc": mpc,
         "results": results,
+        "schema": schema,
     }
 
 

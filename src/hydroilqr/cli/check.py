@@ -218,19 +218,26 @@ def _contacts(r: dict) -> None:
 
 
 def _simulation(r: dict) -> None:
+    n, steps, guess = r["rollout_steps"], r["task_steps"], r["model"]["initial_guess"]
+    rollout = (
+        f"{n}-step rollout of the initial guess ({guess})"
+        if n >= steps
+        else f"rollout of the initial guess ({guess}) over the first {n} of the task's "
+        f"{steps} steps"
+    )
     console.print(
-        f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {r['rollout_steps']}-step "
-        f"rollout of the initial guess ({r['model']['initial_guess']}) ok, "
+        f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {rollout} ok, "
         f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
     )
     touched = r.get("touched_pairs") or []
+    along = f"along the rollout of the initial guess ({r['contact_rollout_steps']} steps)"
     if touched:
         console.print(
-            "  pairs touching along the rollout (states): "
+            f"  pairs touching {along}, states: "
             + ", ".join(f"{t['pair'][0]}/{t['pair'][1]} ({t['steps']})" for t in touched)
         )
     else:
-        console.print("  no contact along the rollout of the initial guess")
+        console.print(f"  no contact {along}")
 
 
 def _warnings(r: dict) -> None:

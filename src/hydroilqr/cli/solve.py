@@ -288,13 +288,10 @@ def _solve_receding(task, out: Path, restart: bool):
 
 
 def _print_outcome(sol, task, wall: float) -> None:
-    console.print(
-        f"stopped after {sol.iterations} iterations ({sol.reason}), cost "
-        f"{sol.final_cost:.6g}, {wall:.2f} s; converged: {'yes' if sol.converged else 'no'}"
-    )
-    from hydroilqr.solver.explain import explain
+    from hydroilqr.solver.explain import explain, stop_line
 
-    console.print(f"status {sol.status}: {explain(sol, task)}", soft_wrap=True)
+    console.print(stop_line(sol, wall), soft_wrap=True)
+    console.print(f"  {explain(sol, task)}", soft_wrap=True)
     cold = [i for i, r in enumerate(sol.extra.get("resolves", [])) if r.get("cold_start")]
     if cold:
         console.print(

@@ -248,7 +248,9 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
-    w = _untracked_contact_warning(out["touched_pairs"], set(out["tracked_objects"]))
+    w = _untracked_contact_warning(
+        out["touched_pairs"], set(out["tracked_objects"]), set(out["fixed_bodies"])
+    )
     if w:
         warn(w)
     if out["contact_faces"] > 500:
@@ -258,25 +260,26 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
         )
 
 
-def _untracked_contact_warning(touched: list[dict], tracked: set[str]) -> str:
-    """A warning when the guess's rollout touches none of the objects the cost tracks
-    (``tracked_objects``): gradients reach an object only through contact, so the solve could
-    not start moving it."""
-    if not tracked:
+def _untracked_contact_warning(touched: list[dict], tracked: set[str], fixed: set[str]) -> str:
+    """A warning when along the guess's rollout no moving body touches an object the cost
+    tracks (``tracked_objects``; the same test as solve's ``no_progress`` sentence): gradients
+    reach an object only through contact with what moves (resting on the ground gives none),
+    so the solve could not start moving it."""
+    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY, touches_moving
+
+    if not tracked or touches_moving(touched, tracked, fixed):
         return ""
+    names = ", ".join(sorted(tracked))
     if not touched:
-        return (
-            f"the initial-guess rollout touches nothing, and the cost tracks "
-            f"{', '.join(sorted(tracked))}: no gradient reaches it at the start; a guess that "
-            "makes contact (or a start closer to it) may be needed"
-        )
-    if not any(set(p["bodies"]) & tracked for p in touched):
-        return (
-            "no pair touched along the initial-guess rollout involves a body the cost tracks "
-            f"({', '.join(sorted(tracked))}): contact gives the solver no gradient at the "
-            "start; a guess that makes contact may be needed"
-        )
-    return ""
+        what = "the initial-guess rollout touches nothing"
+    elif not any(set(p["bodies"]) & tracked for p in touched):
+        what = f"no pair touched along the initial-guess rollout involves {names}"
+    else:
+        what = f"along the initial-guess rollout {names} touches only what is fixed to the world"
+    return (
+        f"{what}, and the cost tracks {names}: no gradient reaches it at the start "
+        f"(a solve likely ends with status no_progress); {NO_CONTACT_REMEDY}"
+    )
 
 
 def _ensemble(task, rollout_steps: int) -> list[dict]:
@@ -423,17 +426,41 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
-    from hydroilqr.metrics.contacts import touched_pairs, tracked_bodies, tracked_objects
+    from hydroilqr.metrics.contacts import (
+        fixed_bodies,
+        touched_pairs,
+        tracked_bodies,
+        tracked_objects,
+    )
 
+    tracked = tracked_objects(task)
+    Xc = _contact_rollout(task, X) if tracked else X
     out.update(
         {
-            "touched_pairs": touched_pairs(task, X),
+            "touched_pairs": touched_pairs(task, Xc),
+            "contact_rollout_steps": len(Xc) - 1,
             "tracked_bodies": sorted(tracked_bodies(task)),
-            "tracked_objects": sorted(tracked_objects(task)),
+            "tracked_objects": sorted(tracked),
+            "fixed_bodies": sorted(fixed_bodies(task)),
             "one_step_ok": bool(np.all(np.isfinite(x1))),
             "rollout_steps": N,
+            "task_steps": task.steps,
             "max_speed": speed,
             "step_ms": step_ms,
             "rollout_ms_per_step": rollout_ms,
         }
     )
+
+
+def _contact_rollout(task, X: np.ndarray) -> np.ndarray:
+    """The states along which contact with the tracked objects is judged: the whole initial
+    guess of a single solve, as the solve itself sees it (``X``, the timed rollout's first
+    steps, extended); for a receding-horizon task its first window."""
+    rh = task.config.receding_horizon
+    steps = min(task.steps, rh.window_steps) if rh is not None else task.steps
+    if len(X) - 1 >= steps:
+        return X
+    try:
+        return task.dynamics.rollout(task.x0, task.initial_guess(task.steps)[:steps])
+    except SimulationError:
+        return X  # (the solve reports a rollout that fails)
