@@ -17,6 +17,21 @@ def setup(p) -> None:
     add_task_args(p)
 
 
+#: Columns that hold names a user copies into a task file: never cut short with "…" in a
+#: narrow terminal (kept whole, or folded onto a second line when nothing else can give).
+NAME_COLUMNS = {"block", "actuator", "joint", "geometry", "body", "A", "B"}
+
+
+def _table(title: str, columns) -> Table:
+    t = Table(title=title, title_justify="left")
+    for col in columns:
+        if col in NAME_COLUMNS:
+            t.add_column(col, no_wrap=True, overflow="fold")
+        else:
+            t.add_column(col, overflow="fold")
+    return t
+
+
 def run(args) -> int:
     task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
     from hydroilqr.problem.check import check_task
@@ -87,9 +102,10 @@ def _floating_bodies(r: dict) -> None:
 
 
 def _blocks(r: dict) -> None:
-    t = Table(title="state blocks (names for blocks / initial_state / cost)", title_justify="left")
-    for col in ("block", "kind", "coords", "tangent", "x indices", "x0"):
-        t.add_column(col)
+    t = _table(
+        "state blocks (names for blocks / initial_state / cost)",
+        ("block", "kind", "coords", "tangent", "x indices", "x0"),
+    )
     for b in r["blocks"]:
         idx, vals = b["x_indices"], b["x0"]
         span = (
@@ -109,10 +125,8 @@ def _blocks(r: dict) -> None:
 
 
 def _actuators(r: dict) -> None:
-    t = Table(title="actuators (names for cost.R and actuators:)", title_justify="left")
     cols = ("#", "actuator", "joint", "effort limit", "rotor inertia", "gear ratio", "reflected")
-    for col in cols:
-        t.add_column(col)
+    t = _table("actuators (names for cost.R and actuators:)", cols)
     for k, a in enumerate(r["actuators"]):
         lim = a["effort_limit"]
         t.add_row(
@@ -128,18 +142,8 @@ def _actuators(r: dict) -> None:
 
 
 def _geometries(r: dict) -> None:
-    t = Table(title="collision geometries (names for geometry overrides)", title_justify="left")
-    for col in (
-        "geometry",
-        "body",
-        "shape",
-        "hydroelastic",
-        "modulus [Pa]",
-        "hint [m]",
-        "friction",
-        "damping",
-    ):
-        t.add_column(col)
+    cols = ("geometry", "body", "shape", "hydroelastic", "modulus [Pa]", "hint [m]", "friction")
+    t = _table("collision geometries (names for geometry overrides)", (*cols, "damping"))
     sap = r["model"]["contact_approximation"] == "sap"
     for g in r["geometries"]:
         t.add_row(
@@ -178,11 +182,10 @@ def _damping(g: dict, sap: bool) -> str:
 
 def _pairs(r: dict) -> None:
     pairs = r["pairs"]
-    t = Table(
-        title=f"candidate collision pairs ({len(pairs)}), closest first", title_justify="left"
+    t = _table(
+        f"candidate collision pairs ({len(pairs)}), closest first",
+        ("A", "B", "kinds", "contact model", "distance at x0 [m]"),
     )
-    for col in ("A", "B", "kinds", "contact model", "distance at x0 [m]"):
-        t.add_column(col)
     for p in pairs[:PAIRS_SHOWN]:
         d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
         t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)

@@ -95,6 +95,7 @@ def candidate_pairs(dyn, x: np.ndarray, geoms: list[dict]) -> list[dict]:
                 "a": f"{ga['name']} ({ga['body']})",
                 "b": f"{gb['name']} ({gb['body']})",
                 "kinds": f"{ga['kind']}/{gb['kind']}",
+                "shapes": f"{ga['shape']}/{gb['shape']}",
                 "model": _pair_model(ga["kind"], gb["kind"], dyn.spec.plant.contact_model),
                 "distance": dist,
             }
@@ -213,13 +214,9 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("pairs")
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
-    if any(p["model"] != "hydroelastic" for p in pairs) and (
-        DerivativeMethod(cfg.solver.derivatives) is DerivativeMethod.AUTODIFF
-    ):
-        warn(
-            "point-contact pairs under autodiff: Drake differentiates point contact only "
-            "when one shape is a sphere; prefer central differences or set compliance"
-        )
+    w = _autodiff_point_warning(pairs, cfg.solver.derivatives)
+    if w:
+        warn(w)
 
     _contact_at_start(dyn, x0, pairs, out)
     done("contacts")
@@ -229,6 +226,25 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     _rollout_warnings(pairs, out, warn)
     done("warnings")
     return out
+
+
+def _autodiff_point_warning(pairs: list[dict], derivatives: str) -> str:
+    """Under autodiff, the point-contact pairs Drake cannot differentiate: those where neither
+    shape is a sphere ("" if none)."""
+    if DerivativeMethod(derivatives) is not DerivativeMethod.AUTODIFF:
+        return ""
+    bad = [
+        p for p in pairs if p["model"] != "hydroelastic" and "Sphere" not in p["shapes"].split("/")
+    ]
+    if not bad:
+        return ""
+    names = ", ".join(f"{p['a']}/{p['b']} ({p['shapes']})" for p in bad[:3])
+    more = f" and {len(bad) - 3} more" if len(bad) > 3 else ""
+    return (
+        f"{len(bad)} point-contact pair(s) without a sphere under autodiff ({names}{more}): "
+        "Drake differentiates point contact only when one shape is a sphere; prefer central "
+        "differences or set compliance"
+    )
 
 
 def _geometry_warnings(cfg, geoms: list, warn) -> None:
