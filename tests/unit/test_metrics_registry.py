@@ -263,3 +263,19 @@ def test_the_terminal_metrics_line_prints_arrays_fixed_point():
     )
     assert metrics.terminal_value(np.float32(0.5)) == "0.5"
     assert metrics.terminal_value([[1.0, 2.5], [3, None]]) == "[[1.0000, 2.5000], [3, None]]"
+
+
+def test_the_command_limit_ratio_is_named_as_one_and_old_summaries_still_read():
+    """Issue 39, 5: max |u| / limit is `max_command_to_limit_ratio`; a summary written under
+    the earlier name `max_command_over_limit` still prints its note."""
+    from hydroilqr.metrics import command_limit_ratio, summary_lines
+
+    new = {"commands_beyond_limits": 3, "max_command_to_limit_ratio": 1.695,
+           "max_command_to_limit_actuator": "joint_6"}  # fmt: skip
+    old = {"commands_beyond_limits": 3, "max_command_over_limit": 1.695,
+           "max_command_over_limit_actuator": "joint_6"}  # fmt: skip
+    assert command_limit_ratio(new) == command_limit_ratio(old) == (1.695, "joint_6")
+    assert command_limit_ratio({"commands_beyond_limits": 0}) is None
+    for m in (new, old):
+        note = [line for line in summary_lines(m) if line.startswith("note:")]
+        assert note and "up to 1.7 times the limit, joint_6" in note[0]

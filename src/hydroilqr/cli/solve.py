@@ -92,6 +92,7 @@ def run(args) -> int:
         summary = _write_results(task, sol, out, args, wall, extra)
     if sol.reason == "interrupted":
         _print_interrupted(sol, out)
+        print_goal(summary["goal"], args.smoke, "the plan kept at Ctrl+C")  # as summary.json
         return 130
     code = print_goal(summary["goal"], args.smoke)
     if args.view:
