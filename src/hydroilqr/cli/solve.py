@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -17,6 +18,9 @@ from hydroilqr.cli.common import (
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 HELP = "solve a task and write its results"
+
+#: The most starts one multi-start runs (each is a whole solve; their records are kept).
+MAX_STARTS = 1000
 
 
 def setup(p) -> None:
@@ -81,7 +85,12 @@ def run(args) -> int:
     t0 = time.perf_counter()
     sol, extra = _solve_many(task, args) if args.starts > 1 else (_solve(task, out, restart), {})
     wall = time.perf_counter() - t0
-    _print_outcome(sol, task, wall)
+    if extra:  # multi-start: the best start's line, with its own solve's time
+        best = extra["multistart"]["results"][extra["multistart"]["best"]]
+        console.print(f"all {args.starts} starts took {wall:.2f} s; the best start:")
+        _print_outcome(sol, task, best["seconds"])
+    else:
+        _print_outcome(sol, task, wall)
     if args.view:
         from hydroilqr.output.replay import meshcat_instance
 
@@ -102,10 +111,14 @@ def run(args) -> int:
 
 def _check_starts(task, args) -> None:
     """Refuses multi-start arguments that cannot work, before any work."""
-    if args.starts < 1:
-        raise ConfigError(f"--starts: must be at least 1, got {args.starts}")
-    if args.start_noise < 0 or args.start_noise != args.start_noise:
-        raise ConfigError(f"--start-noise: must be a number >= 0, got {args.start_noise}")
+    if not 1 <= args.starts <= MAX_STARTS:
+        raise ConfigError(f"--starts: must be from 1 to {MAX_STARTS}, got {args.starts}")
+    if not (0 <= args.start_noise < math.inf):  # (NaN fails too)
+        raise ConfigError(f"--start-noise: must be a finite number >= 0, got {args.start_noise}")
+    if args.seed < 0:
+        raise ConfigError(f"--seed: must be at least 0, got {args.seed}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers: must be at least 1, got {args.workers}")
     if args.starts > 1 and task.config.receding_horizon is not None:
         raise ConfigError(
             "--starts: multi-start perturbs a single solve's initial guess; "
@@ -132,11 +145,7 @@ def _solve_many(task, args):
     console.print(f"multi-start: {args.starts} solves (seed {args.seed}) on {where}")
 
     def done(r) -> None:
-        rec = r.record()
-        cost = "failed" if rec["final_cost"] is None else f"cost {rec['final_cost']:.6g}"
-        goal = {True: "goal met", False: "goal not met", None: ""}[rec["goal_met"]]
-        detail = f" ({r.error})" if r.error else ""
-        console.print(f"  start {r.index}: {rec['status']}, {cost}, {goal}{detail}")
+        console.print(f"  start {r.index}: {start_line(r.record())}", soft_wrap=True)
 
     results, best = run_multistart(
         ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
@@ -146,8 +155,8 @@ def _solve_many(task, args):
     s = spread(results)
     console.print(
         f"multi-start: best start {best}; cost best {s['best_cost']:.6g} / median "
-        f"{s['median_cost']:.6g} / worst {s['worst_cost']:.6g}; goal met by {s['goal_met']} "
-        f"of {s['starts']}"
+        f"{s['median_cost']:.6g} / worst {s['worst_cost']:.6g}; {s['finished']} of "
+        f"{s['starts']} finished; goal met by {s['goal_met']} of {s['starts']}"
     )
     entry = {
         "seed": args.seed,
@@ -157,6 +166,20 @@ def _solve_many(task, args):
         "results": [r.record() for r in results],
     }
     return results[best].solution, {"multistart": entry}
+
+
+def start_line(rec: dict) -> str:
+    """One start of a multi-start, in words: ``status converged after 12 iterations, cost
+    8.27, goal met, 19.1 s``; a start that raised: ``failed (the error), 3.2 s``."""
+    secs = f"{rec['seconds']:.1f} s"
+    if rec.get("error") and rec["final_cost"] is None:
+        return f"failed ({rec['error']}), {secs}"
+    parts = [f"status {rec['status']} after {rec['iterations']} iterations"]
+    parts.append("no finite cost" if rec["final_cost"] is None else f"cost {rec['final_cost']:.6g}")
+    goal = {True: "goal met", False: "goal not met", None: ""}[rec["goal_met"]]
+    parts += [goal] if goal else []
+    detail = f" ({rec['error']})" if rec.get("error") else ""
+    return ", ".join([*parts, secs]) + detail
 
 
 def _solver_overrides(args) -> list[str]:
