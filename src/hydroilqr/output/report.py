@@ -407,28 +407,42 @@ def _previous_plot_files(out: Path) -> set[str]:
         return set()
 
 
+#: Written beside the package when it is built (setup.py): the commit it was built from.
+BUILD_COMMIT_FILE = "_build_commit.txt"
+
+
 @functools.cache
 def code_version() -> str:
     """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
-    a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
+    a resumed sweep may mix points computed by different code. An installed package (not in
+    a git checkout): the commit recorded when it was built, "COMMIT (installed build)", or
+    "installed package, commit unknown"."""
+    here = Path(__file__).parent.parent
+    commit = _checkout_commit(here)
+    if commit:
+        return commit
+    try:
+        built = (here / BUILD_COMMIT_FILE).read_text(encoding="utf-8")[:64].strip()
+    except (OSError, UnicodeDecodeError):
+        built = ""
+    return f"{built} (installed build)" if built else "installed package, commit unknown"
+
+
+def _checkout_commit(package_dir: Path) -> str:
+    """The commit of the git checkout whose tracked sources ``package_dir`` is ("" when it is
+    not one: e.g. an installed copy, even inside another repository's ignored .venv)."""
     import subprocess
 
-    here = Path(__file__).parent.parent
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], cwd=package_dir, text=True, capture_output=True, timeout=10
+        ).stdout.strip()
+
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", "."],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
+        if not git("ls-files", "--", "__init__.py"):
+            return ""
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--", ".")
     except (OSError, subprocess.SubprocessError):
         return ""
     return head + ("-dirty" if head and dirty else "")
