@@ -417,12 +417,16 @@ def code_version() -> str:
     a resumed sweep may mix points computed by different code. An installed package (not in
     a git checkout): the commit recorded when it was built, "COMMIT (installed build)", or
     "installed package, commit unknown"."""
-    here = Path(__file__).parent.parent
-    commit = _checkout_commit(here)
+    return package_code(Path(__file__).parent.parent)
+
+
+def package_code(package_dir: Path) -> str:
+    """``code_version`` of the package in ``package_dir``."""
+    commit = _checkout_commit(package_dir)
     if commit:
         return commit
     try:
-        built = (here / BUILD_COMMIT_FILE).read_text(encoding="utf-8")[:64].strip()
+        built = (package_dir / BUILD_COMMIT_FILE).read_text(encoding="utf-8")[:64].strip()
     except (OSError, UnicodeDecodeError):
         built = ""
     return f"{built} (installed build)" if built else "installed package, commit unknown"
