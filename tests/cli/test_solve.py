@@ -195,6 +195,16 @@ def test_interrupted_ilqr_statistics_are_consistent():
     np.testing.assert_allclose(task.cost.total(sol.X, sol.U, 0.0), sol.costs[-1])
 
 
+def test_a_smoke_solve_says_how_short_it_is(tmp_path, capsys):
+    """Issue 39, 13: a smoke plan (and its replay) is too short to show the task's motion."""
+    task = write_task(tmp_path, smoke={"num_steps": 3, "solver.max_iterations": 1})
+    out = str(tmp_path / "o")
+    assert cli.main(["solve", str(task), "--smoke", "--out", out, "--no-replay"]) == 0
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "--smoke: the task shrunk to 3 steps (0.06 s of motion)" in printed
+    assert "too short for the motion the task is for" in printed
+
+
 def test_a_solve_that_never_steps_says_why(tmp_path, capsys):
     # Zero state weights: the zero guess is already optimal, so no step is ever taken.
     task = write_task(tmp_path, cost={"R": 0.01}, solver={"max_iterations": 3})

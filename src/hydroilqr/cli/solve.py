@@ -244,6 +244,15 @@ def _print_header(task, out: Path) -> None:
         f"steps={task.steps} contact={cfg.plant.contact_approximation} "
         f"derivatives={cfg.solver.derivatives} -> {out}"
     )
+    if cfg.smoke_run:
+        rh = cfg.receding_horizon
+        n = rh.resolves * rh.shift_steps if rh is not None else task.steps
+        console.print(
+            f"--smoke: the task shrunk to {n} steps ({n * dyn.dt:g} s of motion) and a few "
+            "iterations (its smoke: section), a quick check that everything runs: the plan and "
+            "its replay last only that long, too short for the motion the task is for, and "
+            "its goal is not judged"
+        )
     if cfg.continuation:
         steps = "; ".join(
             ", ".join(f"{k}={v}" for k, v in stage.items()) for stage in cfg.continuation
