@@ -70,3 +70,18 @@ def test_the_schema_command_prints_it(capsys):
 
     assert main(["schema"]) == 0
     assert json.loads(capsys.readouterr().out) == task_schema()
+
+
+def test_task_format_names_every_key_and_the_schema_line():
+    """docs/task-format.md says it lists every key: each key of the schema appears there as a
+    word (issue 39, 9), with the line an editor needs to use the schema."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).parents[2] / "docs" / "task-format.md").read_text()
+    schema = task_schema()
+    sections = [schema["properties"], *(d["properties"] for d in schema["definitions"].values())]
+    keys = {k for props in sections for k in props}
+    missing = sorted(k for k in keys if not re.search(rf"(?<![\w.-]){re.escape(k)}(?![\w-])", doc))
+    assert not missing, missing
+    assert "# yaml-language-server: $schema=task.schema.json" in doc
