@@ -326,3 +326,30 @@ def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkey
     (tmp_path / "mine.yaml").mkdir()
     with pytest.raises(ConfigError, match="a directory, not a task YAML file"):
         load_task("mine.yaml")
+
+
+@pytest.mark.parametrize("kind", ["symlink", "dangling", "hardlink"])
+def test_a_lock_file_that_links_outside_is_never_followed(tmp_path, capsys, kind):
+    """Issue 39: a .hydroilqr.lock that is a link changes no file outside the run (solve and
+    playback refuse it in one line)."""
+    outside = tmp_path / "outside.txt"
+    if kind != "dangling":
+        outside.write_text("precious")
+    out = tmp_path / "run"
+    out.mkdir()
+    lock = out / ".hydroilqr.lock"
+    if kind == "hardlink":
+        os.link(outside, lock)
+    else:
+        os.symlink(outside, lock)
+    task = write_task(tmp_path)
+    rc = cli.main(["solve", str(task), "--out", str(out), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc == 2 and "not a lock file hydroilqr made" in cap.err
+    assert len(cap.err.strip().splitlines()) == 1
+    if kind == "dangling":
+        assert not outside.exists()
+    else:
+        assert outside.read_text() == "precious"
+    rc = cli.main(["playback", str(out)])
+    assert rc == 2 and "not a lock file hydroilqr made" in capsys.readouterr().err

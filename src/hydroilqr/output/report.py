@@ -233,6 +233,45 @@ class _Held(Exception):
     """Another process holds a conflicting lock."""
 
 
+class _Foreign(Exception):
+    """The lock file's path holds something hydroilqr never makes there: a symbolic link
+    (even a dangling one), a hard link to another file, or a special file. It is never
+    followed, written or truncated (a file outside the directory could change)."""
+
+
+def _open_lock_file(path: Path) -> int:
+    """The lock file at ``path`` opened (created if missing) without following a link;
+    _Foreign if the path is not a lock file of ours."""
+    import os
+    import stat
+
+    flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    if path.is_symlink():
+        raise _Foreign
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as e:
+        import errno
+
+        if e.errno == errno.ELOOP:
+            raise _Foreign from None
+        raise
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        raise _Foreign
+    return fd
+
+
+def _foreign_lock(path: Path):
+    from hydroilqr.problem.config import ConfigError
+
+    return ConfigError(
+        f"{path}: not a lock file hydroilqr made (a link or a special file): remove it and "
+        "run again"
+    )
+
+
 def _is_file_at(fd: int, path: Path) -> bool:
     """Whether the open file ``fd`` is still the file at ``path`` (not removed or replaced)."""
     import os
@@ -255,7 +294,7 @@ def _hold(path: Path, shared: bool, fd: int | None = None) -> int:
     mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB
     for _ in range(100):  # each retry follows a holder's release: this ends at once
         if fd is None:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = _open_lock_file(path)
         try:
             fcntl.flock(fd, mode)
         except OSError:
@@ -291,6 +330,8 @@ def _lock(out: Path) -> None:
             f"{out} is in use by another hydroilqr run{_holder(path)}: wait for it or choose "
             "another --out"
         ) from None
+    except _Foreign:
+        raise _foreign_lock(path) from None
     except OSError as e:
         raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
     os.ftruncate(fd, 0)
@@ -306,7 +347,7 @@ def _holder(path: Path) -> str:
         other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
     except (OSError, ValueError):
         other = ""
-    if other:
+    if other.isdigit():  # (a process id; anything else in the file is not quoted)
         return f" (process {other}, or a playback reading its plan)"
     return " (a playback reading its plan)"
 
@@ -341,6 +382,8 @@ def read_lock(run_dir: Path) -> None:
         raise ConfigError(
             f"{run_dir} is being written by another hydroilqr run: wait for it"
         ) from None
+    except _Foreign:
+        raise _foreign_lock(_lock_file(run_dir)) from None
     except OSError:
         return
 
