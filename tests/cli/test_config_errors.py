@@ -397,3 +397,20 @@ def test_a_bad_value_the_smoke_section_overrides_is_still_refused(tmp_path, caps
         rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o"), *extra])
         cap = capsys.readouterr()
         assert_one_line(rc, cap.out, cap.err, "solver.max_iterations: expected an integer")
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        ({"cost__nominal": {"angles": 1e200}}, "cost.nominal.angles"),
+        ({"cost__Q": {"angles": 1e300}}, "cost.Q.angles"),
+        ({"cost__R": [1e200]}, "cost.R"),
+    ],
+)
+def test_numbers_too_large_for_the_cost_are_one_line(tmp_path, capsys, change, key):
+    """Issue 39: a huge nominal printed overflow warnings and more lines; now one line."""
+    path = write_case(tmp_path, edit(**change))
+    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, f"{key}: ")
+    assert "too large to compute a cost with" in cap.err

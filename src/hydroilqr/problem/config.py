@@ -1493,6 +1493,24 @@ def _validate_cost(cost: CostConfig) -> None:
             vals = v if isinstance(v, list) else [v]
             for x in vals:
                 _check_weight(x, v, f"cost.{section}.{k}", section != "nominal_rate")
+    # (the nominal's and R's types are checked against the model in model/cost.py)
+    named = [(f"cost.nominal.{k}", v) for k, v in cost.nominal.items()]
+    named += list(cost.R.items()) if isinstance(cost.R, dict) else [("cost.R", cost.R)]
+    for key, v in named:
+        for x in v if isinstance(v, list) else [v]:
+            _check_magnitude(x, key)
+
+
+#: The largest magnitude a cost weight or a nominal value may have: beyond it, squares and
+#: sums of the cost overflow floating point long before any result could mean anything.
+MAX_MAGNITUDE = 1e50
+
+
+def _check_magnitude(x: Any, key: str) -> None:
+    if isinstance(x, (int, float)) and not isinstance(x, bool) and abs(x) > MAX_MAGNITUDE:
+        raise ConfigError(
+            f"{key}: {x:g} is too large to compute a cost with (at most {MAX_MAGNITUDE:g})"
+        )
 
 
 def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:
@@ -1506,6 +1524,7 @@ def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:
         raise ConfigError(f"{key}: expected {what}, got {v!r}")
     if weight and x < 0:
         raise ConfigError(f"{key}: weights must be non-negative, got {x}")
+    _check_magnitude(x, key)
 
 
 def _validate_receding_horizon(rh: RecedingHorizonConfig | None) -> None:
