@@ -111,3 +111,15 @@ def test_check_and_solve_agree_on_no_contact_and_its_remedy(tmp_path, capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "status no_progress after 1 iteration (stop test: expected_decrease)" in out
     assert NO_CONTACT_REMEDY in out and "closer)" not in out
+
+
+def test_a_negative_mass_in_a_model_is_refused_in_one_line(tmp_path, capsys):
+    """Issue 39: Drake parses a negative mass with a warning and a made-up inertia; the task
+    is refused instead, naming the file and line."""
+    path = strike_task(tmp_path)
+    urdf = tmp_path / "pend.urdf"
+    urdf.write_text(STRIKE_URDF.replace('<mass value="0.2"/>', '<mass value="-0.2"/>'))
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "models[0].file: pend.urdf line ")
+    assert "a mass or inertia no physical body has" in cap.err

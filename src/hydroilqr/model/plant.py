@@ -9,6 +9,7 @@ contact approximation is chosen explicitly (``tamsi`` only to reproduce the pape
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -319,16 +320,65 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
             own.package_map().Add(pkg, str(task.resolve_path(path)))
         parser = own
     try:
-        if m.file.startswith("package://"):
-            instances = parser.AddModels(url=m.file)
-        else:
-            instances = parser.AddModels(str(task.resolve_path(m.file)))
+        with _drake_warnings() as warnings:
+            if m.file.startswith("package://"):
+                instances = parser.AddModels(url=m.file)
+            else:
+                instances = parser.AddModels(str(task.resolve_path(m.file)))
     except Exception as e:
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ConfigError(f"{key}.file: could not parse {m.file}: {msg}") from None
+    _refuse_replaced_inertia(warnings, f"{key}.file: {m.file}")
     if m.name and len(instances) == 1:
         plant.RenameModelInstance(instances[0], m.name)
     return instances
+
+
+@contextlib.contextmanager
+def _drake_warnings():
+    """The messages Drake logs (pydrake's "drake" logger) inside the block, as a list; held
+    back while it runs and logged as usual after it unless ``_refuse_replaced_inertia``
+    turns one into the command's one error line."""
+    import logging
+
+    class _Collect(logging.Handler):
+        def emit(self, record):
+            records.append(record)
+            messages.append(record.getMessage())
+
+    records: list = []
+    messages: list[str] = []
+    logger = logging.getLogger("drake")
+    saved = (logger.handlers[:], logger.propagate)
+    logger.handlers[:] = [_Collect(logging.WARNING)]
+    logger.propagate = False
+    try:
+        yield messages
+    finally:
+        logger.handlers[:], logger.propagate = saved
+    if not any(_replaced_inertia(m) for m in messages):
+        for record in records:
+            logger.handle(record)
+
+
+def _replaced_inertia(message: str) -> bool:
+    return "inertia" in message.lower() or "mass >" in message
+
+
+def _refuse_replaced_inertia(messages: list[str], where: str) -> None:
+    """Drake parses an ``<inertial>`` that no body has (a negative mass, an impossible
+    inertia) with a warning and a made-up inertia in its place: refused here, naming the
+    line."""
+    import re
+
+    for msg in messages:
+        if _replaced_inertia(msg):
+            line = re.search(r":(\d+): warning:", msg)
+            at = f" line {line[1]}" if line else ""
+            raise ConfigError(
+                f"{where}{at}: a mass or inertia no physical body has (a mass must be > 0, "
+                "each moment of inertia at most the sum of the other two)"
+            )
 
 
 def apply_actuators(task: TaskConfig, plant) -> None:
@@ -375,6 +425,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     _override_geometry(task, plant, scene_graph)
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     apply_actuators(task, plant)
+    check_inertias(plant)
     plant.Finalize()
     _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
     check_contact_pairs(task, plant, scene_graph)
@@ -389,6 +440,24 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     visualizers = _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer)
     diagram = builder.Build()
     return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
+
+
+def check_inertias(plant) -> None:
+    """ConfigError naming the first body whose mass or rotational inertia no physical body
+    has (a negative or non-finite mass, an inertia that violates the triangle inequality):
+    Drake would simulate it, into nonsense."""
+    from pydrake.multibody.tree import BodyIndex
+
+    for i in range(1, plant.num_bodies()):  # (0: the world)
+        body = plant.get_body(BodyIndex(i))
+        mass = body.default_mass()
+        if not np.isfinite(mass) or mass < 0:
+            raise ConfigError(f"models: body {body.name()!r} has mass {mass:g}: not a mass")
+        if not body.default_spatial_inertia().IsPhysicallyValid():
+            raise ConfigError(
+                f"models: body {body.name()!r} has a rotational inertia no body has (negative "
+                "moments, or one larger than the other two together)"
+            )
 
 
 def _add_models(task: TaskConfig, plant, scene_graph) -> None:
