@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from hydroilqr import Task, cli
 from tests.conftest import assert_one_line, edit, write_case
 
@@ -123,3 +125,40 @@ def test_a_negative_mass_in_a_model_is_refused_in_one_line(tmp_path, capsys):
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "models[0].file: pend.urdf line ")
     assert "a mass or inertia no physical body has" in cap.err
+
+
+@pytest.mark.parametrize("case", ["dev-zero-mesh", "fifo-mesh", "fifo-include"])
+def test_model_files_name_only_regular_bounded_files(tmp_path, capsys, case):
+    """Issue 39: a mesh (visual or collision) that is /dev/zero or a named pipe, or an
+    <include> of a pipe, is refused in one line before Drake reads it (it exhausted memory
+    or waited forever)."""
+    import os
+    import signal
+
+    path = strike_task(tmp_path)
+    os.mkfifo(tmp_path / "pipe.obj")
+    mesh = {"dev-zero-mesh": "/dev/zero", "fifo-mesh": "pipe.obj"}.get(case)
+    if mesh:
+        visual = f'<visual><geometry><mesh filename="{mesh}"/></geometry></visual>'
+        text = STRIKE_URDF.replace('<collision name="cube_collision">', visual + "<collision>")
+        (tmp_path / "pend.urdf").write_text(text)
+    else:
+        (tmp_path / "holder.sdf").write_text(
+            '<?xml version="1.0"?><sdf version="1.9"><model name="holder"><link name="l"/>'
+            "<include><uri>pipe.obj</uri></include></model></sdf>"
+        )
+        path.write_text(path.read_text().replace("models:\n", "models:\n- file: holder.sdf\n"))
+
+    def hung(*_):
+        raise TimeoutError("the model check waited on a file")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(60)
+    try:
+        rc = cli.main(["check", str(path)])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    cap = capsys.readouterr()
+    kind = "a character device" if case == "dev-zero-mesh" else "a named pipe"
+    assert_one_line(rc, cap.out, cap.err, f"{kind}, not a regular file")

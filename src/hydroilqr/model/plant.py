@@ -319,6 +319,7 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
         for pkg, path in task.package_map.items():  # (checked by the caller)
             own.package_map().Add(pkg, str(task.resolve_path(path)))
         parser = own
+    check_model_references(_model_path(task, parser, m), parser.package_map(), f"{key}.file")
     try:
         with _drake_warnings() as warnings:
             if m.file.startswith("package://"):
@@ -332,6 +333,77 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
     if m.name and len(instances) == 1:
         plant.RenameModelInstance(instances[0], m.name)
     return instances
+
+
+def _model_path(task: TaskConfig, parser, m) -> Path | None:
+    """The model file of a ``models`` entry (None: a package it cannot resolve; Drake says)."""
+    if not m.file.startswith("package://"):
+        return task.resolve_path(m.file)
+    try:
+        return Path(parser.package_map().ResolveUrl(m.file))
+    except Exception:  # noqa: BLE001 - AddModels reports the unknown package
+        return None
+
+
+MODEL_INCLUDE_DEPTH = 8  # included model files followed at most this deep
+
+
+def check_model_references(path: Path | None, package_map, key: str, depth: int = 0) -> None:
+    """Every file the model file ``path`` names (meshes, visual or collision, and included
+    models, followed) is a regular file within its size cap: ConfigError naming the model
+    and the file otherwise, before Drake reads any (a mesh that is /dev/zero or a named pipe
+    would exhaust memory or wait forever). References it cannot resolve are left to Drake."""
+    import xml.etree.ElementTree as ET
+
+    from hydroilqr.problem.inputs import MAX_MESH_BYTES, MAX_MODEL_BYTES, check_file, read_bounded
+
+    if path is None or depth > MODEL_INCLUDE_DEPTH:
+        return
+    try:
+        root = ET.fromstring(read_bounded(path, f"{key}:", MAX_MODEL_BYTES))
+    except ET.ParseError:
+        return  # (Drake reports the parse error)
+    for ref, include in _model_references(root):
+        target = _resolve_reference(ref, path.parent, package_map)
+        if target is None or not (target.exists() or target.is_symlink()) or target.is_dir():
+            continue  # (a model directory, a missing file: Drake resolves or reports it)
+        what = f"{key}: {path.name} names"
+        check_file(target, what, MAX_MODEL_BYTES if include else MAX_MESH_BYTES)
+        if include:
+            check_model_references(target, package_map, key, depth + 1)
+
+
+def _model_references(root) -> list[tuple[str, bool]]:
+    """(reference, is an included model) of every mesh and include of a URDF, SDFormat or
+    MJCF document."""
+    refs: list[tuple[str, bool]] = []
+    for el in root.iter():
+        tag = el.tag.rsplit("}", 1)[-1] if isinstance(el.tag, str) else ""
+        if tag == "mesh":
+            refs += [(el.get(a), False) for a in ("filename", "file") if el.get(a)]
+            uri = el.find("uri")
+            if uri is not None and (uri.text or "").strip():
+                refs.append((uri.text.strip(), False))
+        elif tag == "include":
+            uri = el.find("uri")
+            if uri is not None and (uri.text or "").strip():
+                refs.append((uri.text.strip(), True))
+            if el.get("file"):  # MJCF
+                refs.append((el.get("file"), True))
+    return refs
+
+
+def _resolve_reference(ref: str, directory: Path, package_map) -> Path | None:
+    if ref.startswith(("package://", "model://")):
+        try:
+            return Path(package_map.ResolveUrl(ref))
+        except Exception:  # noqa: BLE001 - an unknown package: Drake reports it
+            return None
+    if "://" in ref and not ref.startswith("file://"):
+        return None  # (a remote resource)
+    ref = ref.removeprefix("file://")
+    p = Path(ref).expanduser()
+    return p if p.is_absolute() else directory / p
 
 
 @contextlib.contextmanager
