@@ -86,7 +86,8 @@ def run(args) -> int:
     sol, extra = _solve_many(task, args) if args.starts > 1 else (_solve(task, out, restart), {})
     wall = time.perf_counter() - t0
     if extra:  # multi-start: the best start's line, with its own solve's time
-        best = extra["multistart"]["results"][extra["multistart"]["best"]]
+        ms = extra["multistart"]
+        best = next(r for r in ms["results"] if r["index"] == ms["best"])
         console.print(f"all {args.starts} starts took {wall:.2f} s; the best start:")
         _print_outcome(sol, task, best["seconds"])
     else:
@@ -99,6 +100,14 @@ def run(args) -> int:
     # killed run leaves them as they were (output/rundir.py).
     with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
         summary = _write_results(task, sol, out, args, wall, extra)
+    if extra.get("multistart", {}).get("interrupted"):
+        ms = extra["multistart"]
+        console.print(
+            f"interrupted: {out} holds the best of the {ms['finished']} start(s) of "
+            f"{ms['requested']} that had finished (multistart.interrupted in summary.json)"
+        )
+        print_goal(summary["goal"], args.smoke, "the best finished start")
+        return 130
     if sol.reason == "interrupted":
         _print_interrupted(sol, out)
         print_goal(summary["goal"], args.smoke, "the plan kept at Ctrl+C")  # as summary.json
@@ -133,7 +142,7 @@ def _check_starts(task, args) -> None:
 def _solve_many(task, args):
     """Multi-start (studies/multistart.py): the best start's solution and the summary entry
     with every start's outcome and the spread."""
-    from hydroilqr.studies.multistart import run_multistart, spread
+    from hydroilqr.studies.multistart import Interrupted, best_index, run_multistart, spread
 
     ref = {
         "name": args.task_file or args.task,
@@ -147,9 +156,15 @@ def _solve_many(task, args):
     def done(r) -> None:
         console.print(f"  start {r.index}: {start_line(r.record())}", soft_wrap=True)
 
-    results, best = run_multistart(
-        ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
-    )
+    interrupted = False
+    try:
+        results, best = run_multistart(
+            ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
+        )
+    except Interrupted as e:  # Ctrl+C: the starts that finished are kept
+        results, best, interrupted = e.results, best_index(e.results), True
+        if best is None:
+            raise KeyboardInterrupt("no start had finished: nothing was written") from None
     if best is None:
         raise ConfigError(f"multi-start: none of the {args.starts} starts finished")
     s = spread(results)
@@ -163,9 +178,12 @@ def _solve_many(task, args):
         "noise": args.start_noise,
         "best": best,
         **s,
+        "requested": args.starts,
+        "interrupted": interrupted,  # Ctrl+C: only the starts that had finished
         "results": [r.record() for r in results],
     }
-    return results[best].solution, {"multistart": entry}
+    solution = next(r.solution for r in results if r.index == best)
+    return solution, {"multistart": entry}
 
 
 def start_line(rec: dict) -> str:

@@ -9,7 +9,6 @@ address (a silent listener, one that closes, or one speaking another protocol in
 from __future__ import annotations
 
 import logging
-import signal
 import threading
 import time
 
@@ -85,11 +84,13 @@ def open_client(scheduler: str | None, workers: int | None = None):
     from hydroilqr.model.workers import cores
 
     n = workers or cores()
-    # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
-    # process group) then reaches only this process, which stops the work and the cluster,
-    # instead of every worker printing its own KeyboardInterrupt traceback.
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    # Ctrl+C in a terminal reaches the whole process group. The workers ignore it
+    # (worker_setup, preloaded in each as it starts), so only this process acts on it: it
+    # stops the work and the cluster, without every worker printing its own
+    # KeyboardInterrupt traceback. This process keeps its Ctrl+C throughout, also while the
+    # cluster starts (ignoring it here then, for the workers to inherit, lost a Ctrl+C
+    # pressed in those seconds and let a sweep run to its end).
+    cluster = None
     try:
         cluster = LocalCluster(
             n_workers=n,
@@ -100,8 +101,36 @@ def open_client(scheduler: str | None, workers: int | None = None):
             # The scheduler's HTTP routes still bind a port: any free one, so
             # parallel sweeps do not warn about 8787 being taken.
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+            preload=["hydroilqr.studies.worker_setup"],
         )
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
+    except BaseException:
+        if cluster is not None:
+            _close_quietly(cluster)
+        raise
     return Client(cluster), cluster
+
+
+def kill_workers(cluster) -> None:
+    """Ends an embedded cluster's worker processes at once (after Ctrl+C: their unfinished
+    jobs are abandoned anyway; closing them politely waits for a busy worker and lets it
+    log the scheduler's going away)."""
+    import os
+    import signal
+
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if pid:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+def _close_quietly(cluster) -> None:
+    """Closes a cluster after Ctrl+C without Dask's log lines."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    kill_workers(cluster)
+    try:
+        cluster.close(timeout=5)
+    except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
+        pass
