@@ -285,6 +285,27 @@ def test_a_finished_command_leaves_no_lock_file(tmp_path):
     assert not list(tmp_path.rglob(".hydroilqr.lock"))
 
 
+def test_a_full_disk_at_the_lock_leaves_no_directory_or_lock_file(tmp_path, capsys, monkeypatch):
+    """Issue 39: the lock file of a new directory was left behind when writing it failed."""
+    import errno
+
+    from hydroilqr.output import report
+
+    real_write = os.write
+
+    def full(fd, data):
+        if data == str(os.getpid()).encode():
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(report.os, "write", full)
+    out = tmp_path / "new" / "run"
+    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc == 2 and "No space left on device" in cap.err
+    assert not list(tmp_path.rglob(".hydroilqr.lock")) and not (tmp_path / "new").exists()
+
+
 def test_solution_files_are_written_whole(tmp_path):
     task = Task.load("cartpole-wall", ["num_steps=5", "solver.max_iterations=1"])
     path = solve(task).save(tmp_path / "s")
@@ -313,7 +334,8 @@ def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
     cap = capsys.readouterr()
     assert rc != 0 and "Traceback" not in cap.err and "RuntimeWarning" not in cap.err
     lines = [ln for ln in cap.err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "cost of the initial guess is inf" in lines[0], cap.err
+    # (refused with the task, before the cost of the guess overflows: issue 39)
+    assert len(lines) == 1 and "cost.Qf.angles: 1e+308 is too large" in lines[0], cap.err
     assert not (tmp_path / "o" / "solution.npz").exists()
 
 

@@ -185,9 +185,9 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ConfigError(f"--out {out}: {e.strerror}") from None
-    _lock(out)
-    if created:
+    if created:  # (before the lock: a directory it cannot lock is removed too)
         _CREATED.append(created)
+    _lock(out)
     return out
 
 
@@ -205,8 +205,8 @@ def discard_empty_outputs() -> None:
         try:
             if {p.name for p in out.iterdir()} <= {LOCK_NAME}:
                 fd = _LOCKS.pop(str(out.resolve()), None)
-                _lock_file(out).unlink(missing_ok=True)
-                if fd is not None:
+                if fd is not None:  # (only a lock this process holds is removed)
+                    _lock_file(out).unlink(missing_ok=True)
                     os.close(fd)
                 for d in dirs:  # the output directory, then the parents made for it
                     d.rmdir()  # OSError if not empty (e.g. another run started in it)
@@ -334,8 +334,12 @@ def _lock(out: Path) -> None:
         raise _foreign_lock(path) from None
     except OSError as e:
         raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+    except OSError as e:  # e.g. a full disk: the file this process made is not left behind
+        _release(path, fd)
+        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
     _LOCKS[key] = fd
 
 
