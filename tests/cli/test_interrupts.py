@@ -86,11 +86,11 @@ def test_ctrl_c_while_the_cluster_starts_stops_a_sweep(tmp_path):
     out = tmp_path / "sw"
     argv = ["sweep", str(_slow_task(tmp_path)), "--param", "cost.R", "--values", "0.01,0.02,0.03"]
     p = _start([*argv, "--workers", "1", "--out", str(out)])
-    time.sleep(3)  # (importing and starting the cluster takes longer)
-    _ctrl_c_after(p, None)
+    before = _ctrl_c_after(p, "3 to compute")  # (printed just before the cluster starts)
+    assert "dask: local cluster" not in before
     rc, seconds, err = _finish(p)
     assert rc == 130 and seconds < 25, (rc, seconds, err)
-    assert "interrupted" in err and "Traceback" not in err
+    assert "interrupted" in err and "Traceback" not in err, err
 
 
 def test_ctrl_c_stops_a_sweep_and_keeps_the_finished_points(tmp_path):
