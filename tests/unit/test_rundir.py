@@ -173,3 +173,17 @@ def test_plot_file_names_stay_in_the_output_directory():
     assert file_name("../escape_ball") == "escape_ball.png"
     assert file_name("a/b") == "a_b.png" and file_name("..") == "object.png"
     assert file_name(".hidden") == "hidden.png" and file_name("x..y") == "x_y.png"
+
+
+def test_a_journal_that_cannot_be_written_leaves_no_stage(tmp_path, monkeypatch):
+    """Issue 39: a disk too full for the journal left .partial behind."""
+    out = tmp_path / "run"
+    _old_run(out)
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(rundir, "atomic_write", full)
+    with pytest.raises(OSError), rundir.result_set(out, [*OLD, "playback-pd"]) as st:
+        _write_set(st, NEW)
+    assert not (out / rundir.STAGE).exists() and _state(out) == "old"

@@ -188,4 +188,11 @@ def result_set(out: Path, retire: list[str], keep_stage_on_error: bool = False):
         if not keep_stage_on_error:
             discard(out)
         raise
-    commit(out, retire)
+    try:
+        commit(out, retire)
+    except BaseException:
+        # no journal (it could not be written, e.g. a full disk): nothing was replaced, so
+        # the new set goes; with one, recover() completes the commit, which needs the stage
+        if not _exists(Path(out) / JOURNAL) and not keep_stage_on_error:
+            discard(out)
+        raise
