@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from hydroilqr import Task, cli
 from tests.conftest import assert_one_line, edit, write_case
 
@@ -43,3 +45,120 @@ def test_check_lists_the_ensemble_members_and_rolls_the_guess_on_each(tmp_path, 
     out = capsys.readouterr().out
     assert "ensemble[0] (weight 0.5, guess rollout ok): plant.gravity=[0, 0, -8]" in out
     assert "check passed" in out
+
+
+STRIKE_URDF = """<?xml version="1.0"?>
+<robot name="pend">
+  <link name="base"/>
+  <link name="rod">
+    <inertial><origin xyz="0 0 -0.25"/><mass value="0.5"/>
+      <inertia ixx="0.01" iyy="0.01" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision name="rod_collision"><origin xyz="0 0 -0.25"/>
+      <geometry><box size="0.02 0.02 0.5"/></geometry></collision>
+  </link>
+  <joint name="theta" type="revolute">
+    <parent link="base"/><child link="rod"/><origin xyz="0 0 0.6"/><axis xyz="0 1 0"/>
+    <limit effort="10" velocity="100" lower="-10" upper="10"/>
+  </joint>
+  <transmission type="SimpleTransmission" name="t">
+    <actuator name="theta_motor"/><joint name="theta"/>
+    <mechanicalReduction>1</mechanicalReduction>
+  </transmission>
+  <link name="cube">
+    <inertial><mass value="0.2"/>
+      <inertia ixx="0.0003" iyy="0.0003" izz="0.0003" ixy="0" ixz="0" iyz="0"/></inertial>
+    <collision name="cube_collision"><geometry><box size="0.1 0.1 0.1"/></geometry></collision>
+  </link>
+</robot>
+"""
+
+
+def strike_task(tmp_path, steps: int = 120):
+    """A pendulum hanging still 1 cm beside a cube on a table that the cost wants moved."""
+    (tmp_path / "pend.urdf").write_text(STRIKE_URDF)
+    return write_case(
+        tmp_path,
+        {
+            "name": "strike",
+            "models": [{"file": "pend.urdf", "weld": {"parent": "world", "child": "base"}}],
+            "scene": [
+                {"name": "table", "shape": "box", "size": [2, 2, 0.1], "xyz": [0, 0, -0.05],
+                 "compliance": "compliant", "hydroelastic_modulus": 1.0e6}
+            ],
+            "plant": {"time_step": 0.01},
+            "num_steps": steps,
+            "initial_state": {"theta": 0.0, "cube.position": [0.07, 0, 0.05]},
+            "cost": {"Q": {"cube.position": 1.0}, "Qf": {"cube.position": 100.0}, "R": 0.01,
+                     "nominal": {"cube.position": [0.5, 0, 0.05]}},
+            "solver": {"max_iterations": 2},
+        },
+    )  # fmt: skip
+
+
+def test_check_and_solve_agree_on_no_contact_and_its_remedy(tmp_path, capsys):
+    """Issue 39, 1: a cube resting on the table, 1 cm from a still pendulum. check judges the
+    whole guess (not only its first 50 steps) by solve's test (contact with something that
+    moves), warns, and gives solve's remedy: a guess that moves, not a closer start."""
+    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY
+
+    path = strike_task(tmp_path)
+    assert cli.main(["check", str(path)]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "over the first 50 of the task's 120 steps" in out
+    assert "along the rollout of the initial guess (120 steps)" in out
+    assert "cube touches only what is fixed to the world" in out and NO_CONTACT_REMEDY in out
+    assert "check passed with 1 warning(s)" in out
+    run = ["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"]
+    assert cli.main(run) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "status no_progress after 1 iteration (stop test: expected_decrease)" in out
+    assert NO_CONTACT_REMEDY in out and "closer)" not in out
+
+
+def test_a_negative_mass_in_a_model_is_refused_in_one_line(tmp_path, capsys):
+    """Issue 39: Drake parses a negative mass with a warning and a made-up inertia; the task
+    is refused instead, naming the file and line."""
+    path = strike_task(tmp_path)
+    urdf = tmp_path / "pend.urdf"
+    urdf.write_text(STRIKE_URDF.replace('<mass value="0.2"/>', '<mass value="-0.2"/>'))
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "models[0].file: pend.urdf line ")
+    assert "a mass or inertia no physical body has" in cap.err
+
+
+@pytest.mark.parametrize("case", ["dev-zero-mesh", "fifo-mesh", "fifo-include"])
+def test_model_files_name_only_regular_bounded_files(tmp_path, capsys, case):
+    """Issue 39: a mesh (visual or collision) that is /dev/zero or a named pipe, or an
+    <include> of a pipe, is refused in one line before Drake reads it (it exhausted memory
+    or waited forever)."""
+    import os
+    import signal
+
+    path = strike_task(tmp_path)
+    os.mkfifo(tmp_path / "pipe.obj")
+    mesh = {"dev-zero-mesh": "/dev/zero", "fifo-mesh": "pipe.obj"}.get(case)
+    if mesh:
+        visual = f'<visual><geometry><mesh filename="{mesh}"/></geometry></visual>'
+        text = STRIKE_URDF.replace('<collision name="cube_collision">', visual + "<collision>")
+        (tmp_path / "pend.urdf").write_text(text)
+    else:
+        (tmp_path / "holder.sdf").write_text(
+            '<?xml version="1.0"?><sdf version="1.9"><model name="holder"><link name="l"/>'
+            "<include><uri>pipe.obj</uri></include></model></sdf>"
+        )
+        path.write_text(path.read_text().replace("models:\n", "models:\n- file: holder.sdf\n"))
+
+    def hung(*_):
+        raise TimeoutError("the model check waited on a file")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(60)
+    try:
+        rc = cli.main(["check", str(path)])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    cap = capsys.readouterr()
+    kind = "a character device" if case == "dev-zero-mesh" else "a named pipe"
+    assert_one_line(rc, cap.out, cap.err, f"{kind}, not a regular file")

@@ -10,6 +10,7 @@ also runs as real subprocesses of the installed ``hydroilqr`` script.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -351,3 +352,65 @@ def test_a_weld_names_a_frame_of_its_own_model(tmp_path, capsys):
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "models[1].weld.child: unknown frame 'arm'")
+
+
+def _nested(depth: int, block: bool) -> str:
+    if block:  # a block mapping, one level per line
+        return "metric_params:\n" + "".join("  " * (i + 1) + f"k{i}:\n" for i in range(depth))
+    return "metric_params: {x: " + "[" * depth + "]" * depth + "}\n"
+
+
+@pytest.mark.parametrize("depth, block", [(40, False), (40, True), (5000, False)])
+def test_nesting_a_task_cannot_mean_is_one_line(tmp_path, capsys, depth, block):
+    """Issue 39: deeply nested YAML (sequences, flow or block mappings) is refused in one
+    line, naming the key when the YAML could be read (not an internal error)."""
+    import yaml
+
+    text = yaml.safe_dump(BASE) + _nested(depth, block)
+    rc = cli.main(["solve", str(write_case(tmp_path, text)), "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "nested more than 32 levels deep")
+    if depth < 100:
+        assert "metric_params: nested" in cap.err
+
+
+def test_values_that_are_no_yaml_data_are_refused_naming_the_key():
+    """From Python: a complex number (or another object) where any data is allowed."""
+    from hydroilqr.problem.config import ConfigError, task_from_dict
+
+    for section, value, where in (
+        ("metric_params", {"x": 1 + 2j}, "metric_params.x"),
+        ("smoke", {"num_steps": [1j]}, "smoke.num_steps[0]"),
+        ("metric_params", {"x": object()}, "metric_params.x"),
+    ):
+        with pytest.raises(ConfigError, match=rf"^{re.escape(where)}: expected YAML data"):
+            task_from_dict({**BASE, section: value})
+
+
+def test_a_bad_value_the_smoke_section_overrides_is_still_refused(tmp_path, capsys):
+    """Issue 39: solver.max_iterations 1.5 is refused with --smoke too (the smoke section
+    replacing it hid it)."""
+    path = write_case(
+        tmp_path, edit(solver__max_iterations=1.5, smoke={"solver.max_iterations": 1})
+    )
+    for extra in ([], ["--smoke"]):
+        rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o"), *extra])
+        cap = capsys.readouterr()
+        assert_one_line(rc, cap.out, cap.err, "solver.max_iterations: expected an integer")
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        ({"cost__nominal": {"angles": 1e200}}, "cost.nominal.angles"),
+        ({"cost__Q": {"angles": 1e300}}, "cost.Q.angles"),
+        ({"cost__R": [1e200]}, "cost.R"),
+    ],
+)
+def test_numbers_too_large_for_the_cost_are_one_line(tmp_path, capsys, change, key):
+    """Issue 39: a huge nominal printed overflow warnings and more lines; now one line."""
+    path = write_case(tmp_path, edit(**change))
+    rc = cli.main(["solve", str(path), "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, f"{key}: ")
+    assert "too large to compute a cost with" in cap.err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hydroilqr import cli
 from tests.conftest import BASE, assert_one_line, edit, write_case
@@ -58,3 +59,17 @@ def test_command_line_paths_inside_override_sections_are_relative_to_the_working
     # a task file's own relative paths stay relative to it
     base = Task.load("kinova-left").config
     assert base.mismatch["mass-20"]["models.1.file"] == "../models/kinova_gen3/ball_light.sdf"
+
+
+@pytest.mark.parametrize("name", ["secret.txt", "secret.csv", "secret.npz"])
+def test_an_unreadable_guess_file_is_named_never_quoted(tmp_path, capsys, name):
+    """Issue 39: the error line says where the file is wrong, not what it holds."""
+    from tests.conftest import write_task
+
+    secret = tmp_path / name
+    secret.write_text("1,2\npassword hunter2,3\n")
+    task = write_task(tmp_path, initial_guess=str(secret))
+    rc = cli.main(["solve", str(task), "--out", str(tmp_path / "o")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, f"initial_guess: could not read {secret}")
+    assert "hunter2" not in cap.err and "password" not in cap.err

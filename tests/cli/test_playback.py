@@ -78,15 +78,21 @@ def test_feedforward_with_the_ilqr_policy_is_refused_not_ignored(acrobot_run, tm
     assert rc == 2 and "--kp, --feedforward: options" in capsys.readouterr().err
 
 
-def test_a_damping_law_mismatch_is_noted_and_recorded(acrobot_run, tmp_path, capsys):
+def test_a_damping_law_mismatch_is_noted_and_recorded(acrobot_run, tmp_path, capsys, monkeypatch):
     """SAP damps contact by relaxation times, the other approximations by Hunt-Crossley
-    dissipation: a playback across the two says so, one within a law does not."""
+    dissipation: a playback across the two says so, one within a law does not, nor one of a
+    plan without contact (the acrobot's: issue 39, 6)."""
     import json
 
     from hydroilqr import cli
+    from hydroilqr.control import playback
 
     fast = ["--truth-time-step", "0.005", "--rest-max", "0", "--no-replay"]
     capsys.readouterr()
+    args = ["playback", str(acrobot_run), *fast, "--truth-contact", "similar"]
+    assert cli.main([*args, "--out", str(tmp_path / "none")]) in (0, 4)
+    assert "damps contact" not in capsys.readouterr().out  # the acrobot touches nothing
+    monkeypatch.setattr(playback, "plan_touches", lambda task, X: True)  # as if it did
     for truth, noted in (("similar", True), ("sap", False)):
         out = tmp_path / truth
         args = ["playback", str(acrobot_run), *fast, "--truth-contact", truth, "--out", str(out)]
@@ -114,3 +120,22 @@ def test_a_smoke_plans_playback_records_its_goal_as_not_judged(acrobot_run, tmp_
         assert cli.main(["playback", str(run), *fast, "--out", str(out)]) in (0, 4)
         goal = json.loads((out / "playback.json").read_text())["goal"]
         assert goal["judged"] is judged
+
+
+def test_a_joint_without_a_motor_leads_with_the_plan_end_gap(acrobot_run, tmp_path, capsys):
+    """Issue 39, 6: the acrobot's shoulder has no motor, so the hold after the plan cannot hold
+    it: the headline is the gap at the plan's end, the unheld rest after it is secondary;
+    playback.json says where executed_metrics' final values were taken."""
+    import json
+
+    from hydroilqr import cli
+
+    out = tmp_path / "pb"
+    fast = ["--truth-time-step", "0.005", "--rest-max", "0.1", "--no-replay", "--out", str(out)]
+    capsys.readouterr()
+    assert cli.main(["playback", str(acrobot_run), "--policy", "ilqr", *fast]) in (0, 4)
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "object shoulder: final gap" in printed
+    assert "; after the plan, unheld (no motor): resting gap" in printed
+    data = json.loads((out / "playback.json").read_text())
+    assert data["executed_metrics_final_state"] == "end of the hold after the plan"

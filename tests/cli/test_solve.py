@@ -101,7 +101,9 @@ def test_ctrl_c_during_a_solve_writes_the_best_so_far(tmp_path, monkeypatch, cap
 
     monkeypatch.setattr(IterationTable, "__call__", interrupt_at_third)
     out = tmp_path / "out"
-    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    goal = {"final_error.angles": {"max": 1e-9}}
+    task = write_task(tmp_path, goal=goal)
+    rc = cli.main(["solve", str(task), "--out", str(out), "--no-replay"])
     assert rc == 130
     sol = Solution.load(out / "solution.npz")
     summary = json.loads((out / "summary.json").read_text())
@@ -109,7 +111,11 @@ def test_ctrl_c_during_a_solve_writes_the_best_so_far(tmp_path, monkeypatch, cap
     # Three iterations were recorded; the saved trajectory is the one whose cost is last.
     assert len(sol.costs) == 4 and len(sol.iteration_seconds) == 3
     assert sol.costs[-1] == seen[-1] < sol.costs[0]
-    assert "interrupted" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "interrupted" in printed
+    # the goal judged in summary.json is printed too (issue 39, 4)
+    assert summary["goal"]["judged"] and summary["goal"]["met"] is False
+    assert "goal: FAIL" in printed and "(the plan kept at Ctrl+C)" in printed
 
 
 def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_path, capsys):
@@ -187,6 +193,16 @@ def test_interrupted_ilqr_statistics_are_consistent():
     assert len(sol.iteration_seconds) == len(sol.eps) == len(sol.mu) == n
     assert all(len(v) == n for v in sol.phase_seconds.values())
     np.testing.assert_allclose(task.cost.total(sol.X, sol.U, 0.0), sol.costs[-1])
+
+
+def test_a_smoke_solve_says_how_short_it_is(tmp_path, capsys):
+    """Issue 39, 13: a smoke plan (and its replay) is too short to show the task's motion."""
+    task = write_task(tmp_path, smoke={"num_steps": 3, "solver.max_iterations": 1})
+    out = str(tmp_path / "o")
+    assert cli.main(["solve", str(task), "--smoke", "--out", out, "--no-replay"]) == 0
+    printed = " ".join(capsys.readouterr().out.split())
+    assert "--smoke: the task shrunk to 3 steps (0.06 s of motion)" in printed
+    assert "too short for the motion the task is for" in printed
 
 
 def test_a_solve_that_never_steps_says_why(tmp_path, capsys):
@@ -269,6 +285,27 @@ def test_a_finished_command_leaves_no_lock_file(tmp_path):
     assert not list(tmp_path.rglob(".hydroilqr.lock"))
 
 
+def test_a_full_disk_at_the_lock_leaves_no_directory_or_lock_file(tmp_path, capsys, monkeypatch):
+    """Issue 39: the lock file of a new directory was left behind when writing it failed."""
+    import errno
+
+    from hydroilqr.output import report
+
+    real_write = os.write
+
+    def full(fd, data):
+        if data == str(os.getpid()).encode():
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, data)
+
+    monkeypatch.setattr(report.os, "write", full)
+    out = tmp_path / "new" / "run"
+    rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc == 2 and "No space left on device" in cap.err
+    assert not list(tmp_path.rglob(".hydroilqr.lock")) and not (tmp_path / "new").exists()
+
+
 def test_solution_files_are_written_whole(tmp_path):
     task = Task.load("cartpole-wall", ["num_steps=5", "solver.max_iterations=1"])
     path = solve(task).save(tmp_path / "s")
@@ -297,7 +334,8 @@ def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
     cap = capsys.readouterr()
     assert rc != 0 and "Traceback" not in cap.err and "RuntimeWarning" not in cap.err
     lines = [ln for ln in cap.err.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "cost of the initial guess is inf" in lines[0], cap.err
+    # (refused with the task, before the cost of the guess overflows: issue 39)
+    assert len(lines) == 1 and "cost.Qf.angles: 1e+308 is too large" in lines[0], cap.err
     assert not (tmp_path / "o" / "solution.npz").exists()
 
 
@@ -310,3 +348,30 @@ def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkey
     (tmp_path / "mine.yaml").mkdir()
     with pytest.raises(ConfigError, match="a directory, not a task YAML file"):
         load_task("mine.yaml")
+
+
+@pytest.mark.parametrize("kind", ["symlink", "dangling", "hardlink"])
+def test_a_lock_file_that_links_outside_is_never_followed(tmp_path, capsys, kind):
+    """Issue 39: a .hydroilqr.lock that is a link changes no file outside the run (solve and
+    playback refuse it in one line)."""
+    outside = tmp_path / "outside.txt"
+    if kind != "dangling":
+        outside.write_text("precious")
+    out = tmp_path / "run"
+    out.mkdir()
+    lock = out / ".hydroilqr.lock"
+    if kind == "hardlink":
+        os.link(outside, lock)
+    else:
+        os.symlink(outside, lock)
+    task = write_task(tmp_path)
+    rc = cli.main(["solve", str(task), "--out", str(out), "--no-replay"])
+    cap = capsys.readouterr()
+    assert rc == 2 and "not a lock file hydroilqr made" in cap.err
+    assert len(cap.err.strip().splitlines()) == 1
+    if kind == "dangling":
+        assert not outside.exists()
+    else:
+        assert outside.read_text() == "precious"
+    rc = cli.main(["playback", str(out)])
+    assert rc == 2 and "not a lock file hydroilqr made" in capsys.readouterr().err

@@ -70,7 +70,7 @@ def test_status_is_written_and_printed(tmp_path, capsys):
     s = summary(tmp_path / "o")
     assert s["status"] in ("converged", "stalled", "max_iterations")
     assert s["converged"] == (s["status"] in ("converged", "stalled"))
-    assert f"status {s['status']}:" in capsys.readouterr().out
+    assert f"status {s['status']} after " in capsys.readouterr().out
 
 
 def test_multistart_keeps_the_best_and_reports_the_spread(tmp_path, capsys):
@@ -85,15 +85,24 @@ def test_multistart_keeps_the_best_and_reports_the_spread(tmp_path, capsys):
     assert best["final_cost"] == ms["best_cost"] == min(r["final_cost"] for r in ms["results"])
     assert abs(summary(out)["final_cost"] - ms["best_cost"]) <= 1e-9 * abs(ms["best_cost"])
     text = capsys.readouterr().out
-    assert "multi-start: 2 solves (seed 0)" in text and "start 1:" in text
+    assert "multi-start: 2 solves (seed 0)" in text and "start 1: status " in text
+    # the last lines: all starts' time, then the best start's line with its own time
+    assert "all 2 starts took " in text
+    assert f"cost {best['final_cost']:.6g}, {best['seconds']:.2f} s" in text
 
 
 def test_multistart_arguments_are_checked_before_work(tmp_path, capsys):
     task = str(write_task(tmp_path))
     for extra, message in [
-        (["--starts", "0"], "--starts: must be at least 1"),
+        (["--starts", "0"], "--starts: must be from 1 to 1000"),
         (["--scheduler", "tcp://127.0.0.1:1"], "go with --starts N"),
-        (["--starts", "2", "--start-noise", "-1"], "--start-noise: must be a number >= 0"),
+        (["--starts", "2", "--start-noise", "-1"], "--start-noise: must be a finite number"),
+        (["--starts", "2", "--start-noise", "inf"], "--start-noise: must be a finite number"),
+        (["--starts", "2", "--start-noise", "nan"], "--start-noise: must be a finite number"),
+        (["--starts", "100000000"], "--starts: must be from 1 to 1000"),
+        (["--starts", "2", "--workers", "-1"], "--workers: must be at least 1"),
+        (["--starts", "2", "--workers", "0"], "--workers: must be at least 1"),
+        (["--starts", "2", "--seed", "-1"], "--seed: must be at least 0"),
     ]:
         assert cli.main(["solve", task, "--out", str(tmp_path / "x"), *extra]) == 2
         assert message in capsys.readouterr().err

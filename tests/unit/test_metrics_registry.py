@@ -231,16 +231,21 @@ def test_check_warns_when_no_touched_pair_involves_a_tracked_object():
     task = Task.load("kinova-forward", smoke=True)
     assert {"ball", "shoulder_link"} <= contacts.tracked_bodies(task)
     assert contacts.tracked_objects(task) == {"ball"}  # the arm is moved by its motors
+    fixed = contacts.fixed_bodies(task)
+    assert "world" in fixed and "ball" not in fixed
     other = [{"pair": ["a", "b"], "bodies": ["world", "crate"], "steps": 2}]
-    w = _untracked_contact_warning(other, {"ball"})
-    assert "involves a body the cost tracks" in w
-    assert "touches nothing" in _untracked_contact_warning([], {"ball"})
+    w = _untracked_contact_warning(other, {"ball"}, fixed)
+    assert "involves ball" in w and contacts.NO_CONTACT_REMEDY in w
+    assert "touches nothing" in _untracked_contact_warning([], {"ball"}, fixed)
+    # resting on the ground is no contact that moves it (solve's no_progress test is the same)
+    ground = [{"pair": ["ball", "ground"], "bodies": ["ball", "world"], "steps": 9}]
+    assert "touches only what is fixed" in _untracked_contact_warning(ground, {"ball"}, fixed)
     touching = [{"pair": ["gripper", "ball"], "bodies": ["gripper", "ball"], "steps": 2}]
-    assert _untracked_contact_warning(touching, {"ball"}) == ""
+    assert _untracked_contact_warning(touching, {"ball"}, fixed) == ""
     # a robot's own links are no objects: no warning for a task without contact
     cartpole = Task.load("cartpole-wall", smoke=True)
     assert contacts.tracked_objects(cartpole) == set()
-    assert _untracked_contact_warning([], contacts.tracked_objects(cartpole)) == ""
+    assert _untracked_contact_warning([], contacts.tracked_objects(cartpole), fixed) == ""
 
 
 def test_the_terminal_metrics_line_prints_arrays_fixed_point():
@@ -258,3 +263,19 @@ def test_the_terminal_metrics_line_prints_arrays_fixed_point():
     )
     assert metrics.terminal_value(np.float32(0.5)) == "0.5"
     assert metrics.terminal_value([[1.0, 2.5], [3, None]]) == "[[1.0000, 2.5000], [3, None]]"
+
+
+def test_the_command_limit_ratio_is_named_as_one_and_old_summaries_still_read():
+    """Issue 39, 5: max |u| / limit is `max_command_to_limit_ratio`; a summary written under
+    the earlier name `max_command_over_limit` still prints its note."""
+    from hydroilqr.metrics import command_limit_ratio, summary_lines
+
+    new = {"commands_beyond_limits": 3, "max_command_to_limit_ratio": 1.695,
+           "max_command_to_limit_actuator": "joint_6"}  # fmt: skip
+    old = {"commands_beyond_limits": 3, "max_command_over_limit": 1.695,
+           "max_command_over_limit_actuator": "joint_6"}  # fmt: skip
+    assert command_limit_ratio(new) == command_limit_ratio(old) == (1.695, "joint_6")
+    assert command_limit_ratio({"commands_beyond_limits": 0}) is None
+    for m in (new, old):
+        note = [line for line in summary_lines(m) if line.startswith("note:")]
+        assert note and "up to 1.7 times the limit, joint_6" in note[0]

@@ -68,3 +68,15 @@ def test_multistart_runs_starts_as_dask_jobs():
     assert results[0].solution.U.shape == results[1].solution.U.shape
     assert results[0].cost != results[1].cost  # different starts, different plans
     assert best in (0, 1) and results[0].goal["checks"]  # the task's goal was evaluated
+
+
+def test_a_start_line_names_the_status_once_and_its_own_time():
+    """Issue 39, 10: a failed start reads "failed (why)", not "failed, failed,"."""
+    from hydroilqr.cli.solve import start_line
+
+    failed = {"index": 1, "final_cost": None, "status": "failed", "iterations": 0,
+              "goal_met": None, "seconds": 3.21, "error": "SimulationError: blew up"}  # fmt: skip
+    assert start_line(failed) == "failed (SimulationError: blew up), 3.2 s"
+    ok = {"index": 0, "final_cost": 8.27, "status": "converged", "iterations": 12,
+          "goal_met": True, "seconds": 19.1}  # fmt: skip
+    assert start_line(ok) == "status converged after 12 iterations, cost 8.27, goal met, 19.1 s"

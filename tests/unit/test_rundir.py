@@ -120,3 +120,70 @@ def test_journal_is_json_naming_both_sides(tmp_path):
     assert not (out / rundir.JOURNAL).exists()
     assert json.dumps(sorted(NEW))  # the set installed
     assert _state(out) == "new"
+
+
+@pytest.mark.parametrize(
+    "journal",
+    [
+        {"retire": ["../beside"], "install": []},
+        {"retire": [], "install": ["../beside"]},
+        {"retire": ["/ABS/beside"], "install": []},
+        {"retire": ["summary.json"], "install": ["."]},
+        ["not", "a", "journal"],
+        {"retire": [1], "install": []},
+    ],
+)
+def test_a_journal_naming_paths_outside_the_run_moves_nothing(tmp_path, journal):
+    """Issue 39: a .commit placed in a run directory (not written by a commit) never moves
+    or deletes anything outside it; the next commit replaces it."""
+    beside = tmp_path / "beside"
+    beside.mkdir()
+    (beside / "keep.txt").write_text("outside")
+    out = tmp_path / "run"
+    _old_run(out)
+    text = json.dumps(journal).replace("/ABS", str(tmp_path))
+    (out / rundir.JOURNAL).write_text(text)
+    (out / rundir.STAGE).mkdir()
+    (out / rundir.STAGE / "beside").mkdir()  # (an install of it would replace beside/)
+    assert rundir.recover(out) is False
+    assert (beside / "keep.txt").read_text() == "outside"
+    assert _state(out) == "old"
+    with rundir.result_set(out, [*OLD, "playback-pd"]) as st:
+        _write_set(st, NEW)
+    assert _state(out) == "new" and (beside / "keep.txt").read_text() == "outside"
+
+
+def test_a_previous_or_stage_that_links_outside_is_never_used(tmp_path):
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "summary.json").write_text("outside")
+    out = tmp_path / "run"
+    _old_run(out)
+    os.symlink(outside, out / rundir.PREVIOUS)
+    (out / rundir.JOURNAL).write_text(json.dumps({"retire": ["summary.json"], "install": []}))
+    assert rundir.recover(out) is False
+    assert (outside / "summary.json").read_text() == "outside"
+    assert (out / "summary.json").read_text() == OLD["summary.json"]
+
+
+def test_plot_file_names_stay_in_the_output_directory():
+    from hydroilqr.output.files import file_name
+
+    assert file_name("ball") == "ball.png"
+    assert file_name("../escape_ball") == "escape_ball.png"
+    assert file_name("a/b") == "a_b.png" and file_name("..") == "object.png"
+    assert file_name(".hidden") == "hidden.png" and file_name("x..y") == "x_y.png"
+
+
+def test_a_journal_that_cannot_be_written_leaves_no_stage(tmp_path, monkeypatch):
+    """Issue 39: a disk too full for the journal left .partial behind."""
+    out = tmp_path / "run"
+    _old_run(out)
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(rundir, "atomic_write", full)
+    with pytest.raises(OSError), rundir.result_set(out, [*OLD, "playback-pd"]) as st:
+        _write_set(st, NEW)
+    assert not (out / rundir.STAGE).exists() and _state(out) == "old"

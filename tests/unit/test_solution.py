@@ -102,3 +102,26 @@ def test_run_files_that_disagree_are_refused(tmp_path):
     (tmp_path / "c.npz").write_bytes(b"garbage")
     with pytest.raises(ValueError, match="not a file written by Solution.save"):
         Solution.load(tmp_path / "c.npz")
+
+
+def test_loading_a_run_directory_killed_during_its_commit_completes_the_commit(tmp_path):
+    """Issue 39: a run killed between retiring the old set and installing the new one held no
+    solution.npz, and Solution.load failed; the reader now completes the commit first."""
+    import json
+
+    from hydroilqr.output import rundir
+    from hydroilqr.solver.solution import Solution
+
+    z = np.zeros
+    sol = Solution(z((3, 2)), np.ones((2, 1)), z((2, 1, 2)), z((2, 1)), 0.1 * np.arange(3),
+                   np.array([2.0, 1.0]), [0.1], {}, True, "x", "central")  # fmt: skip
+    out = tmp_path / "run"
+    (out / rundir.STAGE).mkdir(parents=True)
+    (out / rundir.PREVIOUS).mkdir()
+    sol.save(out / rundir.STAGE / "solution.npz")  # the new set, staged
+    (out / rundir.PREVIOUS / "solution.npz").write_text("old")  # the old one, retired
+    plan = {"retire": ["solution.npz"], "install": ["solution.npz"]}
+    (out / rundir.JOURNAL).write_text(json.dumps(plan))
+    back = Solution.load(out)
+    np.testing.assert_array_equal(back.U, sol.U)
+    assert not (out / rundir.JOURNAL).exists() and not (out / rundir.PREVIOUS).exists()

@@ -34,6 +34,7 @@ def commands() -> dict:
         playback,
         results,
         robustness,
+        schema,
         solve,
         sweep,
         tasks,
@@ -49,6 +50,7 @@ def commands() -> dict:
         "mpc": mpc,
         "results": results,
         "robustness": robustness,
+        "schema": schema,
     }
 
 
@@ -65,7 +67,7 @@ def _version_line() -> str:
 
     e = environment()
     return (
-        f"hydroilqr {__version__} (code {e['code'] or 'unknown'}; drake {e['drake']}, "
+        f"hydroilqr {__version__} (code {e['code']}; drake {e['drake']}, "
         f"numpy {e['numpy']}, "
         f"OpenBLAS kernels {e['blas_core'] or 'unknown'}, Python {e['python']}, "
         f"{e['cores']} cores)"

@@ -172,7 +172,7 @@ def _print_short_runs(rows: list[dict]) -> None:
     for r in rows:
         a, b = r.get("paper", {}), r.get("fast", {})
         short = [
-            f"{m} stopped after {x['iterations']} ({x['reason']})"
+            f"{m} stopped after {x['iterations']} iterations (stop test: {x['reason']})"
             for m, x in (("(a)", a), ("(b)", b), ("(a')", r.get("paper_same_solver", {})))
             if "iterations" in x and x["iterations"] < r.get("requested_iterations", 0)
         ]

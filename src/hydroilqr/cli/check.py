@@ -17,6 +17,21 @@ def setup(p) -> None:
     add_task_args(p)
 
 
+#: Columns that hold names a user copies into a task file: never cut short with "…" in a
+#: narrow terminal (kept whole, or folded onto a second line when nothing else can give).
+NAME_COLUMNS = {"block", "actuator", "joint", "geometry", "body", "A", "B"}
+
+
+def _table(title: str, columns) -> Table:
+    t = Table(title=title, title_justify="left")
+    for col in columns:
+        if col in NAME_COLUMNS:
+            t.add_column(col, no_wrap=True, overflow="fold")
+        else:
+            t.add_column(col, overflow="fold")
+    return t
+
+
 def run(args) -> int:
     task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
     from hydroilqr.problem.check import check_task
@@ -87,9 +102,10 @@ def _floating_bodies(r: dict) -> None:
 
 
 def _blocks(r: dict) -> None:
-    t = Table(title="state blocks (names for blocks / initial_state / cost)", title_justify="left")
-    for col in ("block", "kind", "coords", "tangent", "x indices", "x0"):
-        t.add_column(col)
+    t = _table(
+        "state blocks (names for blocks / initial_state / cost)",
+        ("block", "kind", "coords", "tangent", "x indices", "x0"),
+    )
     for b in r["blocks"]:
         idx, vals = b["x_indices"], b["x0"]
         span = (
@@ -109,10 +125,8 @@ def _blocks(r: dict) -> None:
 
 
 def _actuators(r: dict) -> None:
-    t = Table(title="actuators (names for cost.R and actuators:)", title_justify="left")
     cols = ("#", "actuator", "joint", "effort limit", "rotor inertia", "gear ratio", "reflected")
-    for col in cols:
-        t.add_column(col)
+    t = _table("actuators (names for cost.R and actuators:)", cols)
     for k, a in enumerate(r["actuators"]):
         lim = a["effort_limit"]
         t.add_row(
@@ -128,18 +142,8 @@ def _actuators(r: dict) -> None:
 
 
 def _geometries(r: dict) -> None:
-    t = Table(title="collision geometries (names for geometry overrides)", title_justify="left")
-    for col in (
-        "geometry",
-        "body",
-        "shape",
-        "hydroelastic",
-        "modulus [Pa]",
-        "hint [m]",
-        "friction",
-        "damping",
-    ):
-        t.add_column(col)
+    cols = ("geometry", "body", "shape", "hydroelastic", "modulus [Pa]", "hint [m]", "friction")
+    t = _table("collision geometries (names for geometry overrides)", (*cols, "damping"))
     sap = r["model"]["contact_approximation"] == "sap"
     for g in r["geometries"]:
         t.add_row(
@@ -178,11 +182,10 @@ def _damping(g: dict, sap: bool) -> str:
 
 def _pairs(r: dict) -> None:
     pairs = r["pairs"]
-    t = Table(
-        title=f"candidate collision pairs ({len(pairs)}), closest first", title_justify="left"
+    t = _table(
+        f"candidate collision pairs ({len(pairs)}), closest first",
+        ("A", "B", "kinds", "contact model", "distance at x0 [m]"),
     )
-    for col in ("A", "B", "kinds", "contact model", "distance at x0 [m]"):
-        t.add_column(col)
     for p in pairs[:PAIRS_SHOWN]:
         d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
         t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)
@@ -218,19 +221,26 @@ def _contacts(r: dict) -> None:
 
 
 def _simulation(r: dict) -> None:
+    n, steps, guess = r["rollout_steps"], r["task_steps"], r["model"]["initial_guess"]
+    rollout = (
+        f"{n}-step rollout of the initial guess ({guess})"
+        if n >= steps
+        else f"rollout of the initial guess ({guess}) over the first {n} of the task's "
+        f"{steps} steps"
+    )
     console.print(
-        f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {r['rollout_steps']}-step "
-        f"rollout of the initial guess ({r['model']['initial_guess']}) ok, "
+        f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {rollout} ok, "
         f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
     )
     touched = r.get("touched_pairs") or []
+    along = f"along the rollout of the initial guess ({r['contact_rollout_steps']} steps)"
     if touched:
         console.print(
-            "  pairs touching along the rollout (states): "
+            f"  pairs touching {along}, states: "
             + ", ".join(f"{t['pair'][0]}/{t['pair'][1]} ({t['steps']})" for t in touched)
         )
     else:
-        console.print("  no contact along the rollout of the initial guess")
+        console.print(f"  no contact {along}")
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
         stages = "".join(

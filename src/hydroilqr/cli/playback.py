@@ -107,7 +107,7 @@ def run(args) -> int:
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
     task, sol, settings = _settings(args)
     out = _output_dir(task, args)
-    _print_header(task, settings, out, args.mismatch)
+    _print_header(task, sol, settings, out, args.mismatch)
     early = advisories(task.dynamics.plant, settings)
     for w in early:
         warn(w)
@@ -187,7 +187,7 @@ def _repeats(settings) -> bool:
     return len(set(keys)) < len(keys)
 
 
-def _print_header(task, settings, out: Path, mismatch: list[str]) -> None:
+def _print_header(task, sol, settings, out: Path, mismatch: list[str]) -> None:
     truth_contact = settings.truth_contact_for(task)
     console.print(
         f"[bold]{task.name}[/bold]: {settings.policy} playback at speed {settings.speed:g}"
@@ -202,29 +202,35 @@ def _print_header(task, settings, out: Path, mismatch: list[str]) -> None:
             f"real system differs{cases}: {', '.join(settings.truth_overrides)}"
             + (" (a later setting of the same key wins)" if _repeats(settings) else "")
         )
-    from hydroilqr.control.playback import damping_note
+    from hydroilqr.control.playback import damping_note, plan_touches
 
     note = damping_note(task.config.plant.contact_approximation, truth_contact)
-    if note:
+    if note and plan_touches(task, sol.X):  # (no contact: nothing is damped)
         console.print(f"note: {note}")
 
 
 def _print_result(data: dict, wall_seconds: float) -> None:
     ob = data["object"]
     unit = f" {ob['unit']}" if ob["unit"] else ""
-    console.print(
-        f"{data['truth_steps']} truth steps in {wall_seconds:.2f} s; object "
-        f"{ob['name']}: "
-        + (
-            f"resting gap {ob['resting_gap']:.4g}{unit} "
-            f"({'at rest' if ob['rest']['actual']['rested'] else 'still moving'} after "
-            f"{ob['rest']['actual']['hold_s']:.2f} s of hold), "
-            if ob.get("resting_gap") is not None
-            else ""
+    final = f"final gap {ob['final_gap']:.4g}{unit} (plan's end)"
+    rest = ""
+    if ob.get("resting_gap") is not None:
+        rested = "at rest" if ob["rest"]["actual"]["rested"] else "still moving"
+        rest = (
+            f"resting gap {ob['resting_gap']:.4g}{unit} ({rested} after "
+            f"{ob['rest']['actual']['hold_s']:.2f} s of hold)"
         )
-        + f"final gap {ob['final_gap']:.4g}{unit} (plan's end), max deviation "
-        f"{ob['max_deviation']:.4g}{unit}, progress ratio "
-        f"{_fmt(ob['progress_ratio'])}"
+    if ob.get("kind") == "joint" and rest:
+        # a joint of the robot without a motor: the hold (PD+ on the actuated joints) cannot
+        # hold it, so where it ends after the plan is no measure of the plan
+        head, rest = final, f"; after the plan, unheld (no motor): {rest}"
+    else:
+        head, rest = (f"{rest}, {final}" if rest else final), ""
+    console.print(
+        f"{data['truth_steps']} truth steps in {wall_seconds:.2f} s; object {ob['name']}: "
+        f"{head}, max deviation {ob['max_deviation']:.4g}{unit}, progress ratio "
+        f"{_fmt(ob['progress_ratio'])}{rest}",
+        soft_wrap=True,
     )
     console.print(
         f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -17,6 +18,9 @@ from hydroilqr.cli.common import (
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
 HELP = "solve a task and write its results"
+
+#: The most starts one multi-start runs (each is a whole solve; their records are kept).
+MAX_STARTS = 1000
 
 
 def setup(p) -> None:
@@ -81,7 +85,13 @@ def run(args) -> int:
     t0 = time.perf_counter()
     sol, extra = _solve_many(task, args) if args.starts > 1 else (_solve(task, out, restart), {})
     wall = time.perf_counter() - t0
-    _print_outcome(sol, task, wall)
+    if extra:  # multi-start: the best start's line, with its own solve's time
+        ms = extra["multistart"]
+        best = next(r for r in ms["results"] if r["index"] == ms["best"])
+        console.print(f"all {args.starts} starts took {wall:.2f} s; the best start:")
+        _print_outcome(sol, task, best["seconds"])
+    else:
+        _print_outcome(sol, task, wall)
     if args.view:
         from hydroilqr.output.replay import meshcat_instance
 
@@ -90,8 +100,17 @@ def run(args) -> int:
     # killed run leaves them as they were (output/rundir.py).
     with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
         summary = _write_results(task, sol, out, args, wall, extra)
+    if extra.get("multistart", {}).get("interrupted"):
+        ms = extra["multistart"]
+        console.print(
+            f"interrupted: {out} holds the best of the {ms['finished']} start(s) of "
+            f"{ms['requested']} that had finished (multistart.interrupted in summary.json)"
+        )
+        print_goal(summary["goal"], args.smoke, "the best finished start")
+        return 130
     if sol.reason == "interrupted":
         _print_interrupted(sol, out)
+        print_goal(summary["goal"], args.smoke, "the plan kept at Ctrl+C")  # as summary.json
         return 130
     code = print_goal(summary["goal"], args.smoke)
     if args.view:
@@ -101,10 +120,14 @@ def run(args) -> int:
 
 def _check_starts(task, args) -> None:
     """Refuses multi-start arguments that cannot work, before any work."""
-    if args.starts < 1:
-        raise ConfigError(f"--starts: must be at least 1, got {args.starts}")
-    if args.start_noise < 0 or args.start_noise != args.start_noise:
-        raise ConfigError(f"--start-noise: must be a number >= 0, got {args.start_noise}")
+    if not 1 <= args.starts <= MAX_STARTS:
+        raise ConfigError(f"--starts: must be from 1 to {MAX_STARTS}, got {args.starts}")
+    if not (0 <= args.start_noise < math.inf):  # (NaN fails too)
+        raise ConfigError(f"--start-noise: must be a finite number >= 0, got {args.start_noise}")
+    if args.seed < 0:
+        raise ConfigError(f"--seed: must be at least 0, got {args.seed}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers: must be at least 1, got {args.workers}")
     if args.starts > 1 and task.config.receding_horizon is not None:
         raise ConfigError(
             "--starts: multi-start perturbs a single solve's initial guess; "
@@ -119,7 +142,7 @@ def _check_starts(task, args) -> None:
 def _solve_many(task, args):
     """Multi-start (studies/multistart.py): the best start's solution and the summary entry
     with every start's outcome and the spread."""
-    from hydroilqr.studies.multistart import run_multistart, spread
+    from hydroilqr.studies.multistart import Interrupted, best_index, run_multistart, spread
 
     ref = {
         "name": args.task_file or args.task,
@@ -131,31 +154,50 @@ def _solve_many(task, args):
     console.print(f"multi-start: {args.starts} solves (seed {args.seed}) on {where}")
 
     def done(r) -> None:
-        rec = r.record()
-        cost = "failed" if rec["final_cost"] is None else f"cost {rec['final_cost']:.6g}"
-        goal = {True: "goal met", False: "goal not met", None: ""}[rec["goal_met"]]
-        detail = f" ({r.error})" if r.error else ""
-        console.print(f"  start {r.index}: {rec['status']}, {cost}, {goal}{detail}")
+        console.print(f"  start {r.index}: {start_line(r.record())}", soft_wrap=True)
 
-    results, best = run_multistart(
-        ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
-    )
+    interrupted = False
+    try:
+        results, best = run_multistart(
+            ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
+        )
+    except Interrupted as e:  # Ctrl+C: the starts that finished are kept
+        results, best, interrupted = e.results, best_index(e.results), True
+        if best is None:
+            raise KeyboardInterrupt("no start had finished: nothing was written") from None
     if best is None:
         raise ConfigError(f"multi-start: none of the {args.starts} starts finished")
     s = spread(results)
     console.print(
         f"multi-start: best start {best}; cost best {s['best_cost']:.6g} / median "
-        f"{s['median_cost']:.6g} / worst {s['worst_cost']:.6g}; goal met by {s['goal_met']} "
-        f"of {s['starts']}"
+        f"{s['median_cost']:.6g} / worst {s['worst_cost']:.6g}; {s['finished']} of "
+        f"{s['starts']} finished; goal met by {s['goal_met']} of {s['starts']}"
     )
     entry = {
         "seed": args.seed,
         "noise": args.start_noise,
         "best": best,
         **s,
+        "requested": args.starts,
+        "interrupted": interrupted,  # Ctrl+C: only the starts that had finished
         "results": [r.record() for r in results],
     }
-    return results[best].solution, {"multistart": entry}
+    solution = next(r.solution for r in results if r.index == best)
+    return solution, {"multistart": entry}
+
+
+def start_line(rec: dict) -> str:
+    """One start of a multi-start, in words: ``status converged after 12 iterations, cost
+    8.27, goal met, 19.1 s``; a start that raised: ``failed (the error), 3.2 s``."""
+    secs = f"{rec['seconds']:.1f} s"
+    if rec.get("error") and rec["final_cost"] is None:
+        return f"failed ({rec['error']}), {secs}"
+    parts = [f"status {rec['status']} after {rec['iterations']} iterations"]
+    parts.append("no finite cost" if rec["final_cost"] is None else f"cost {rec['final_cost']:.6g}")
+    goal = {True: "goal met", False: "goal not met", None: ""}[rec["goal_met"]]
+    parts += [goal] if goal else []
+    detail = f" ({rec['error']})" if rec.get("error") else ""
+    return ", ".join([*parts, secs]) + detail
 
 
 def _solver_overrides(args) -> list[str]:
@@ -220,6 +262,15 @@ def _print_header(task, out: Path) -> None:
         f"steps={task.steps} contact={cfg.plant.contact_approximation} "
         f"derivatives={cfg.solver.derivatives} -> {out}"
     )
+    if cfg.smoke_run:
+        rh = cfg.receding_horizon
+        n = rh.resolves * rh.shift_steps if rh is not None else task.steps
+        console.print(
+            f"--smoke: the task shrunk to {n} steps ({n * dyn.dt:g} s of motion) and a few "
+            "iterations (its smoke: section), a quick check that everything runs: the plan and "
+            "its replay last only that long, too short for the motion the task is for, and "
+            "its goal is not judged"
+        )
     if cfg.continuation:
         steps = "; ".join(
             ", ".join(f"{k}={v}" for k, v in stage.items()) for stage in cfg.continuation
@@ -288,13 +339,10 @@ def _solve_receding(task, out: Path, restart: bool):
 
 
 def _print_outcome(sol, task, wall: float) -> None:
-    console.print(
-        f"stopped after {sol.iterations} iterations ({sol.reason}), cost "
-        f"{sol.final_cost:.6g}, {wall:.2f} s; converged: {'yes' if sol.converged else 'no'}"
-    )
-    from hydroilqr.solver.explain import explain
+    from hydroilqr.solver.explain import explain, stop_line
 
-    console.print(f"status {sol.status}: {explain(sol, task)}", soft_wrap=True)
+    console.print(stop_line(sol, wall), soft_wrap=True)
+    console.print(f"  {explain(sol, task)}", soft_wrap=True)
     cold = [i for i, r in enumerate(sol.extra.get("resolves", [])) if r.get("cold_start")]
     if cold:
         console.print(

@@ -162,7 +162,7 @@ def describe(row: dict, param_keys: list[str]) -> str:
         extra = f", overlap {row['max_overlap_m'] * 1000:.2f} mm"
         if row.get("tunnelled"):
             extra += " [red]tunnelled[/red]"
-    conv = "converged" if row.get("converged") else f"stopped ({row.get('reason')})"
+    conv = "converged" if row.get("converged") else f"not converged (stop test {row.get('reason')})"
     return (
         f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
         f"{row['wall_seconds']:.1f} s on {row.get('worker')}"
@@ -180,8 +180,11 @@ def _quiet_cluster_teardown() -> None:
     except ImportError:
         return
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    from hydroilqr.studies.cluster import kill_workers
+
     for cluster in list(getattr(spec.SpecCluster, "_instances", ())):
         try:
+            kill_workers(cluster)  # (their unfinished points are abandoned)
             cluster.close(timeout=5)
         except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
             pass

@@ -89,6 +89,16 @@ def damping_note(planner_contact: str, truth_contact: str) -> str | None:
     )
 
 
+def plan_touches(task, X: np.ndarray) -> bool:
+    """Some state of the plan X: [N+1, nx] has contact (else no contact is damped, and a note
+    about contact damping says nothing)."""
+    from hydroilqr.metrics.contacts import touched_pairs
+
+    if not task.dynamics.scene_graph.model_inspector().GetCollisionCandidates():
+        return False
+    return bool(touched_pairs(task, X))
+
+
 # ------------------------------------------------------------------------------------------
 # Settings and result
 # ------------------------------------------------------------------------------------------
@@ -513,6 +523,8 @@ def playback(
     m = _metrics(result, qi, vi, limits, clock.vscale, ctl.saturated, ctl.controls, plan.X[-1])
     result.metrics = m
     _add_warnings(result, truth, plan, joint_names, vi, settings)
+    if result.metrics["saturated_fraction"] > SATURATION_WARNING:
+        result.metrics["warnings"].append(_saturation_warning(result.metrics, ctl, settings))
     result.wall_seconds = time.perf_counter() - wall0
     result.metrics["wall_seconds"] = result.wall_seconds
     return result
@@ -580,6 +592,8 @@ class _Controller:
     ubar: Any = None
     saturated: int = 0
     controls: int = 0
+    hold_saturated: int = 0  # (of saturated and controls: those of the hold after the plan)
+    hold_controls: int = 0
     ref_t: list = field(default_factory=list)
     ref_q: list = field(default_factory=list)
     ref_v: list = field(default_factory=list)
@@ -694,6 +708,7 @@ def _hold_phase(truth, planner, plan, x_end, t, qi, vi, limits, obj, settings, c
     Xh, Uh, sat_h, ctl_h, rested = _hold(truth, x_end, ref, qi, vi, limits, obj, settings)
     ctl.saturated += sat_h
     ctl.controls += ctl_h
+    ctl.hold_saturated, ctl.hold_controls = sat_h, ctl_h
     Xs, rested_plan = settle_plan(planner, plan.X[-1], obj, settings)
     ext = PlanSampler(
         _Trajectory(Xs, np.zeros((len(Xs) - 1, truth.nu)), planner.dt),
@@ -710,12 +725,31 @@ def _add_warnings(result: PlaybackResult, truth, plan, joint_names, vi, settings
     if settings.policy == "pd":
         pd = _pd_check(truth, plan.X[0], joint_names, vi, settings)
         result.metrics.update({**pd, "warnings": result.metrics["warnings"] + pd["warnings"]})
-    sat = result.metrics["saturated_fraction"]
-    if sat > SATURATION_WARNING:
-        result.metrics["warnings"].append(
-            f"{100 * sat:.0f}% of the commands hit the effort limits: the playback cannot apply "
-            "what the controller asks (lower --kp/--kd, or a slower --speed for PD+)"
+
+
+def _saturation_warning(metrics: dict, ctl: _Controller, settings: PlaybackSettings) -> str:
+    """Many commands hit the effort limits: what that means, with the advice that applies to
+    the policy and phase where it happened (the hold after the plan is PD+ for either
+    policy; the plan's phase under ilqr has no gains to tune)."""
+    head = (
+        f"{100 * metrics['saturated_fraction']:.0f}% of the commands hit the effort limits: "
+        "the playback cannot apply what the controller asks"
+    )
+    in_hold = ctl.hold_saturated / max(1, ctl.saturated)
+    if settings.policy == "pd":
+        return f"{head} (lower --kp/--kd, or a slower --speed)"
+    where = f"{100 * (1 - in_hold):.0f}% of them while playing the plan, the rest in the hold"
+    advice = (
+        "under --policy ilqr the plan's own gains act: the real system strays far from the "
+        "plan (compare --truth-contact and --truth-time-step with the planner's), or the plan "
+        "itself commands near its limits (the solve's commands_beyond_limits)"
+    )
+    if in_hold > 0.5:
+        advice = (
+            "mostly in the hold after the plan, PD+ at the default gains under --policy ilqr: "
+            "--rest-max 0 skips it"
         )
+    return f"{head} ({where}; {advice})"
 
 
 class _Trajectory(NamedTuple):
@@ -1207,6 +1241,12 @@ def write_outputs(
     if plan is not None:
         judged = executed_goal(task, plan, r)
         data["goal"], data["executed_metrics"] = judged["goal"], judged["metrics"]
+        # (final values: where the hold left things, unlike object.final_gap at the plan's end)
+        data["executed_metrics_final_state"] = (
+            "end of the hold after the plan"
+            if r.hold is not None and len(r.hold.X)
+            else "end of the plan"
+        )
     data["environment"] = environment(command)
     names = ["playback.json", "reference.csv", "playback.npz", "playback.png", "playback.html"]
     with rundir.result_set(out, names) as stage:

@@ -165,11 +165,12 @@ def summary_lines(m: dict) -> list[str]:
     fmt = terminal_value
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
     lines = ["metrics: " + ", ".join(f"{k}={fmt(v)}" for k, v in shown.items())]
-    if m.get("commands_beyond_limits"):
+    ratio = command_limit_ratio(m) if m.get("commands_beyond_limits") else None
+    if ratio is not None:
         lines.append(
             f"note: {m['commands_beyond_limits']} planned commands exceed their actuator's "
-            f"effort limit (up to {m['max_command_over_limit']:.3g}x, "
-            f"{m['max_command_over_limit_actuator']}); the plant applies the limit there, so "
+            f"effort limit (up to {ratio[0]:.3g} times the limit, {ratio[1]}); the plant "
+            "applies the limit there, so "
             "the trajectory is what the clipped command gives (the cost prices the command)"
         )
     if m.get("final_error"):
@@ -184,6 +185,7 @@ def summary_lines(m: dict) -> list[str]:
 from hydroilqr.metrics import cartpole, cheetah, common, kinova, objects, terms  # noqa: E402, F401
 from hydroilqr.metrics.common import (  # noqa: E402, F401
     beyond_limits,
+    command_limit_ratio,
     contact_pairs,
     default_metrics,
     geometry_ids,

@@ -100,19 +100,33 @@ def beyond_limits(dyn, U: np.ndarray) -> dict:
     """Commands beyond the actuators' effort limits in U: [N, nu]. Drake's plant applies the
     limit instead (the trajectory is the same as with the clipped command), so a plan may
     list larger commands than act; the cost prices the commands. Returns
-    ``commands_beyond_limits`` (entries of U) and, if any, ``max_command_over_limit``
-    (max |u| / limit) with its actuator."""
+    ``commands_beyond_limits`` (entries of U) and, if any, ``max_command_to_limit_ratio``
+    (max |u| / limit: 1.5 is a command half again as large as its limit) with its actuator,
+    ``max_command_to_limit_actuator``. (Before 2026-11-26: ``max_command_over_limit`` and
+    ``max_command_over_limit_actuator``; ``command_limit_ratio`` reads either.)"""
     lim = np.asarray(getattr(dyn, "effort_limits", np.full(U.shape[1], np.inf)), float)
     ratio = np.abs(U) / lim  # 0 where there is no limit (inf)
     n = int(np.sum(ratio > 1.0))
     out: dict = {"commands_beyond_limits": n}
     if n:
         k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-        out["max_command_over_limit"] = float(ratio[k, j])
-        out["max_command_over_limit_actuator"] = dyn.plant.get_joint_actuator(
+        out["max_command_to_limit_ratio"] = float(ratio[k, j])
+        out["max_command_to_limit_actuator"] = dyn.plant.get_joint_actuator(
             dyn.plant.GetJointActuatorIndices()[j]
         ).name()
     return out
+
+
+def command_limit_ratio(m: dict) -> tuple[float, str] | None:
+    """(max |u| / limit, its actuator) from a metrics dict, also one written under the
+    earlier names (``max_command_over_limit``); None without commands beyond limits."""
+    for key, actuator in (
+        ("max_command_to_limit_ratio", "max_command_to_limit_actuator"),
+        ("max_command_over_limit", "max_command_over_limit_actuator"),
+    ):
+        if key in m:
+            return float(m[key]), str(m.get(actuator, "?"))
+    return None
 
 
 def _default(task, sol) -> dict:

@@ -221,4 +221,31 @@ def tracked_objects(task) -> set[str]:
     return tracked_bodies(task) - names
 
 
+def fixed_bodies(task) -> set[str]:
+    """The world and the bodies welded to it (the ground, a table, a wall): touching them
+    moves nothing the robot could push."""
+    plant = task.dynamics.plant
+    return {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
+
+
+#: What to do when no moving body touches a tracked object along the initial guess (solve's
+#: status sentence and check's warning say the same).
+NO_CONTACT_REMEDY = (
+    "give an initial guess that moves the robot into contact with it (an initial_guess file: "
+    "docs/task-format.md) or start them touching; a closer start alone does not help"
+)
+
+
+def touches_moving(pairs: list[dict], tracked: set[str], fixed: set[str]) -> bool:
+    """Some pair of ``pairs`` ([{bodies: [a, b], ...}], as from ``touched_pairs``) has a
+    tracked body touching a body that moves (not one of ``fixed``)."""
+    for p in pairs:
+        a, b = p["bodies"]
+        if (a in tracked and b not in fixed and b != a) or (
+            b in tracked and a not in fixed and a != b
+        ):
+            return True
+    return False
+
+
 register(Metric("contacts", compute=contact_metrics, plot=plot_contacts, files=("contacts.png",)))

@@ -32,6 +32,7 @@ import numpy as np
 
 from hydroilqr.metrics import Metric, register
 from hydroilqr.metrics.common import body_order, contact_pairs, floating_block
+from hydroilqr.output.files import file_name
 from hydroilqr.problem.config import ConfigError
 
 _cache: dict = {}
@@ -160,11 +161,11 @@ def plot_object(task, sol, out: Path) -> None:
     ax.set_title(f"{task.name}: {name} position")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # inside, it hid a target
-    savefig(fig, Path(out) / f"{name}.png")
+    savefig(fig, Path(out) / file_name(name))
 
 
 def plot_files(params: dict) -> tuple[str, ...]:
-    return (f"{object_name(params)}.png",)
+    return (file_name(object_name(params)),)
 
 
 register(

@@ -9,6 +9,7 @@ contact approximation is chosen explicitly (``tamsi`` only to reproduce the pape
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -318,17 +319,138 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
         for pkg, path in task.package_map.items():  # (checked by the caller)
             own.package_map().Add(pkg, str(task.resolve_path(path)))
         parser = own
+    check_model_references(_model_path(task, parser, m), parser.package_map(), f"{key}.file")
     try:
-        if m.file.startswith("package://"):
-            instances = parser.AddModels(url=m.file)
-        else:
-            instances = parser.AddModels(str(task.resolve_path(m.file)))
+        with _drake_warnings() as warnings:
+            if m.file.startswith("package://"):
+                instances = parser.AddModels(url=m.file)
+            else:
+                instances = parser.AddModels(str(task.resolve_path(m.file)))
     except Exception as e:
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ConfigError(f"{key}.file: could not parse {m.file}: {msg}") from None
+    _refuse_replaced_inertia(warnings, f"{key}.file: {m.file}")
     if m.name and len(instances) == 1:
         plant.RenameModelInstance(instances[0], m.name)
     return instances
+
+
+def _model_path(task: TaskConfig, parser, m) -> Path | None:
+    """The model file of a ``models`` entry (None: a package it cannot resolve; Drake says)."""
+    if not m.file.startswith("package://"):
+        return task.resolve_path(m.file)
+    try:
+        return Path(parser.package_map().ResolveUrl(m.file))
+    except Exception:  # noqa: BLE001 - AddModels reports the unknown package
+        return None
+
+
+MODEL_INCLUDE_DEPTH = 8  # included model files followed at most this deep
+
+
+def check_model_references(path: Path | None, package_map, key: str, depth: int = 0) -> None:
+    """Every file the model file ``path`` names (meshes, visual or collision, and included
+    models, followed) is a regular file within its size cap: ConfigError naming the model
+    and the file otherwise, before Drake reads any (a mesh that is /dev/zero or a named pipe
+    would exhaust memory or wait forever). References it cannot resolve are left to Drake."""
+    import xml.etree.ElementTree as ET
+
+    from hydroilqr.problem.inputs import MAX_MESH_BYTES, MAX_MODEL_BYTES, check_file, read_bounded
+
+    if path is None or depth > MODEL_INCLUDE_DEPTH:
+        return
+    try:
+        root = ET.fromstring(read_bounded(path, f"{key}:", MAX_MODEL_BYTES))
+    except ET.ParseError:
+        return  # (Drake reports the parse error)
+    for ref, include in _model_references(root):
+        target = _resolve_reference(ref, path.parent, package_map)
+        if target is None or not (target.exists() or target.is_symlink()) or target.is_dir():
+            continue  # (a model directory, a missing file: Drake resolves or reports it)
+        what = f"{key}: {path.name} names"
+        check_file(target, what, MAX_MODEL_BYTES if include else MAX_MESH_BYTES)
+        if include:
+            check_model_references(target, package_map, key, depth + 1)
+
+
+def _model_references(root) -> list[tuple[str, bool]]:
+    """(reference, is an included model) of every mesh and include of a URDF, SDFormat or
+    MJCF document."""
+    refs: list[tuple[str, bool]] = []
+    for el in root.iter():
+        tag = el.tag.rsplit("}", 1)[-1] if isinstance(el.tag, str) else ""
+        if tag == "mesh":
+            refs += [(el.get(a), False) for a in ("filename", "file") if el.get(a)]
+            uri = el.find("uri")
+            if uri is not None and (uri.text or "").strip():
+                refs.append((uri.text.strip(), False))
+        elif tag == "include":
+            uri = el.find("uri")
+            if uri is not None and (uri.text or "").strip():
+                refs.append((uri.text.strip(), True))
+            if el.get("file"):  # MJCF
+                refs.append((el.get("file"), True))
+    return refs
+
+
+def _resolve_reference(ref: str, directory: Path, package_map) -> Path | None:
+    if ref.startswith(("package://", "model://")):
+        try:
+            return Path(package_map.ResolveUrl(ref))
+        except Exception:  # noqa: BLE001 - an unknown package: Drake reports it
+            return None
+    if "://" in ref and not ref.startswith("file://"):
+        return None  # (a remote resource)
+    ref = ref.removeprefix("file://")
+    p = Path(ref).expanduser()
+    return p if p.is_absolute() else directory / p
+
+
+@contextlib.contextmanager
+def _drake_warnings():
+    """The messages Drake logs (pydrake's "drake" logger) inside the block, as a list; held
+    back while it runs and logged as usual after it unless ``_refuse_replaced_inertia``
+    turns one into the command's one error line."""
+    import logging
+
+    class _Collect(logging.Handler):
+        def emit(self, record):
+            records.append(record)
+            messages.append(record.getMessage())
+
+    records: list = []
+    messages: list[str] = []
+    logger = logging.getLogger("drake")
+    saved = (logger.handlers[:], logger.propagate)
+    logger.handlers[:] = [_Collect(logging.WARNING)]
+    logger.propagate = False
+    try:
+        yield messages
+    finally:
+        logger.handlers[:], logger.propagate = saved
+    if not any(_replaced_inertia(m) for m in messages):
+        for record in records:
+            logger.handle(record)
+
+
+def _replaced_inertia(message: str) -> bool:
+    return "inertia" in message.lower() or "mass >" in message
+
+
+def _refuse_replaced_inertia(messages: list[str], where: str) -> None:
+    """Drake parses an ``<inertial>`` that no body has (a negative mass, an impossible
+    inertia) with a warning and a made-up inertia in its place: refused here, naming the
+    line."""
+    import re
+
+    for msg in messages:
+        if _replaced_inertia(msg):
+            line = re.search(r":(\d+): warning:", msg)
+            at = f" line {line[1]}" if line else ""
+            raise ConfigError(
+                f"{where}{at}: a mass or inertia no physical body has (a mass must be > 0, "
+                "each moment of inertia at most the sum of the other two)"
+            )
 
 
 def apply_actuators(task: TaskConfig, plant) -> None:
@@ -375,6 +497,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     _override_geometry(task, plant, scene_graph)
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     apply_actuators(task, plant)
+    check_inertias(plant)
     plant.Finalize()
     _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
     check_contact_pairs(task, plant, scene_graph)
@@ -389,6 +512,24 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     visualizers = _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer)
     diagram = builder.Build()
     return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
+
+
+def check_inertias(plant) -> None:
+    """ConfigError naming the first body whose mass or rotational inertia no physical body
+    has (a negative or non-finite mass, an inertia that violates the triangle inequality):
+    Drake would simulate it, into nonsense."""
+    from pydrake.multibody.tree import BodyIndex
+
+    for i in range(1, plant.num_bodies()):  # (0: the world)
+        body = plant.get_body(BodyIndex(i))
+        mass = body.default_mass()
+        if not np.isfinite(mass) or mass < 0:
+            raise ConfigError(f"models: body {body.name()!r} has mass {mass:g}: not a mass")
+        if not body.default_spatial_inertia().IsPhysicallyValid():
+            raise ConfigError(
+                f"models: body {body.name()!r} has a rotational inertia no body has (negative "
+                "moments, or one larger than the other two together)"
+            )
 
 
 def _add_models(task: TaskConfig, plant, scene_graph) -> None:

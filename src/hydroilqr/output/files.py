@@ -45,3 +45,14 @@ def content_hash(arrays: dict[str, np.ndarray], text: str = "") -> str:
         h.update(a.tobytes())
     h.update(text.encode())
     return h.hexdigest()
+
+
+def file_name(name: str, suffix: str = ".png") -> str:
+    """A file name for a plot named after something in the task (a body, from a model file or
+    the task): one name in the output directory, whatever ``name`` holds (``../x``, ``a/b``,
+    a leading dot: ``escape_ball.png``, ``a_b.png``)."""
+    import re
+
+    plain = re.sub(r"[^A-Za-z0-9_.+@-]+", "_", str(name))
+    plain = re.sub(r"\.{2,}", "_", plain).strip("._") or "object"
+    return plain[:100] + suffix

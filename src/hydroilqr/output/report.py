@@ -185,9 +185,9 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise ConfigError(f"--out {out}: {e.strerror}") from None
-    _lock(out)
-    if created:
+    if created:  # (before the lock: a directory it cannot lock is removed too)
         _CREATED.append(created)
+    _lock(out)
     return out
 
 
@@ -205,8 +205,8 @@ def discard_empty_outputs() -> None:
         try:
             if {p.name for p in out.iterdir()} <= {LOCK_NAME}:
                 fd = _LOCKS.pop(str(out.resolve()), None)
-                _lock_file(out).unlink(missing_ok=True)
-                if fd is not None:
+                if fd is not None:  # (only a lock this process holds is removed)
+                    _lock_file(out).unlink(missing_ok=True)
                     os.close(fd)
                 for d in dirs:  # the output directory, then the parents made for it
                     d.rmdir()  # OSError if not empty (e.g. another run started in it)
@@ -233,6 +233,45 @@ class _Held(Exception):
     """Another process holds a conflicting lock."""
 
 
+class _Foreign(Exception):
+    """The lock file's path holds something hydroilqr never makes there: a symbolic link
+    (even a dangling one), a hard link to another file, or a special file. It is never
+    followed, written or truncated (a file outside the directory could change)."""
+
+
+def _open_lock_file(path: Path) -> int:
+    """The lock file at ``path`` opened (created if missing) without following a link;
+    _Foreign if the path is not a lock file of ours."""
+    import os
+    import stat
+
+    flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    if path.is_symlink():
+        raise _Foreign
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as e:
+        import errno
+
+        if e.errno == errno.ELOOP:
+            raise _Foreign from None
+        raise
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        raise _Foreign
+    return fd
+
+
+def _foreign_lock(path: Path):
+    from hydroilqr.problem.config import ConfigError
+
+    return ConfigError(
+        f"{path}: not a lock file hydroilqr made (a link or a special file): remove it and "
+        "run again"
+    )
+
+
 def _is_file_at(fd: int, path: Path) -> bool:
     """Whether the open file ``fd`` is still the file at ``path`` (not removed or replaced)."""
     import os
@@ -255,7 +294,7 @@ def _hold(path: Path, shared: bool, fd: int | None = None) -> int:
     mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB
     for _ in range(100):  # each retry follows a holder's release: this ends at once
         if fd is None:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = _open_lock_file(path)
         try:
             fcntl.flock(fd, mode)
         except OSError:
@@ -291,10 +330,16 @@ def _lock(out: Path) -> None:
             f"{out} is in use by another hydroilqr run{_holder(path)}: wait for it or choose "
             "another --out"
         ) from None
+    except _Foreign:
+        raise _foreign_lock(path) from None
     except OSError as e:
         raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+    except OSError as e:  # e.g. a full disk: the file this process made is not left behind
+        _release(path, fd)
+        raise ConfigError(f"--out {out}: not writable ({e.strerror})") from None
     _LOCKS[key] = fd
 
 
@@ -306,7 +351,7 @@ def _holder(path: Path) -> str:
         other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
     except (OSError, ValueError):
         other = ""
-    if other:
+    if other.isdigit():  # (a process id; anything else in the file is not quoted)
         return f" (process {other}, or a playback reading its plan)"
     return " (a playback reading its plan)"
 
@@ -341,6 +386,8 @@ def read_lock(run_dir: Path) -> None:
         raise ConfigError(
             f"{run_dir} is being written by another hydroilqr run: wait for it"
         ) from None
+    except _Foreign:
+        raise _foreign_lock(_lock_file(run_dir)) from None
     except OSError:
         return
 
@@ -407,28 +454,46 @@ def _previous_plot_files(out: Path) -> set[str]:
         return set()
 
 
+#: Written beside the package when it is built (setup.py): the commit it was built from.
+BUILD_COMMIT_FILE = "_build_commit.txt"
+
+
 @functools.cache
 def code_version() -> str:
     """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
-    a resumed sweep may mix points computed by different code. Empty outside a git checkout."""
+    a resumed sweep may mix points computed by different code. An installed package (not in
+    a git checkout): the commit recorded when it was built, "COMMIT (installed build)", or
+    "installed package, commit unknown"."""
+    return package_code(Path(__file__).parent.parent)
+
+
+def package_code(package_dir: Path) -> str:
+    """``code_version`` of the package in ``package_dir``."""
+    commit = _checkout_commit(package_dir)
+    if commit:
+        return commit
+    try:
+        built = (package_dir / BUILD_COMMIT_FILE).read_text(encoding="utf-8")[:64].strip()
+    except (OSError, UnicodeDecodeError):
+        built = ""
+    return f"{built} (installed build)" if built else "installed package, commit unknown"
+
+
+def _checkout_commit(package_dir: Path) -> str:
+    """The commit of the git checkout whose tracked sources ``package_dir`` is ("" when it is
+    not one: e.g. an installed copy, even inside another repository's ignored .venv)."""
     import subprocess
 
-    here = Path(__file__).parent.parent
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], cwd=package_dir, text=True, capture_output=True, timeout=10
+        ).stdout.strip()
+
     try:
-        head = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--", "."],
-            cwd=here,
-            text=True,
-            capture_output=True,
-            timeout=10,
-        ).stdout.strip()
+        if not git("ls-files", "--", "__init__.py"):
+            return ""
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--", ".")
     except (OSError, subprocess.SubprocessError):
         return ""
     return head + ("-dirty" if head and dirty else "")

@@ -93,9 +93,46 @@ def commit(out: Path, retire: list[str]) -> list[str]:
     return new
 
 
+MAX_JOURNAL_BYTES = 1 << 20
+
+
+def _plain_name(name: object) -> bool:
+    """A name of an entry directly in the run directory (no path, not a commit's own)."""
+    return (
+        isinstance(name, str)
+        and name not in ("", ".", "..", STAGE, PREVIOUS, JOURNAL)
+        and "/" not in name
+        and "\\" not in name
+        and "\0" not in name
+    )
+
+
+def _read_journal(out: Path) -> dict:
+    """The journal's plan, ValueError unless it is one this module wrote: a regular file (not
+    a link), JSON {retire: [names], install: [names]} of entries directly in ``out``, with a
+    stage and a previous set that are directories of ``out`` itself (not links), so a journal
+    or directory placed there by anything else moves or deletes nothing outside ``out``."""
+    from hydroilqr.problem.inputs import read_bounded
+
+    path = out / JOURNAL
+    if path.is_symlink():
+        raise ValueError(f"{path}: a symbolic link, not a journal")
+    plan = json.loads(read_bounded(path, "commit journal", MAX_JOURNAL_BYTES))
+    if not isinstance(plan, dict) or set(plan) != {"retire", "install"}:
+        raise ValueError(f"{path}: not a commit journal")
+    for key in ("retire", "install"):
+        names = plan[key]
+        if not isinstance(names, list) or not all(_plain_name(n) for n in names):
+            raise ValueError(f"{path}: {key} names an entry outside {out}")
+    for d in (out / STAGE, out / PREVIOUS):
+        if d.is_symlink() or (_exists(d) and not d.is_dir()):
+            raise ValueError(f"{d}: not a directory of {out}")
+    return plan
+
+
 def _roll_forward(out: Path) -> None:
     """Completes the commit its journal describes (idempotent: safe to repeat after a kill)."""
-    plan = json.loads((out / JOURNAL).read_text())
+    plan = _read_journal(out)
     prev, st = out / PREVIOUS, out / STAGE
     prev.mkdir(exist_ok=True)
     for i, name in enumerate(plan["retire"]):
@@ -121,13 +158,15 @@ def recover(out: Path) -> bool:
     finished one left behind. A stage without a journal is kept for its owner (a
     receding-horizon run's checkpoint lives there) until the next ``stage``."""
     out = Path(out)
-    if (out / JOURNAL).is_file():
+    if _exists(out / JOURNAL):
         try:
             _roll_forward(out)
         except (OSError, ValueError, KeyError):
+            # not a journal of ours (or unreadable): nothing moves; the next commit
+            # replaces it
             return False
         return True
-    if (out / PREVIOUS).exists():
+    if _exists(out / PREVIOUS):
         _remove(out / PREVIOUS)
     return False
 
@@ -149,4 +188,11 @@ def result_set(out: Path, retire: list[str], keep_stage_on_error: bool = False):
         if not keep_stage_on_error:
             discard(out)
         raise
-    commit(out, retire)
+    try:
+        commit(out, retire)
+    except BaseException:
+        # no journal (it could not be written, e.g. a full disk): nothing was replaced, so
+        # the new set goes; with one, recover() completes the commit, which needs the stage
+        if not _exists(Path(out) / JOURNAL) and not keep_stage_on_error:
+            discard(out)
+        raise

@@ -95,6 +95,7 @@ def candidate_pairs(dyn, x: np.ndarray, geoms: list[dict]) -> list[dict]:
                 "a": f"{ga['name']} ({ga['body']})",
                 "b": f"{gb['name']} ({gb['body']})",
                 "kinds": f"{ga['kind']}/{gb['kind']}",
+                "shapes": f"{ga['shape']}/{gb['shape']}",
                 "model": _pair_model(ga["kind"], gb["kind"], dyn.spec.plant.contact_model),
                 "distance": dist,
             }
@@ -213,13 +214,9 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("pairs")
     if geoms and not pairs:
         warn("no candidate collision pairs (all filtered, e.g. geometry on adjacent bodies)")
-    if any(p["model"] != "hydroelastic" for p in pairs) and (
-        DerivativeMethod(cfg.solver.derivatives) is DerivativeMethod.AUTODIFF
-    ):
-        warn(
-            "point-contact pairs under autodiff: Drake differentiates point contact only "
-            "when one shape is a sphere; prefer central differences or set compliance"
-        )
+    w = _autodiff_point_warning(pairs, cfg.solver.derivatives)
+    if w:
+        warn(w)
 
     _contact_at_start(dyn, x0, pairs, out)
     done("contacts")
@@ -233,6 +230,25 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     _rollout_warnings(pairs, out, warn)
     done("warnings")
     return out
+
+
+def _autodiff_point_warning(pairs: list[dict], derivatives: str) -> str:
+    """Under autodiff, the point-contact pairs Drake cannot differentiate: those where neither
+    shape is a sphere ("" if none)."""
+    if DerivativeMethod(derivatives) is not DerivativeMethod.AUTODIFF:
+        return ""
+    bad = [
+        p for p in pairs if p["model"] != "hydroelastic" and "Sphere" not in p["shapes"].split("/")
+    ]
+    if not bad:
+        return ""
+    names = ", ".join(f"{p['a']}/{p['b']} ({p['shapes']})" for p in bad[:3])
+    more = f" and {len(bad) - 3} more" if len(bad) > 3 else ""
+    return (
+        f"{len(bad)} point-contact pair(s) without a sphere under autodiff ({names}{more}): "
+        "Drake differentiates point contact only when one shape is a sphere; prefer central "
+        "differences or set compliance"
+    )
 
 
 def _geometry_warnings(cfg, geoms: list, warn) -> None:
@@ -253,7 +269,10 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     if w:
         warn(w)
     w = _untracked_contact_warning(
-        out["touched_pairs"], set(out["tracked_objects"]), out.get("no_contact_remedy", "")
+        out["touched_pairs"],
+        set(out["tracked_objects"]),
+        set(out["fixed_bodies"]),
+        out.get("no_contact_remedy", ""),
     )
     if w:
         warn(w)
@@ -264,26 +283,29 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
         )
 
 
-def _untracked_contact_warning(touched: list[dict], tracked: set[str], remedy: str = "") -> str:
-    """A warning when the guess's rollout touches none of the objects the cost tracks
-    (``tracked_objects``): gradients reach an object only through contact, so the solve could
-    not start moving it. ``remedy``: what to do (``solver.explain.no_contact_remedy``, as
-    solve's no-progress sentence says)."""
-    if not tracked:
+def _untracked_contact_warning(
+    touched: list[dict], tracked: set[str], fixed: set[str], remedy: str = ""
+) -> str:
+    """A warning when along the guess's rollout no moving body touches an object the cost
+    tracks (``tracked_objects``; the same test as solve's ``no_progress`` sentence): gradients
+    reach an object only through contact with what moves (resting on the ground gives none),
+    so the solve could not start moving it. ``remedy``: what to do
+    (``solver.explain.no_contact_remedy``, the words solve's no-progress sentence uses)."""
+    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY, touches_moving
+
+    if not tracked or touches_moving(touched, tracked, fixed):
         return ""
-    remedy = remedy or "a guess that moves the robot into contact may be needed"
+    names = ", ".join(sorted(tracked))
     if not touched:
-        return (
-            f"the initial-guess rollout touches nothing, and the cost tracks "
-            f"{', '.join(sorted(tracked))}: no gradient reaches it at the start; {remedy}"
-        )
-    if not any(set(p["bodies"]) & tracked for p in touched):
-        return (
-            "no pair touched along the initial-guess rollout involves a body the cost tracks "
-            f"({', '.join(sorted(tracked))}): contact gives the solver no gradient at the "
-            f"start; {remedy}"
-        )
-    return ""
+        what = "the initial-guess rollout touches nothing"
+    elif not any(set(p["bodies"]) & tracked for p in touched):
+        what = f"no pair touched along the initial-guess rollout involves {names}"
+    else:
+        what = f"along the initial-guess rollout {names} touches only what is fixed to the world"
+    return (
+        f"{what}, and the cost tracks {names}: no gradient reaches it at the start "
+        f"(a solve likely ends with status no_progress); {remedy or NO_CONTACT_REMEDY}"
+    )
 
 
 def _ensemble(task, rollout_steps: int) -> list[dict]:
@@ -430,20 +452,43 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
-    from hydroilqr.metrics.contacts import touched_pairs, tracked_bodies, tracked_objects
+    from hydroilqr.metrics.contacts import (
+        fixed_bodies,
+        touched_pairs,
+        tracked_bodies,
+        tracked_objects,
+    )
     from hydroilqr.solver.explain import no_contact_remedy  # (the words solve uses)
 
     tracked = tracked_objects(task)
+    Xc = _contact_rollout(task, X) if tracked else X
     out.update(
         {
             "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),
-            "touched_pairs": touched_pairs(task, X),
+            "touched_pairs": touched_pairs(task, Xc),
+            "contact_rollout_steps": len(Xc) - 1,
             "tracked_bodies": sorted(tracked_bodies(task)),
             "tracked_objects": sorted(tracked),
+            "fixed_bodies": sorted(fixed_bodies(task)),
             "one_step_ok": bool(np.all(np.isfinite(x1))),
             "rollout_steps": N,
+            "task_steps": task.steps,
             "max_speed": speed,
             "step_ms": step_ms,
             "rollout_ms_per_step": rollout_ms,
         }
     )
+
+
+def _contact_rollout(task, X: np.ndarray) -> np.ndarray:
+    """The states along which contact with the tracked objects is judged: the whole initial
+    guess of a single solve, as the solve itself sees it (``X``, the timed rollout's first
+    steps, extended); for a receding-horizon task its first window."""
+    rh = task.config.receding_horizon
+    steps = min(task.steps, rh.window_steps) if rh is not None else task.steps
+    if len(X) - 1 >= steps:
+        return X
+    try:
+        return task.dynamics.rollout(task.x0, task.initial_guess(task.steps)[:steps])
+    except SimulationError:
+        return X  # (the solve reports a rollout that fails)

@@ -516,7 +516,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if tp is Any:
-        return value
+        return plain_data(value, key)
     if origin in (typing.Union, types.UnionType):
         return _coerce_union(value, args, key)
     if dataclasses.is_dataclass(tp):
@@ -529,6 +529,31 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if scalar is not None:
         return scalar(value, key)
     raise ConfigError(f"{key}: unsupported type {_type_name(tp)}")
+
+
+#: Deepest nesting of lists and mappings a task's value may have (a task file needs a few).
+MAX_DEPTH = 32
+
+
+def plain_data(value: Any, key: str) -> Any:
+    """``value`` if it is YAML data (None, booleans, numbers, strings, lists and mappings with
+    string keys of them), nested at most MAX_DEPTH deep; ConfigError naming ``key`` otherwise
+    (a complex number or another Python object from a dict, nesting a file cannot mean)."""
+    stack = [(value, key, 0)]
+    while stack:
+        v, where, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise ConfigError(f"{key}: nested more than {MAX_DEPTH} levels deep")
+        if isinstance(v, dict):
+            for k, item in v.items():
+                if not isinstance(k, (str, int, float, bool)) or isinstance(k, complex):
+                    raise ConfigError(f"{where}: a key that is not a name: {type(k).__name__}")
+                stack.append((item, f"{where}.{k}", depth + 1))
+        elif isinstance(v, (list, tuple)):
+            stack.extend((item, f"{where}[{i}]", depth + 1) for i, item in enumerate(v))
+        elif not (v is None or isinstance(v, (str, bool, int, float))):
+            raise ConfigError(f"{where}: expected YAML data, got a {type(v).__name__}")
+    return value
 
 
 def _coerce_union(value: Any, args: tuple, key: str) -> Any:
@@ -936,8 +961,12 @@ _UniqueKeyLoader.add_implicit_resolver(
 
 
 def yaml_value(text: str) -> Any:
-    """A value given on the command line or in an override, read as YAML (1e6 is a number)."""
-    return yaml.load(text, Loader=_UniqueKeyLoader)
+    """A value given on the command line or in an override, read as YAML (1e6 is a number);
+    yaml.YAMLError also for nesting too deep to read."""
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except RecursionError:
+        raise yaml.YAMLError(f"nested more than {MAX_DEPTH} levels deep") from None
 
 
 _KEY_LIKE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]{0,63}$")  # shown in messages as typed
@@ -951,16 +980,19 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
 
     text = read_text_bounded(path, what)  # a regular file of at most 1 MiB
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
+        data = yaml_value(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(e, "problem", None) or "malformed YAML"
-        raise ConfigError(f"{what} {path}:{where}: {problem}") from None
+        where = f": line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(e, "problem", None) or str(e) or "malformed YAML"
+        raise ConfigError(f"{what} {path}{where}: {problem}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{what} {path}: expected a mapping at the top level")
+    for k, v in data.items():
+        if isinstance(k, str) and _KEY_LIKE.match(k):
+            plain_data(v, k)  # (nesting a task cannot mean: one line naming the key)
     for k in data:
         if not (isinstance(k, str) and _KEY_LIKE.match(k)):  # not quoted: not a task file?
             raise ConfigError(
@@ -1139,10 +1171,10 @@ def build_task(
     if not smoke:
         return finish(data)
     shrunk = _shrunk(data, _smoke_section(data, items))
+    finish(data)  # the task's own mistakes, unprefixed, also those the smoke section hides
     try:
         cfg = finish(shrunk)
     except ConfigError as e:
-        finish(data)  # raises the task's own mistake unprefixed
         raise ConfigError(f"smoke: {e}") from None
     cfg.smoke_run = True
     return cfg
@@ -1552,6 +1584,12 @@ def _validate_cost(cost: CostConfig) -> None:
             vals = v if isinstance(v, list) else [v]
             for x in vals:
                 _check_weight(x, v, f"cost.{section}.{k}", section != "nominal_rate")
+    # (the nominal's and R's types are checked against the model in model/cost.py)
+    named = [(f"cost.nominal.{k}", v) for k, v in cost.nominal.items()]
+    named += list(cost.R.items()) if isinstance(cost.R, dict) else [("cost.R", cost.R)]
+    for key, v in named:
+        for x in v if isinstance(v, list) else [v]:
+            _check_magnitude(x, key)
     names: set[str] = set()
     for i, term in enumerate(cost.terms):
         _validate_term(term, f"cost.terms[{i}]", names)
@@ -1656,6 +1694,18 @@ def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
         raise ConfigError(f"{key}.min: {term.min} is above max {term.max}")
 
 
+#: The largest magnitude a cost weight or a nominal value may have: beyond it, squares and
+#: sums of the cost overflow floating point long before any result could mean anything.
+MAX_MAGNITUDE = 1e50
+
+
+def _check_magnitude(x: Any, key: str) -> None:
+    if isinstance(x, (int, float)) and not isinstance(x, bool) and abs(x) > MAX_MAGNITUDE:
+        raise ConfigError(
+            f"{key}: {x:g} is too large to compute a cost with (at most {MAX_MAGNITUDE:g})"
+        )
+
+
 def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:
     """``x`` (an entry of the value ``v`` at ``key``): a finite number, >= 0 for a weight."""
     if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
@@ -1667,6 +1717,7 @@ def _check_weight(x: Any, v: Any, key: str, weight: bool) -> None:
         raise ConfigError(f"{key}: expected {what}, got {v!r}")
     if weight and x < 0:
         raise ConfigError(f"{key}: weights must be non-negative, got {x}")
+    _check_magnitude(x, key)
 
 
 def _validate_receding_horizon(rh: RecedingHorizonConfig | None) -> None:

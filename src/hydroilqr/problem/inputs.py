@@ -19,6 +19,7 @@ BYTES_PER_TABLE_NUMBER = 64  # a CSV number with its separator, generously
 MAX_ARRAY_FILE_BYTES = 2048 * MiB  # a solved run's solution.npz, a checkpoint, a sweep point
 MAX_JSON_BYTES = 256 * MiB  # a run's summary.json
 MAX_MODEL_BYTES = 64 * MiB  # a model file (SDFormat/URDF/MJCF text) named by path
+MAX_MESH_BYTES = 256 * MiB  # a mesh a model file names (OBJ, glTF, VTK, STL, ...)
 
 # Environment variable: the memory (bytes) a solve may plan to hold; default a fraction of
 # the memory available when the check runs.

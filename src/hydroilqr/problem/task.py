@@ -274,8 +274,10 @@ class Task:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # an empty file is reported below
                     U = np.loadtxt(path, delimiter=",", ndmin=2)
-        except Exception as e:
-            raise ConfigError(f"initial_guess: could not read {path}: {e}") from None
+        except Exception as e:  # noqa: BLE001 - its message may quote the file: not shown
+            raise ConfigError(
+                f"initial_guess: could not read {path}: {_unquoted(e, path.suffix == '.npz')}"
+            ) from None
         if U.size == 0:
             raise ConfigError(f"initial_guess: {path} is empty")
         if U.ndim != 2 or U.shape[1] != nu:
@@ -299,6 +301,24 @@ class Task:
             raise ValueError(f"x0 must have shape [{self.dynamics.nx}] (nx), got {x0.shape}")
         check_finite("x0", x0)  # names the entry, as ilqr.solve does
         return self.dynamics.layout.normalize(x0, "x0")
+
+
+def _unquoted(e: Exception, npz: bool) -> str:
+    """What went wrong reading a guess file, without the file's content (numpy's messages
+    quote the text it could not read): where it happened, if the message says."""
+    import re
+
+    if npz:
+        return "not a NumPy .npz file holding an array U (docs/task-format.md)"
+    where = re.search(r"at row (\d+), column (\d+)", str(e))
+    if where:
+        return (
+            f"row {int(where[1]) + 1}, column {where[2]}: not a number (expected numbers "
+            "separated by commas, one row per time step; docs/task-format.md)"
+        )
+    if isinstance(e, ValueError):
+        return "not a table of comma-separated numbers (docs/task-format.md)"
+    return type(e).__name__
 
 
 def _coordinates(layout) -> tuple:

@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroilqr.metrics import contact_pairs
-from hydroilqr.metrics.contacts import tracked_objects
+from hydroilqr.metrics.contacts import (
+    fixed_bodies,
+    touched_pairs,
+    touches_moving,
+    tracked_objects,
+)
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.solver.solution import Solution
 
@@ -19,7 +23,7 @@ def explain(sol: Solution, task) -> str:
     if status == "no_progress":
         return _no_progress(sol, task, costs)
     sentences = {
-        "converged": f"converged ({sol.reason}) after improving on the initial guess ({costs})",
+        "converged": f"converged after improving on the initial guess ({costs})",
         "stalled": (
             "stalled in a local minimum: the last iterations' shortened steps together made "
             f"little progress ({costs})"
@@ -46,6 +50,19 @@ def explain(sol: Solution, task) -> str:
     return text
 
 
+def stop_line(sol: Solution, seconds: float) -> str:
+    """The line that says how a solve ended: ``status STATUS after N iterations (stop test:
+    REASON), cost C, T s``. The status is the verdict (``summary.json``'s ``status``); the stop
+    test (``reason``) only says which test ended the loop, e.g. ``expected_decrease`` ends
+    a solve that converged as well as one that made no progress."""
+    n = sol.iterations
+    test = "windows" if "resolves" in sol.extra else "stop test"  # (a receding-horizon run)
+    return (
+        f"status {sol.status} after {n} iteration{'' if n == 1 else 's'} ({test}: "
+        f"{sol.reason}), cost {sol.final_cost:.6g}, {seconds:.2f} s"
+    )
+
+
 def _costs(sol: Solution) -> str:
     """'cost A -> B': from the initial guess's cost to the final one; for an ensemble solve,
     of the ensemble objective (what its status was judged on; after a warm start whose guess
@@ -59,17 +76,7 @@ def _costs(sol: Solution) -> str:
 def touches_tracked(task, X: np.ndarray) -> bool:
     """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
     or what is welded to it, such as the ground)."""
-    dyn = task.dynamics
-    plant = dyn.plant
-    fixed = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
-    tracked = tracked_objects(task)
-    for x in X:
-        for _, a, _, b, _ in contact_pairs(dyn, x):
-            if (a in tracked and b not in fixed and b != a) or (
-                b in tracked and a not in fixed and a != b
-            ):
-                return True
-    return False
+    return touches_moving(touched_pairs(task, X), tracked_objects(task), fixed_bodies(task))
 
 
 def _guess_rollout(sol: Solution, task) -> np.ndarray:

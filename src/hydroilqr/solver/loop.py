@@ -193,7 +193,8 @@ def start(problem: Problem, U0, X0, s: SolverConfig, linearizer) -> State:
             X = dyn.rollout(x0, U)
         except SimulationError as e:
             raise SimulationError(
-                f"initial rollout failed: {e} (`hydroilqr check` reports initial overlaps)"
+                f"the rollout of the initial guess failed: {e} (a guess that drives the "
+                "simulation to blow up, or an initial overlap: `hydroilqr check` reports both)"
             ) from None
     J = cost.total(X, U, t0)
     if not np.isfinite(J):

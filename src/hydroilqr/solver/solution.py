@@ -19,6 +19,12 @@ def solution_file(path: str | Path) -> Path:
     ``.npz`` appended if that exists (what ``Solution.save(path)`` writes)."""
     path = Path(path)
     if path.is_dir():
+        from hydroilqr.output import rundir
+
+        # a commit a killed run left half done: completed first (as every command does), so
+        # the reader gets the new complete set, not a missing file
+        if (path / rundir.JOURNAL).exists():
+            rundir.recover(path)
         return path / "solution.npz"
     if not path.exists() and path.suffix != ".npz" and path.with_name(path.name + ".npz").exists():
         return path.with_name(path.name + ".npz")

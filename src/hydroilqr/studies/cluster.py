@@ -85,14 +85,17 @@ def open_client(scheduler: str | None, workers: int | None = None):
     from hydroilqr.model.workers import cores
 
     n = workers or cores()
-    # The worker processes inherit an ignored SIGINT: Ctrl+C in a terminal (sent to the whole
-    # process group) then reaches only this process, which stops the work and the cluster,
-    # instead of every worker printing its own KeyboardInterrupt traceback.
-    main_thread = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main_thread else None
+    # Ctrl+C in a terminal reaches the whole process group. The workers ignore it, so only
+    # this process acts on it: it stops the work and the cluster, without every worker
+    # printing its own KeyboardInterrupt traceback. A worker inherits an ignored SIGINT from
+    # this process, which ignores it only while the worker processes are being spawned
+    # (_spawn_workers; ignoring it for the whole start-up lost a Ctrl+C pressed in those
+    # seconds and let a sweep run to its end), and ignores it again itself as it starts
+    # (worker_setup, preloaded: also a worker Dask restarts later).
+    cluster = None
     try:
         cluster = LocalCluster(
-            n_workers=n,
+            n_workers=0,  # (started by _spawn_workers)
             threads_per_worker=1,
             processes=True,
             dashboard_address=None,
@@ -100,8 +103,82 @@ def open_client(scheduler: str | None, workers: int | None = None):
             # The scheduler's HTTP routes still bind a port: any free one, so
             # parallel sweeps do not warn about 8787 being taken.
             scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+            preload=["hydroilqr.studies.worker_setup"],
         )
-    finally:
-        if main_thread:
-            signal.signal(signal.SIGINT, previous)
+        _spawn_workers(cluster, n)
+        try:
+            cluster.wait_for_workers(n, timeout=START_SECONDS)
+        except TimeoutError:
+            raise ConfigError(
+                f"the local Dask cluster's {n} worker(s) did not start within {START_SECONDS:g} s"
+            ) from None
+    except BaseException:
+        if cluster is not None:
+            _close_quietly(cluster)
+        raise
     return Client(cluster), cluster
+
+
+START_SECONDS = 300.0  # a local cluster's workers start within this long, or it is an error
+SPAWN_SECONDS = 30.0  # at most this long with SIGINT ignored while workers are spawned
+
+
+def _spawn_workers(cluster, n: int) -> None:
+    """Asks ``cluster`` for ``n`` workers and returns once their processes exist, with SIGINT
+    ignored meanwhile (from the main thread) so that they inherit an ignored one."""
+    import psutil
+
+    if threading.current_thread() is not threading.main_thread():
+        cluster.scale(n)
+        return
+    me = psutil.Process()
+    before = {c.pid for c in me.children()}
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        cluster.scale(n)
+        deadline = time.monotonic() + SPAWN_SECONDS
+        while time.monotonic() < deadline and _spawned(me, before) < n:
+            time.sleep(0.02)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _spawned(me, before: set[int]) -> int:
+    """Worker processes (multiprocessing spawns) started since ``before``."""
+    import psutil
+
+    n = 0
+    for child in me.children():
+        if child.pid in before:
+            continue
+        try:
+            n += any("spawn_main" in part for part in child.cmdline())
+        except psutil.Error:
+            pass
+    return n
+
+
+def kill_workers(cluster) -> None:
+    """Ends an embedded cluster's worker processes at once (after Ctrl+C: their unfinished
+    jobs are abandoned anyway; closing them politely waits for a busy worker and lets it
+    log the scheduler's going away)."""
+    import os
+    import signal
+
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if pid:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+
+
+def _close_quietly(cluster) -> None:
+    """Closes a cluster after Ctrl+C without Dask's log lines."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    kill_workers(cluster)
+    try:
+        cluster.close(timeout=5)
+    except BaseException:  # noqa: BLE001 - a half-started cluster: nothing more to do
+        pass

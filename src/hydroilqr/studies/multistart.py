@@ -143,23 +143,46 @@ def run_multistart(
     ``on_start(result)`` is called as each start finishes (progress display)."""
     from distributed import as_completed
 
-    from hydroilqr.studies.cluster import open_client
+    from hydroilqr.studies.cluster import kill_workers, open_client
 
     client, cluster = open_client(scheduler, workers)
+    results: list[StartResult] = []
     try:
         futures = [
             client.submit(solve_start, task_ref, k, seed, noise, pure=False, key=f"start-{k}")
             for k in range(starts)
         ]
-        results: list[StartResult] = []
         for fut in as_completed(futures):
             r = fut.result()
             results.append(r)
             if on_start is not None:
                 on_start(r)
-    finally:
-        client.close()
+    except KeyboardInterrupt:
         if cluster is not None:
-            cluster.close()
+            kill_workers(cluster)  # (the unfinished starts are abandoned)
+        raise Interrupted(sorted(results, key=lambda r: r.index)) from None
+    finally:
+        _close(client, cluster)
     results.sort(key=lambda r: r.index)
     return results, best_index(results)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl+C during a multi-start: ``results`` holds the starts that had finished (the
+    others were stopped with the cluster)."""
+
+    def __init__(self, results: list[StartResult]):
+        super().__init__(f"{len(results)} start(s) had finished")
+        self.results = results
+
+
+def _close(client, cluster) -> None:
+    """Closes the client and an embedded cluster (stopping unfinished starts), quietly."""
+    import logging
+
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    try:
+        client.close(timeout=5)
+    finally:
+        if cluster is not None:
+            cluster.close(timeout=5)
