@@ -98,21 +98,22 @@ def strike_task(tmp_path, steps: int = 120):
 def test_check_and_solve_agree_on_no_contact_and_its_remedy(tmp_path, capsys):
     """Issue 39, 1: a cube resting on the table, 1 cm from a still pendulum. check judges the
     whole guess (not only its first 50 steps) by solve's test (contact with something that
-    moves), warns, and gives solve's remedy: a guess that moves, not a closer start."""
-    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY
-
+    moves), warns, and gives solve's remedy: an approach term or a guess that moves, not a
+    closer start."""
+    remedy = "add an approach term (a distance term in cost.terms between the robot's geometry"
     path = strike_task(tmp_path)
     assert cli.main(["check", str(path)]) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "over the first 50 of the task's 120 steps" in out
     assert "along the rollout of the initial guess (120 steps)" in out
-    assert "cube touches only what is fixed to the world" in out and NO_CONTACT_REMEDY in out
+    assert "cube touches only what is fixed to the world" in out and remedy in out
+    assert "a closer start alone does not help" in out
     assert "check passed with 1 warning(s)" in out
     run = ["solve", str(path), "--out", str(tmp_path / "o"), "--no-replay"]
     assert cli.main(run) == 0
     out = " ".join(capsys.readouterr().out.split())
     assert "status no_progress after 1 iteration (stop test: expected_decrease)" in out
-    assert NO_CONTACT_REMEDY in out and "closer)" not in out
+    assert remedy in out and "a closer start alone does not help" in out
 
 
 def test_a_negative_mass_in_a_model_is_refused_in_one_line(tmp_path, capsys):
