@@ -135,6 +135,7 @@ def run_robustness(
     ``on_run(result)`` is called as each run finishes (progress display)."""
     from distributed import as_completed
 
+    env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)
     by_task: dict[str, list[RunResult]] = {ref["label"]: [] for ref in task_refs}
     try:
@@ -161,7 +162,7 @@ def run_robustness(
         "seed": seed,
         "runs": runs,
         "tasks": [summarize(label, rs) for label, rs in by_task.items()],
-        "environment": json_safe(environment()),
+        "environment": env,
     }
 
 
