@@ -29,7 +29,8 @@ def test_reuse_tolerance_cap_and_shift(cartpole_rollout):
     U2[[3, 17]] += 1.0  # two inputs move by far more than the tolerance ...
     U2[5] += 1e-6  # ... one by much less
     X2 = dyn.rollout(task.x0, U2)
-    moved = np.max(np.abs(np.c_[X2[:30], U2] - np.c_[X[:30], U]), axis=1)
+    Z, Z2 = np.c_[X[:30], U], np.c_[X2[:30], U2]
+    moved = np.max(np.abs(Z2 - Z) / np.maximum(1.0, np.abs(Z2)), axis=1)  # the scaled max norm
     lin(X2, U2)
     assert lin.last_computed == int(np.sum(moved > 1e-3))
     capped = Linearizer(dyn, "forward", threads=1, reuse_tolerance=1e-3, max_steps=2)

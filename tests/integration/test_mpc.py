@@ -25,7 +25,7 @@ def test_mpc_lockstep_brings_pole_up_and_reports_timing():
 
 
 def test_mpc_push_moves_the_cart(tmp_path):
-    task = Task.load("cartpole-wall")
+    task = Task.load("cartpole-wall", ["initial_state.pole_angular_velocity=0"])  # at rest
     base = run_mpc(task, MPCSettings(duration=0.3, rate=50.0, horizon=0.2))
     pushed = run_mpc(
         task,
@@ -270,7 +270,9 @@ def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
 
     # Tilted away from the wall: a smooth, contact-free run. (Tilted into the wall, which of
     # the two ends nearer upright flipped between gravities -12 and -14: contact luck.)
-    task = Task.load("cartpole-wall", ["initial_state.pole_angle=2.9"])
+    task = Task.load(
+        "cartpole-wall", ["initial_state.pole_angle=2.9", "initial_state.pole_angular_velocity=0"]
+    )
     ang = task.dynamics.layout.block("pole_angle").coords[0]
     kw = dict(duration=0.5, rate=50.0, horizon=0.3, truth_overrides=["plant.gravity=[0, 0, -13]"])
     fb = run_mpc(task, MPCSettings(**kw))

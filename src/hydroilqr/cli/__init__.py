@@ -67,7 +67,7 @@ def _version_line() -> str:
 
     e = environment()
     return (
-        f"hydroilqr {__version__} (code {e['code']}; drake {e['drake']}, "
+        f"hydroilqr {__version__} (code {e['code'] or 'unknown'}; drake {e['drake']}, "
         f"numpy {e['numpy']}, "
         f"OpenBLAS kernels {e['blas_core'] or 'unknown'}, Python {e['python']}, "
         f"{e['cores']} cores)"
