@@ -29,6 +29,7 @@ DEFAULT_TASKS = (
     "kinova-left",
     "kinova-up",
     "kinova-reach",
+    "finger-wheel",
     "cheetah-trot-1.0",
     "cheetah-trot-0.5",
 )
