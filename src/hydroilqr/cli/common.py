@@ -36,6 +36,25 @@ def add_task_args(p: argparse.ArgumentParser, positional: bool = True) -> None:
     p.add_argument("--smoke", action="store_true", help="shrink the task (tests, quick tries)")
 
 
+def add_task_list_args(p: argparse.ArgumentParser) -> None:
+    """TASK... (default: every built-in task), --smoke and --set for every task: the commands
+    that run several tasks (results, robustness)."""
+    p.add_argument(
+        "tasks",
+        nargs="*",
+        metavar="TASK",
+        help="built-in task names or task files (default: every built-in task)",
+    )
+    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests, quick tries)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a key of every task (repeatable)",
+    )
+
+
 def task_name_from_args(args) -> str | None:
     """TASK or --task-file (not both: which one was meant would be a guess)."""
     task, task_file = getattr(args, "task", None), getattr(args, "task_file", None)

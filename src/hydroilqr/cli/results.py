@@ -2,25 +2,14 @@
 
 from __future__ import annotations
 
+from hydroilqr.cli.common import add_task_list_args
+
 HELP = "solve built-in tasks and write the results page (docs/results.md, results.json)"
 
 
 def setup(p) -> None:
-    p.add_argument(
-        "tasks",
-        nargs="*",
-        metavar="TASK",
-        help="built-in task names or task files (default: every built-in task)",
-    )
-    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests, quick tries)")
+    add_task_list_args(p)
     p.add_argument("--out", default="docs", help="directory for results.md/.json (default docs)")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a key of every task (repeatable)",
-    )
 
 
 def run(args) -> int:

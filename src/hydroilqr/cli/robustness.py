@@ -6,7 +6,7 @@ import json
 import math
 from pathlib import Path
 
-from hydroilqr.cli.common import GOAL_NOT_MET, command_line, console
+from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
 from hydroilqr.problem.config import ConfigError
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
@@ -16,12 +16,7 @@ MAX_RUNS = 1000
 
 
 def setup(p) -> None:
-    p.add_argument(
-        "tasks",
-        nargs="*",
-        metavar="TASK",
-        help="built-in task names or task files (default: every built-in task)",
-    )
+    add_task_list_args(p)
     p.add_argument("--runs", type=int, default=10, help="perturbed solves per task (default 10)")
     p.add_argument(
         "--noise",
@@ -36,14 +31,6 @@ def setup(p) -> None:
         default=0.9,
         help="exit 4 when a task with a goal meets it in fewer than this fraction of its runs "
         "(default 0.9)",
-    )
-    p.add_argument("--smoke", action="store_true", help="shrink the tasks (tests, quick tries)")
-    p.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a key of every task (repeatable)",
     )
     p.add_argument(
         "--scheduler",
