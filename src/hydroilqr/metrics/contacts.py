@@ -249,3 +249,54 @@ def touches_moving(pairs: list[dict], tracked: set[str], fixed: set[str]) -> boo
 
 
 register(Metric("contacts", compute=contact_metrics, plot=plot_contacts, files=("contacts.png",)))
+
+
+def touches_tracked(task, X: np.ndarray) -> bool:
+    """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
+    or what is welded to it, such as the ground)."""
+    return touches_moving(touched_pairs(task, X), tracked_objects(task), fixed_bodies(task))
+
+
+def no_contact_remedy(task, X: np.ndarray | None = None, names: str = "the object") -> str:
+    """What to do when no contact along the guess gives the solver no gradient (``check``'s
+    warning and ``solve``'s no-progress sentence): an approach term (a ``distance`` term with
+    ``max``) in a first continuation stage, dropped later, or a guess that moves; a closer
+    start alone does not help. If the task has an approach term: before a solve (``X`` None),
+    that it is there for this; after a solve whose states ``X`` [T, nx] touch nothing, how to
+    strengthen it."""
+    approach = approach_terms(task)
+    if approach:
+        which = f"the approach term{'s' if len(approach) > 1 else ''} {', '.join(approach)}"
+        if X is None:
+            return f"{which} (cost.terms) should bring them into contact first"
+        if not touches_tracked(task, X):
+            return (
+                f"{which} did not bring them into contact: give it more weight, a max below "
+                "0 (a touch, not a near miss) and a window that starts when the robot can be "
+                "there, or an initial guess that moves the robot into contact"
+            )
+    return (
+        "add an approach term (a distance term in cost.terms between the robot's geometry and "
+        f"{names}, with max slightly below 0) in a first continuation stage, with weight 0 in "
+        "the task as written, or give an initial guess that moves the robot into contact; a "
+        'closer start alone does not help (docs/guide.md, "From no contact to contact")'
+    )
+
+
+def approach_terms(task) -> list[str]:
+    """Names of the approach terms (distance terms with a ``max`` or a ``target``, not a
+    clearance ``min`` alone) with a positive weight in the task or one of its continuation
+    stages."""
+    tasks = [task]
+    try:
+        tasks += task.stages()
+    except Exception:  # (a stage that does not build: its error is reported elsewhere)
+        pass
+    names = []
+    for t in tasks:
+        for term in t.config.cost.terms:
+            pulls = term.max is not None or term.target is not None
+            if term.type == "distance" and pulls and np.any(np.asarray(term.weight, float) > 0):
+                if term.name not in names:
+                    names.append(term.name)
+    return names

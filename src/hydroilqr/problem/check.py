@@ -290,7 +290,7 @@ def _untracked_contact_warning(
     tracks (``tracked_objects``; the same test as solve's ``no_progress`` sentence): gradients
     reach an object only through contact with what moves (resting on the ground gives none),
     so the solve could not start moving it. ``remedy``: what to do
-    (``solver.explain.no_contact_remedy``, the words solve's no-progress sentence uses)."""
+    (``metrics.contacts.no_contact_remedy``, the words solve's no-progress sentence uses)."""
     from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY, touches_moving
 
     if not tracked or touches_moving(touched, tracked, fixed):
@@ -454,11 +454,11 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
     from hydroilqr.metrics.contacts import (
         fixed_bodies,
+        no_contact_remedy,  # (the words solve's no-progress sentence uses)
         touched_pairs,
         tracked_bodies,
         tracked_objects,
     )
-    from hydroilqr.solver.explain import no_contact_remedy  # (the words solve uses)
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
