@@ -91,8 +91,8 @@ def solve_start(task_ref: dict, k: int, seed: int, noise: float) -> StartResult:
         task = Task.load(
             task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
         )
-        N = task.config.steps
-        U0 = task.initial_guess(N)
+        rh = task.config.receding_horizon  # (a receding task: its first window's guess)
+        U0 = task.initial_guess(rh.window_steps if rh is not None else task.config.steps)
         limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -26,7 +25,7 @@ import numpy as np
 
 from hydroilqr.output.report import environment, json_safe
 from hydroilqr.studies.cluster import open_client
-from hydroilqr.studies.multistart import perturbation
+from hydroilqr.studies.multistart import solve_start
 
 #: The default relative perturbation of the initial guess: last-bit sized.
 DEFAULT_NOISE = 1e-9
@@ -64,34 +63,19 @@ class RunResult:
 
 
 def solve_run(task_ref: dict, k: int, seed: int, noise: float) -> RunResult:
-    """Runs on a worker: loads the task (Drake objects do not travel), solves it from its
-    initial guess perturbed by run ``k``'s draw, computes metrics and judges the goal. Never
-    raises: a failure is recorded as a run that did not meet the goal."""
-    from hydroilqr import metrics as metrics_mod
-    from hydroilqr.metrics.goals import evaluate
-    from hydroilqr.problem.task import Task
-    from hydroilqr.solver.api import solve
-
-    t0 = time.perf_counter()
-    res = RunResult(task=task_ref["label"], index=k)
-    try:
-        task = Task.load(
-            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
-        )
-        rh = task.config.receding_horizon
-        U0 = task.initial_guess(rh.window_steps if rh is not None else task.config.steps)
-        limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
-        sol = solve(task, U0=perturbation(U0, limits, noise, seed, k))
-        m = metrics_mod.compute(task, sol)
-        g = evaluate(task.config.goal, m)
-        res.status, res.iterations = sol.status, int(sol.iterations)
-        res.final_cost = float(sol.final_cost) if math.isfinite(sol.final_cost) else None
-        res.goal_met, res.checks = g["met"], g["checks"]
-    except Exception as e:  # noqa: BLE001 - a failed run is data; the others go on
-        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        res.error = f"{type(e).__name__}: {first}"[:300]
+    """Runs on a worker: multi-start's start ``k`` (the task loaded there, solved from its
+    guess perturbed by run ``k``'s draw, metrics and goal); a failure is recorded as a run that
+    did not meet the goal."""
+    r = solve_start(task_ref, k, seed, noise)
+    sol = r.solution
+    res = RunResult(task=task_ref["label"], index=k, error=r.error, seconds=r.seconds)
+    if sol is None:
         res.goal_met = False
-    res.seconds = time.perf_counter() - t0
+        return res
+    res.status, res.iterations = sol.status, int(sol.iterations)
+    res.final_cost = r.cost if math.isfinite(r.cost) else None
+    res.goal_met = False if r.error else r.goal.get("met")
+    res.checks = r.goal.get("checks", [])
     return res
 
 
