@@ -115,6 +115,7 @@ class QuadraticCost:
         if cfg.terms:
             if dynamics is None:
                 raise ConfigError("cost.terms: task-space terms need the task's plant")
+            # (late: model/terms.py loads pydrake, which a cost without terms never needs)
             from hydroilqr.model.terms import TaskSpaceTerms
 
             x0 = dynamics.initial_state() if x0 is None else x0
