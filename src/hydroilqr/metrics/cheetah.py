@@ -45,8 +45,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.metrics import Metric, register
+from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.common import contact_pairs
+from hydroilqr.metrics.registry import Metric, register
+from hydroilqr.model.contacts import runs
 from hydroilqr.problem.config import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
@@ -278,8 +280,6 @@ def _foot_load(task, sol, feet, settled, labels) -> dict[str, float]:
 
 
 def plot_cheetah(task, sol, out: Path) -> None:
-    from hydroilqr.output.plots import pyplot, savefig
-
     plt = pyplot()
 
     t = np.asarray(sol.t)
@@ -315,7 +315,6 @@ def plot_cheetah(task, sol, out: Path) -> None:
 
 def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]:
     """(start, width) of every run of True in ``on``."""
-    from hydroilqr.metrics.contacts import runs
 
     return [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in runs(on)]
 
@@ -338,6 +337,13 @@ def validate(task) -> None:
     _check_names(task, p)
 
 
+def _overlaps(m: dict) -> list[str]:
+    diag, lat = m.get("diagonal_pair_overlap"), m.get("lateral_pair_overlap")
+    if isinstance(diag, (int, float)) and isinstance(lat, (int, float)):
+        return [f"diag/lat overlap {diag:.3f}/{lat:.3f}"]
+    return []
+
+
 register(
     Metric(
         "cheetah",
@@ -345,5 +351,10 @@ register(
         plot=plot_cheetah,
         files=("velocity.png", "gait.png"),
         validate=validate,
+        headline=(
+            ("v m/s", "mean_forward_velocity_mps", ".2f", 1.0),
+            ("body contact steps", "body_ground_contact_steps", "d", 1.0),
+        ),
+        headline_more=_overlaps,
     )
 )

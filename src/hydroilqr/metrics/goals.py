@@ -17,22 +17,15 @@ is met when every check holds; a task without checks has no goal (``met`` is ``N
 
 from __future__ import annotations
 
+import difflib
 import math
+from types import SimpleNamespace
 from typing import Any
 
-from hydroilqr.problem.config import BOUNDS, ConfigError, GoalCheck
+import numpy as np
 
-
-def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
-    """Raises ConfigError for a check with no bound or with inverted bounds."""
-    for name, check in goal.items():
-        key = f"{where}.{name}"
-        if not name:
-            raise ConfigError(f"{where}: a check needs a metric name")
-        if all(getattr(check, b) is None for b in BOUNDS):
-            raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
-        if check.min is not None and check.max is not None and check.min > check.max:
-            raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
+from hydroilqr.metrics.registry import compute
+from hydroilqr.problem.config import ConfigError, GoalCheck
 
 
 def lookup(metrics: dict, name: str) -> Any:
@@ -145,8 +138,6 @@ def check_names(task) -> None:
             (check.below, f"goal.{name}.below"),
         ):
             if ref is not None and ref not in names:
-                import difflib
-
                 close = difflib.get_close_matches(ref, sorted(names), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 raise ConfigError(
@@ -156,17 +147,11 @@ def check_names(task) -> None:
 
 
 def _probe_names(task) -> set[str] | None:
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    from hydroilqr import metrics as metrics_mod
-
     try:
         dyn = task.dynamics
         U = task.initial_guess(2)
         X = dyn.rollout(task.x0, U)
         probe = SimpleNamespace(t=dyn.dt * np.arange(3), X=X, U=U, extra={}, costs=[0.0])
-        return reported_names(metrics_mod.compute(task, probe))
+        return reported_names(compute(task, probe))
     except Exception:  # noqa: BLE001 - a probe only: the goal is checked after the solve
         return None

@@ -20,8 +20,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hydroilqr.output.files import atomic_write
-from hydroilqr.output.report import environment, json_safe
+from hydroilqr import Task, metrics, solve
+from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+from hydroilqr.io.environment import environment
+from hydroilqr.io.files import atomic_write
+from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.goals import evaluate
+from hydroilqr.output.report import json_safe
+from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.studies.robustness import table
 
 DEFAULT_TASKS = (
     "cartpole-wall",
@@ -75,41 +82,6 @@ class Context:
 # ------------------------------------------------------------------------------ the columns
 
 
-def _num(m: dict, key: str, fmt: str, scale: float = 1.0) -> str | None:
-    v = m.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None
-    return format(v * scale if scale != 1.0 else v, fmt)
-
-
-def headline(m: dict) -> str:
-    """The task-specific numbers that say whether a solve did its job, short: whichever of
-    the cart-pole, Kinova and cheetah metrics the task computes."""
-    parts: list[str] = []
-
-    def add(label: str, key: str, fmt: str, scale: float = 1.0) -> None:
-        s = _num(m, key, fmt, scale)
-        if s is not None:
-            parts.append(f"{label} {s}")
-
-    add("angle err rad", "final_angle_error_rad", ".3f")
-    add("wall steps", "wall_contact_steps", "d")
-    add("ball err cm", "target_error_m", ".1f", 100.0)
-    add("lift cm", "max_ball_height_gain_m", ".1f", 100.0)
-    add("v m/s", "mean_forward_velocity_mps", ".2f")
-    add("body contact steps", "body_ground_contact_steps", "d")
-    for term, err in (m.get("term_error") or {}).items():  # task-space terms, in their units
-        if isinstance(err, (int, float)) and not isinstance(err, bool):
-            parts.append(f"term {term} err {err:.3g}")
-    diag, lat = (
-        _num(m, "diagonal_pair_overlap", ".3f"),
-        _num(m, "lateral_pair_overlap", ".3f"),
-    )
-    if diag is not None and lat is not None:
-        parts.append(f"diag/lat overlap {diag}/{lat}")
-    return ", ".join(parts)
-
-
 COLUMNS: list[Column] = [
     Column("task", lambda r: f"`{r.name}`"),
     Column("iterations", lambda r: str(r.sol.iterations)),
@@ -120,13 +92,12 @@ COLUMNS: list[Column] = [
     ),
     Column("goal", lambda r: _goal_cell(r.task, r.metrics)),
     Column("solve s", lambda r: f"{r.solve_seconds:.1f}"),
-    Column("headline metrics", lambda r: headline(r.metrics)),
+    Column("headline metrics", lambda r: metrics.headline(r.task.config.metrics, r.metrics)),
 ]
 
 
 def _goal_cell(task, metrics: dict) -> str:
     """PASS / FAIL with the failed checks ('' for a task without a goal)."""
-    from hydroilqr.metrics.goals import evaluate
 
     g = evaluate(task.config.goal, metrics)
     if g["met"] is None:
@@ -169,8 +140,6 @@ def solve_table(results: Sequence[TaskResult], context: Context) -> Section:
 
 
 def _goal_json(task, metrics: dict) -> dict:
-    from hydroilqr.metrics.goals import evaluate
-
     return evaluate(task.config.goal, metrics)
 
 
@@ -179,14 +148,13 @@ TRANSFER_PLAYBACK = {"speed": 0.5}
 
 
 def _moves_an_object(task) -> bool:
-    return any(m in ("object", "kinova") for m in task.config.metrics)
+    return metrics.moves_object(task.config.metrics)
 
 
 def transfer_table(results: Sequence[TaskResult], context: Context) -> Section | None:
     """Open-loop playback (``hydroilqr playback RUN --speed 0.5``) of every task that moves an
     object: where the object comes to rest against where the plan puts it to rest, the gap at
     the plan's end, and the task's goal judged on the executed motion."""
-    from hydroilqr.control.playback import PlaybackSettings
 
     rows, data = [], []
     for r in results:
@@ -234,8 +202,6 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
     """Playback of every task that names model errors (its ``mismatch:`` cases) with the plan's
     own feedback at full speed (``hydroilqr playback RUN --policy ilqr --mismatch NAME``):
     the resting gap on each mismatched "real" system and the goal judged there."""
-    from hydroilqr.control.playback import PlaybackSettings
-    from hydroilqr.problem.config import mismatch_overrides
 
     rows, data = [], []
     for r in results:
@@ -277,7 +243,6 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
 def _play(r: TaskResult, settings) -> tuple[dict, dict, str]:
     """Plays ``r``'s plan back: the playback metrics, the task's goal judged on the executed
     motion, and its verdict (PASS, FAIL, or '' when not judged)."""
-    from hydroilqr.control.playback import executed_goal, playback
 
     pb = playback(r.task, r.sol, settings)
     g = executed_goal(r.task, r.sol, pb)["goal"]
@@ -342,7 +307,6 @@ def robustness_table(results: Sequence[TaskResult], context: Context) -> Section
     """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART]`` runs (each with
     its own command and environment), if any were run into the results directory: per task,
     how many of its perturbed solves met the goal and each of its checks."""
-    from hydroilqr.studies.robustness import table
 
     root = Path(context.out) / "robustness"
     paths = sorted(root.glob("robustness.json")) + sorted(root.glob("*/robustness.json"))
@@ -414,12 +378,11 @@ def solve_tasks(
     progress: Callable[[str], None] | None = None,
 ) -> list[TaskResult]:
     """Loads, solves and measures each task through the public API."""
-    from hydroilqr import Task, metrics, solve
 
     results = []
     for name in tasks:
         task = Task.load(name, list(overrides), smoke=smoke)
-        task.validate()
+        validate_task(task)
         if progress:
             progress(f"solving {name}{' (smoke)' if smoke else ''}")
         t0 = time.perf_counter()
