@@ -33,6 +33,7 @@ from hydroilqr.metrics.goals import check_names
 from hydroilqr.metrics.registry import (  # noqa: F401
     METRICS,
     Metric,
+    Report,
     compute,
     get,
     headline,
@@ -41,6 +42,7 @@ from hydroilqr.metrics.registry import (  # noqa: F401
     plot,
     plot_files,
     register,
+    reports,
     sweep_arrays,
     sweep_columns,
     sweep_panels,

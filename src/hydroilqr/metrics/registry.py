@@ -11,6 +11,18 @@ from hydroilqr.problem.config import ConfigError
 
 
 @dataclass(frozen=True)
+class Report:
+    """A table of a metric's numbers on the results page, one row per task that computes it:
+    ``columns`` are (header, fn(metrics) -> cell text); ``figures`` are plot files of the
+    metric linked from each row (written beside the page)."""
+
+    title: str
+    intro: str
+    columns: tuple[tuple[str, Callable], ...]
+    figures: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class Metric:
     """A registered metric.
 
@@ -30,6 +42,7 @@ class Metric:
     sweep_panels: (key, axis label) panels of sweep.png above the final cost.
     sweep_plot: fn(path, points_dir, task_config, param_keys, rows) -> bool, writing
         ``sweep_plot_file`` from the stored sweep points (False: nothing to draw).
+    report: a table of its own on the results page (``Report``).
     """
 
     name: str
@@ -46,6 +59,7 @@ class Metric:
     sweep_panels: tuple[tuple[str, str], ...] = ()
     sweep_plot: Callable | None = None
     sweep_plot_file: str = ""
+    report: Report | None = None
 
     def file_names(self, params: dict | None = None) -> tuple[str, ...]:
         if callable(self.files):
@@ -175,3 +189,8 @@ def sweep_panels(names) -> list[tuple[str, str]]:
 def sweep_plots(names) -> list[tuple[str, Callable]]:
     """(file name, plot function) of the sweep plots of metrics ``names``."""
     return [(get(n).sweep_plot_file, get(n).sweep_plot) for n in names if get(n).sweep_plot]
+
+
+def reports() -> list[tuple[str, Report]]:
+    """(metric name, report) of every registered metric that has one."""
+    return [(name, m.report) for name, m in METRICS.items() if m.report is not None]

@@ -346,8 +346,43 @@ def _ratio(v) -> str:
     return "-" if v is None else f"{v:.1f}x"
 
 
-SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [
+def metric_reports(results: Sequence[TaskResult], context: Context) -> list[Section]:
+    """A table per metric that declares a report (``Metric.report``), one row per task that
+    computes it; the report's figures are written beside the page (``OUT/results/TASK/``) and
+    linked from the row."""
+    sections = []
+    for name, rep in metrics.reports():
+        rows, data = [], []
+        for r in results:
+            if name not in r.task.config.metrics:
+                continue
+            cells = [f"`{r.name}`", *(fn(r.metrics) for _, fn in rep.columns)]
+            links = _report_figures(r, rep.figures, context)
+            rows.append("| " + " | ".join(_cell(c) for c in [*cells, links]) + " |")
+            data.append({"task": r.name, **{h: c for (h, _), c in zip(rep.columns, cells[1:])}})
+        if not rows:
+            continue
+        headers = ["task", *(h for h, _ in rep.columns), "figures"]
+        md = "\n".join(
+            [rep.intro, "", "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers), *rows]
+        )
+        sections.append(Section(f"report_{name}", rep.title, md, data))
+    return sections
+
+
+def _report_figures(r: TaskResult, figures: Sequence[str], context: Context) -> str:
+    """Writes the task's metric plots into OUT/results/TASK/ and links those named."""
+    if not figures:
+        return ""
+    where = Path(context.out) / "results" / r.name
+    where.mkdir(parents=True, exist_ok=True)
+    metrics.plot(r.task, r.sol, where)
+    return ", ".join(f"[{f}](results/{r.name}/{f})" for f in figures if (where / f).exists())
+
+
+SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | list[Section] | None]] = [
     solve_table,
+    metric_reports,
     transfer_table,
     mismatch_table,
     robustness_table,
@@ -403,7 +438,10 @@ def render(
     sections: Sequence[Callable] | None = None,
 ) -> tuple[str, dict]:
     """The page as Markdown and as a JSON-able dict."""
-    made = [s for s in (f(results, context) for f in (sections or SECTIONS)) if s is not None]
+    made: list[Section] = []
+    for f in sections or SECTIONS:
+        s = f(results, context)
+        made += s if isinstance(s, list) else [s] if s is not None else []
     env_line = ", ".join(
         f"{k} {v}"
         for k, v in env.items()
