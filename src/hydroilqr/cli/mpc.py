@@ -96,7 +96,10 @@ def run(args) -> int:
         raise SimulationError(
             f"the controlled plant failed at {res.failure} (results up to then are in {out})"
         )
-    return print_goal(data.get("goal"), args.smoke, "on the closed loop")
+    where = "on the closed loop"
+    if (data.get("goal") or {}).get("source") == "mpc.goal":
+        where = "mpc.goal, on the closed loop"
+    return print_goal(data.get("goal"), args.smoke, where)
 
 
 def _settings(args):

@@ -95,6 +95,13 @@ def judge(config, metrics: dict) -> dict:
     return {**evaluate(config.goal, metrics), "judged": not config.smoke_run}
 
 
+def judge_loop(config, metrics: dict) -> dict:
+    """The goal record of a closed loop (``mpc.json``): ``mpc.goal`` where the task declares
+    one, else its ``goal``, evaluated on the loop's ``metrics``; ``source`` names which."""
+    goal, source = (config.mpc.goal, "mpc.goal") if config.mpc.goal else (config.goal, "goal")
+    return {**evaluate(goal, metrics), "judged": not config.smoke_run, "source": source}
+
+
 def verdict_line(result: dict) -> str:
     """``goal: PASS (2/2 checks)`` or ``goal: FAIL (1/2): target_error_m 0.067 > 0.03``."""
     checks = result.get("checks") or []
@@ -125,17 +132,22 @@ def check_names(task) -> None:
     (a misspelled name would otherwise fail only after the solve). The names come from the
     task's metrics computed on a two-step rollout of its initial guess; if that probe cannot
     be computed, the names are checked after the solve instead."""
-    goal = task.config.goal
-    if not goal:
+    goals = [("goal", task.config.goal), ("mpc.goal", task.config.mpc.goal)]
+    if not any(goal for _, goal in goals):
         return
     names = _probe_names(task)
     if names is None:
         return
+    for where_goal, goal in goals:
+        _check_goal_names(task, goal, where_goal, names)
+
+
+def _check_goal_names(task, goal: dict, key: str, names: set[str]) -> None:
     for name, check in goal.items():
         for ref, where in (
-            (name, f"goal.{name}"),
-            (check.above, f"goal.{name}.above"),
-            (check.below, f"goal.{name}.below"),
+            (name, f"{key}.{name}"),
+            (check.above, f"{key}.{name}.above"),
+            (check.below, f"{key}.{name}.below"),
         ):
             if ref is not None and ref not in names:
                 close = difflib.get_close_matches(ref, sorted(names), n=1)

@@ -17,7 +17,7 @@ from hydroilqr.control.playback import PlaybackResult, executed_goal
 from hydroilqr.io import rundir
 from hydroilqr.io.environment import environment
 from hydroilqr.io.files import atomic_savez
-from hydroilqr.metrics.goals import judge
+from hydroilqr.metrics.goals import judge, judge_loop
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.output.plots import (
     plot_convergence,
@@ -110,7 +110,7 @@ def write_mpc(
     data = {
         "task": task.name,
         **stats,
-        "goal": judge(task.config, task_metrics),
+        "goal": judge_loop(task.config, task_metrics),
         "metrics": task_metrics,
         "environment": environment(command),
     }

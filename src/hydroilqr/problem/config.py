@@ -382,6 +382,9 @@ class MPCConfig:
     truth_overrides: list[str] = field(default_factory=list)
     # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
     pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
+    # What the closed loop must achieve, judged on its simulated motion (the same metrics as
+    # ``goal``, e.g. a tracking error over the run); empty: the task's ``goal`` judges it.
+    goal: dict[str, GoalCheck] = field(default_factory=dict)
 
 
 BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
@@ -695,6 +698,8 @@ def _group_free_keys(parts: list[str]) -> list[str]:
         return ["mismatch", parts[1], ".".join(parts[2:])]
     if parts[0] == "goal" and len(parts) > 3:  # a goal on a nested metric (duty_factor.FL)
         return ["goal", ".".join(parts[1:-1]), parts[-1]]
+    if parts[:2] == ["mpc", "goal"] and len(parts) > 4:  # the closed loop's, likewise
+        return ["mpc", "goal", ".".join(parts[2:-1]), parts[-1]]
     return parts
 
 
@@ -1244,6 +1249,7 @@ MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2
 def validate_mpc(m: Any) -> None:
     """Checks the ``mpc:`` settings that need no plant (an MPCConfig); ConfigError naming the
     key."""
+    validate_goal(m.goal, "mpc.goal")
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
