@@ -176,6 +176,12 @@ def _print_summary(data: dict, settings) -> None:
         f"{data['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{data['realtime_factor']:.2f}"
     )
+    phases = data.get("phase_seconds_mean") or {}
+    if phases:  # where an update's time goes
+        console.print(
+            "per update (mean): "
+            + ", ".join(f"{k.replace('_', ' ')} {1e3 * v:.1f} ms" for k, v in phases.items())
+        )
     if settings.realtime and data["achieved_rate_hz"] < 0.95 * settings.rate:
         # In real time the simulation waits for the controller, so the loop's factor stays
         # near 1 whatever the latency: the achieved rate is what shows a slow controller.
