@@ -99,7 +99,7 @@ def test_mpc_truth_overrides_change_the_plant_only():
     assert not np.allclose(same.X, heavier.X)
     assert task.config.plant.gravity[2] == -9.81  # the controller's model is untouched
     bad = MPCConfig(duration=0.2, truth_overrides=["plant.time_step=0.001"])
-    with pytest.raises(ConfigError, match="time step"):
+    with pytest.raises(ConfigError, match="plant.time_step"):
         check_settings(bad, task)
 
 
@@ -408,3 +408,28 @@ def test_mpc_plot_shows_position_blocks_not_velocity_groups_with_units():
     assert plotted_blocks(Task.load("cartpole-wall")) == cartpole
     # arm_v (joint velocities, weighted in Q) has no "velocit" in its name
     assert plotted_blocks(Task.load("kinova-forward")) == [("ball_position", "m")]
+
+
+def test_the_simulated_robot_steps_on_its_own_time_step():
+    """Issue 38: the plant runs at a finer step than the plan; at the plan's own step the loop
+    is the default one bit for bit; a step that does not divide the plan's is refused."""
+    from hydroilqr.control.mpc import check_settings, run_mpc
+    from hydroilqr.problem.config import MPCConfig
+
+    task = Task.load("cartpole-wall")
+    dt = task.config.plant.time_step
+    kw = {"duration": 0.1, "rate": 50.0, "horizon": 0.2}
+    base = run_mpc(task, MPCConfig(**kw))
+    same = run_mpc(task, MPCConfig(plant_time_step=dt, **kw))
+    np.testing.assert_array_equal(same.X, base.X)
+    fine = run_mpc(task, MPCConfig(plant_time_step=dt / 5, **kw))
+    assert len(fine.X) == 5 * (len(base.X) - 1) + 1
+    np.testing.assert_allclose(np.diff(fine.t), dt / 5)
+    assert fine.stats()["plant_time_step_s"] == pytest.approx(dt / 5)
+    assert len(fine.update_times) == len(base.update_times)
+    # the same plans roughly: the finer simulation ends where the coarse one does, within 1 cm
+    nq = task.dynamics.nq
+    assert np.max(np.abs(fine.X[-1, :nq] - base.X[-1, :nq])) < 0.01
+    for bad in (dt / 2.5, 2 * dt, -dt):
+        with pytest.raises(ConfigError, match="plant_time_step"):
+            check_settings(MPCConfig(plant_time_step=bad, **kw), task)

@@ -52,6 +52,13 @@ def setup(p) -> None:
         help="override a task key of the simulated plant only (model mismatch), e.g. "
         "ball.friction=0.3 (repeatable)",
     )
+    p.add_argument(
+        "--plant-time-step",
+        type=float,
+        metavar="S",
+        help="the simulated robot's time step, a divisor of the plan's plant.time_step "
+        "(default: mpc.plant_time_step, 0 = the plan's)",
+    )
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument(
         "--derivatives",
@@ -123,6 +130,7 @@ def _settings(args):
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
         truth_overrides=list(args.truth_set),
+        plant_time_step=args.plant_time_step,
         warm_start_plan=args.warm_start_plan,
     )
     if args.horizon is not None and settings.shrinking_horizon:

@@ -154,15 +154,36 @@ def _check_pushes(settings: MPCConfig, plant) -> None:
             )
 
 
+def simulation_step(settings: MPCConfig, dt: float) -> tuple[float, int]:
+    """The simulated robot's time step and how many of them make one plan step of ``dt``;
+    ConfigError unless it divides ``dt``."""
+    h = settings.plant_time_step
+    if h == 0:
+        return dt, 1
+    if not (math.isfinite(h) and 0 < h <= dt):
+        raise ConfigError(
+            f"mpc.plant_time_step: a positive step no longer than the plan's {dt:g} s, got {h:g}"
+        )
+    r = dt / h
+    if abs(r - round(r)) > 1e-6 * r:
+        raise ConfigError(
+            f"mpc.plant_time_step {h:g} s: must divide the plan's time step {dt:g} s "
+            f"(e.g. {dt / math.ceil(r):g} s)"
+        )
+    return dt / round(r), int(round(r))
+
+
 def _check_truth(settings: MPCConfig, task, dt: float) -> None:
-    """The simulated plant's overrides, and a shrinking horizon that ends with the task."""
+    """The simulated plant's overrides and time step, and a shrinking horizon that ends with
+    the task."""
+    simulation_step(settings, dt)
     if settings.truth_overrides:
         check_truth_overrides(settings.truth_overrides)
         truth = with_overrides(task.config, settings.truth_overrides)
         if truth.plant.time_step != dt:
             raise ConfigError(
-                "--truth-set: the simulated plant steps with the controller's time step "
-                f"({dt:g} s); plant.time_step cannot differ"
+                "--truth-set: plant.time_step of the simulated plant is set with "
+                "--plant-time-step (mpc.plant_time_step), not --truth-set"
             )
     if settings.shrinking_horizon and int(round(settings.duration / dt)) > task.steps:
         raise ConfigError(
@@ -293,6 +314,7 @@ class MPCResult:
             else {},
             "derivative_steps_per_update_mean": float(np.mean(steps)) if steps else 0.0,
             "truth_overrides": list(self.settings.truth_overrides),
+            "plant_time_step_s": float(self.t[1] - self.t[0]) if len(self.t) > 1 else None,
             "warm_start_plan": self.settings.warm_start_plan,
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
@@ -528,7 +550,11 @@ SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (a
 class Truth:
     """The simulated plant being controlled (its own Drake context), with external pushes."""
 
-    def __init__(self, task, overrides: list[str] | None = None):
+    def __init__(self, task, overrides: list[str] | None = None, time_step: float = 0.0):
+        """``time_step``: the simulated robot's step (0: the task's)."""
+        overrides = list(overrides or [])
+        if time_step and time_step != task.config.plant.time_step:
+            overrides.append(f"plant.time_step={time_step!r}")
         cfg = with_overrides(task.config, overrides) if overrides else task.config
         self.dyn = Dynamics(cfg)
         ref = task.dynamics
@@ -594,7 +620,8 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     task.check_memory(N, "mpc.horizon")
     solver = controller_solver(task.config.solver, settings)
     ctrl = Controller(task, N, settings, solver, U_ref)
-    return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides))
+    h, _ = simulation_step(settings, dt)
+    return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides, h))
 
 
 def run_mpc(task, settings: MPCConfig | None = None, on_update=None) -> MPCResult:
@@ -620,9 +647,11 @@ class ClosedLoop:
 
     def __init__(self, task, settings: MPCConfig, ctrl: Controller, truth: Truth):
         self.task, self.settings, self.ctrl, self.truth = task, settings, ctrl, truth
-        self.dt = task.dynamics.dt
+        # The simulation's step, and its steps per plan step (1: it steps as the plan does).
+        self.dt, self.substeps = simulation_step(settings, task.dynamics.dt)
         self.total = int(round(settings.duration / self.dt))
-        self.period_steps = max(1, int(round(1.0 / (settings.rate * self.dt))))
+        plan_period = max(1, int(round(1.0 / (settings.rate * task.dynamics.dt))))
+        self.period_steps = plan_period * self.substeps
         self.x = task.x0.copy()
         self.X, self.U = [self.x], []
         self.upd_t, self.solve_s, self.iters = [], [], []
@@ -654,13 +683,19 @@ class ClosedLoop:
 
     def advance(self, n: int, plan: Solution, t_plan: float) -> None:
         """Simulates up to n steps under ``plan``'s policy (measured at ``t_plan``)."""
-        dt, fb = self.dt, self.settings.feedback_scale
+        dt, fb, r = self.dt, self.settings.feedback_scale, self.substeps
         for _ in range(n):
             if self.k >= self.total:
                 return
-            # Index into the plan by the time elapsed since its state was measured.
-            i = min(max(self.k - int(round(t_plan / dt)), 0), plan.U.shape[0] - 1)
-            u = plan.U[i] - fb * (plan.K[i] @ (self.x - plan.X[i]))
+            # Index into the plan by the time elapsed since its state was measured: the plan
+            # step's feed-forward, feedback against the plan's state at this time.
+            j = max(self.k - int(round(t_plan / dt)), 0)
+            i = min(j // r, plan.U.shape[0] - 1)
+            x_ref = plan.X[i]
+            if r > 1 and j // r == i:  # between plan steps: the plan's state interpolated
+                a = (j % r) / r
+                x_ref = (1.0 - a) * plan.X[i] + a * plan.X[i + 1]
+            u = plan.U[i] - fb * (plan.K[i] @ (self.x - x_ref))
             if not np.all(np.isfinite(u)):
                 raise SimulationError("the controller produced a non-finite input")
             self.x, u = self.truth.step(self.x, u, self.k, self.settings.pushes)

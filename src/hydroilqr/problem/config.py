@@ -380,6 +380,10 @@ class MPCConfig:
     feedback_scale: float = 1.0
     # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
     truth_overrides: list[str] = field(default_factory=list)
+    # The simulated robot's own time step (s): a divisor of the plan's plant.time_step; between
+    # plan steps it holds the step's feed-forward and feeds back against the plan's state
+    # interpolated in time. 0: the plan's step (the simulation steps as the controller plans).
+    plant_time_step: float = 0.0
     # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
     pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
     # What the closed loop must achieve, judged on its simulated motion (the same metrics as
