@@ -433,3 +433,26 @@ def test_the_simulated_robot_steps_on_its_own_time_step():
     for bad in (dt / 2.5, 2 * dt, -dt):
         with pytest.raises(ConfigError, match="plant_time_step"):
             check_settings(MPCConfig(plant_time_step=bad, **kw), task)
+
+
+def test_plan_overrides_change_the_controllers_task_only():
+    """Issue 38: an approach term kept on in the loop (mpc.plan_overrides); the time grid,
+    state and inputs cannot change; the simulated robot is the task's."""
+    from hydroilqr.control.mpc import planning_task, prepare
+
+    task = Task.load("finger-wheel", smoke=True)
+    assert planning_task(task, MPCConfig()) is task
+    on = MPCConfig(duration=0.1, rate=20.0, horizon=0.2, plan_overrides=[APPROACH_ON])
+    planner = planning_task(task, on)
+    assert planner.config.cost.terms[0].weight == 1.0e5
+    assert task.config.cost.terms[0].weight == 0.0  # the task is unchanged
+    loop = prepare(task, on)
+    assert loop.ctrl.task.config.cost.terms[0].weight == 1.0e5
+    assert loop.truth.dyn.plant is not planner.dynamics.plant
+    res = loop.run()
+    assert res.stats()["plan_overrides"] == [APPROACH_ON]
+    with pytest.raises(ConfigError, match="plan_overrides"):
+        planning_task(task, MPCConfig(plan_overrides=["plant.time_step=0.01"]))
+
+
+APPROACH_ON = "cost.terms.approach.weight=1.0e+5"

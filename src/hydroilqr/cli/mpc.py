@@ -53,6 +53,14 @@ def setup(p) -> None:
         "ball.friction=0.3 (repeatable)",
     )
     p.add_argument(
+        "--plan-set",
+        action="append",
+        default=None,
+        metavar="KEY=VALUE",
+        help="override a task key of the controller's plans only (mpc.plan_overrides), e.g. "
+        "cost.terms.approach.weight=1e5 to keep an approach term on (repeatable)",
+    )
+    p.add_argument(
         "--plant-time-step",
         type=float,
         metavar="S",
@@ -131,6 +139,7 @@ def _settings(args):
         feedback_scale=args.feedback_scale,
         truth_overrides=list(args.truth_set),
         plant_time_step=args.plant_time_step,
+        plan_overrides=args.plan_set,
         warm_start_plan=args.warm_start_plan,
     )
     if args.horizon is not None and settings.shrinking_horizon:

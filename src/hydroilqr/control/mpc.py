@@ -223,7 +223,12 @@ def mpc_config(task, **overrides) -> MPCConfig:
     """The task's ``mpc:`` section, with keyword overrides (None = keep the task's): a copy.
     TypeError naming an unknown setting."""
     m = task.config.mpc
-    s = dataclasses.replace(m, truth_overrides=list(m.truth_overrides), pushes=list(m.pushes))
+    s = dataclasses.replace(
+        m,
+        truth_overrides=list(m.truth_overrides),
+        plan_overrides=list(m.plan_overrides),
+        pushes=list(m.pushes),
+    )
     if m.warm_start_plan:
         # a task file's path is relative to that file (a --warm-start-plan: to the cwd)
         s.warm_start_plan = str(task.config.resolve_path(m.warm_start_plan))
@@ -314,6 +319,7 @@ class MPCResult:
             else {},
             "derivative_steps_per_update_mean": float(np.mean(steps)) if steps else 0.0,
             "truth_overrides": list(self.settings.truth_overrides),
+            "plan_overrides": list(self.settings.plan_overrides),
             "plant_time_step_s": float(self.t[1] - self.t[0]) if len(self.t) > 1 else None,
             "warm_start_plan": self.settings.warm_start_plan,
             "pushes": [
@@ -603,6 +609,25 @@ class Truth:
         return self.dyn.step(x, u), u
 
 
+def planning_task(task, settings: MPCConfig):
+    """The task the controller plans with: ``task`` with ``settings.plan_overrides`` (itself
+    without); ConfigError for overrides that change its time grid, state or inputs."""
+    if not settings.plan_overrides:
+        return task
+    try:
+        planner = task.with_overrides(settings.plan_overrides)
+        dyn = planner.dynamics
+    except ConfigError as e:
+        raise ConfigError(f"mpc.plan_overrides: {e}") from None
+    ref = task.dynamics
+    if (dyn.nx, dyn.nu, dyn.dt) != (ref.nx, ref.nu, ref.dt) or planner.steps != task.steps:
+        raise ConfigError(
+            "mpc.plan_overrides: the controller's task must keep the task's time grid, state "
+            "and inputs (cost, model parameters and solver settings may change)"
+        )
+    return planner
+
+
 def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     """The closed loop of ``task`` under ``settings``, checked and built, before any solve:
     ConfigError for settings that cannot run. ``settings``: default ``mpc_config(task)``, the
@@ -613,13 +638,14 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
         settings = mpc_config(task)
     dt = task.dynamics.dt
     U_ref = check_settings(settings, task)
+    planner = planning_task(task, settings)
     N = max(2, int(round(settings.horizon / dt)))
     if settings.shrinking_horizon:
         N = task.steps
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
     task.check_memory(N, "mpc.horizon")
-    solver = controller_solver(task.config.solver, settings)
-    ctrl = Controller(task, N, settings, solver, U_ref)
+    solver = controller_solver(planner.config.solver, settings)
+    ctrl = Controller(planner, N, settings, solver, U_ref)
     h, _ = simulation_step(settings, dt)
     return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides, h))
 
@@ -664,7 +690,7 @@ class ClosedLoop:
         before it moves), seeded by the task's continuation if any (not over a given
         warm-start plan), with the derivative settings this run uses."""
         ctrl, solver, x = self.ctrl, self.ctrl.solver, self.x
-        stages = self.task.stages() if ctrl.U_ref is None else []
+        stages = ctrl.task.stages() if ctrl.U_ref is None else []  # the planner's
         for stage in stages:
             s_stage = dataclasses.replace(
                 stage.config.solver,

@@ -380,6 +380,11 @@ class MPCConfig:
     feedback_scale: float = 1.0
     # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
     truth_overrides: list[str] = field(default_factory=list)
+    # key=value overrides of the controller's task only (its cost, model and solver), e.g.
+    # [cost.terms.approach.weight=1e5]: an approach term the task as written switches off
+    # kept on in the loop, so that the plans keep looking for contact. The time grid, the
+    # state and the inputs stay the task's; the simulated robot and the goal are the task's.
+    plan_overrides: list[str] = field(default_factory=list)
     # The simulated robot's own time step (s): a divisor of the plan's plant.time_step; between
     # plan steps it holds the step's feed-forward and feeds back against the plan's state
     # interpolated in time. 0: the plan's step (the simulation steps as the controller plans).
