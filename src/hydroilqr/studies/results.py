@@ -459,7 +459,9 @@ def render(
         "",
         f"Environment: {env_line}" + (f", cpu_features {' '.join(feats)}" if feats else "") + ".",
         "Numbers of contact-rich solves are comparable only within one environment "
-        "(code, package versions, BLAS kernels).",
+        "(code, package versions, BLAS kernels): other kernel sets land in other, equally "
+        "valid local minima, and the pass rates under last-bit perturbations (section "
+        '"Robustness to last-bit differences") are the numbers to expect there.',
     ]
     if context.smoke:
         lines += ["", "**Smoke-sized tasks** (`--smoke`): not the real problems."]
