@@ -355,8 +355,15 @@ def _model(task) -> dict:
         "contact_model": cfg.plant.contact_model,
         "contact_surface_representation": cfg.plant.contact_surface_representation,
         "derivatives": cfg.solver.derivatives,
-        "initial_guess": cfg.initial_guess,
+        "initial_guess": guess_name(cfg.initial_guess),
     }
+
+
+def guess_name(guess) -> str:
+    """The initial guess in a line: its keyword or file, or a position guess described."""
+    from hydroilqr.model.guess import describe
+
+    return describe(guess)
 
 
 def _fd(dyn, fd_forces: bool) -> dict:
@@ -448,9 +455,12 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     except SimulationError as e:
         hint = f" ({overlap})" if overlap else ""
         raise SimulationError(
-            f"rollout of the initial guess ({task.config.initial_guess}): {e}{hint}"
+            f"rollout of the initial guess ({guess_name(task.config.initial_guess)}): {e}{hint}"
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
+    from hydroilqr.model.guess import rollout_report
+
+    out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
     from hydroilqr.metrics.contacts import (
         fixed_bodies,
