@@ -1,23 +1,24 @@
 """Guesses in positions: a path of configurations turned into controls by a tracking rollout.
 
-``initial_guess: {waypoints: [...]}`` (or ``{target: {...}}``) in a task file names where the
-actuated joints should be and when; this module turns that path into the controls U: [N, nu]
-that the solver starts from, by simulating the task's own plant:
+``initial_guess: {waypoints: [...]}`` (or ``{target: {...}}``) in a task file says where the
+joints should be and when; this module turns that path into the controls U: [N, nu] that the
+solver starts from, by simulating the task's own plant:
 
-- the reference q_ref(t) of the actuated joints is piecewise linear in time, from their
-  values in the state the rollout starts from (at t = 0) through each waypoint; after the
-  last waypoint it holds (with ``period`` > 0 it returns to the start values at t = period
-  and repeats);
-- at every step k the control u_k is the one whose step of the plant brings the actuated
-  joints' velocities to v_des = (q_ref(t_{k+1}) − q_k) / dt, the velocity that reaches the
-  reference at the next step: Gauss-Newton on u with the plant's own step (Drake: contact,
-  gravity and the unactuated base included; its partials by forward differences), each
-  iterate clipped to the effort limits. This is inverse dynamics of the discrete step, with
-  the contact forces the step produces; the unactuated coordinates (a floating or planar
-  base) follow from the dynamics.
+- the reference q_ref(t) is piecewise linear in time, from the initial state's values at
+  t = 0 through each waypoint, holding after the last one (with ``period`` > 0 it returns to
+  the start values at t = period and repeats). It covers every actuated joint (one the path
+  never names holds its start value) and the unactuated coordinates the path names (a base's
+  x or height: tracked with a smaller weight, through whatever the actuators can do to them);
+- at every step k the control u_k is the one whose step of the plant brings those
+  coordinates' velocities closest to v_des = v_ref + (q_ref(t_{k+1}) − q_k − dt·v_ref) /
+  (SETTLE_STEPS·dt), which closes part of the gap to the reference at each step: Gauss-Newton
+  on u through the plant's own step (Drake: contact, gravity, joint limits and the
+  unactuated base included; partials by finite differences), with a backtracking search and
+  every trial clipped to the effort limits. It is inverse dynamics of the discrete step, with
+  the contact forces that step produces; nothing is computed by hand-written kinematics.
 
 The rollout's states are the guess's states exactly: U replayed open loop from the same
-state gives the same X (the controls are computed from the states they are applied at).
+state gives the same X (each control is computed at the state it is applied at).
 """
 
 from __future__ import annotations
@@ -44,8 +45,8 @@ UNACTUATED_WEIGHT = 0.3
 @dataclass
 class TrackingRollout:
     """The result of a tracking rollout: U: [N, nu], X: [N+1, nx], the reference of the
-    actuated coordinates at each state's time, Q_ref: [N+1, nu] (in actuator order), and
-    their indices in q, q_index: [nu]."""
+    tracked coordinates at each state's time, Q_ref: [N+1, n], and their indices in q,
+    q_index: [n] (the actuated joints in actuator order, then the named unactuated ones)."""
 
     U: np.ndarray
     X: np.ndarray
@@ -53,7 +54,7 @@ class TrackingRollout:
     q_index: list[int]
 
     def tracking_error(self) -> np.ndarray:
-        """|q − q_ref| of each actuated coordinate at each state: [N+1, nu]."""
+        """|q − q_ref| of each tracked coordinate at each state: [N+1, n]."""
         return np.abs(self.X[:, self.q_index] - self.Q_ref)
 
 
@@ -133,9 +134,9 @@ def tracking_rollout(
     dynamics, path: WaypointPath, x0: np.ndarray, N: int, t0: float = 0.0, q_start=None
 ) -> TrackingRollout:
     """Controls U: [N, nu] that track ``path`` from x0 at time t0 (s) over N steps of the
-    plant, and the states they give. ``q_start``: the actuated coordinates' values the path
-    starts from at t = 0 (default: x0's). Raises SimulationError (from the plant) if a step
-    fails."""
+    plant, and the states they give. ``q_start``: the tracked coordinates' values the path
+    starts from at t = 0 (default: x0's). Raises SimulationError (from the plant) if the
+    chosen control's step fails."""
     dt = dynamics.dt
     nu = dynamics.nu
     q_idx, v_idx = path.q_idx, path.v_idx
@@ -184,7 +185,10 @@ def _track_step(dynamics, x, u, rows, v_des, w):
         best = None
         for j in range(SEARCH_STEPS):
             u_try = dynamics.clip_to_limits(u + step * 0.5**j)
-            xn_try = dynamics.step(x, u_try)
+            try:
+                xn_try = dynamics.step(x, u_try)
+            except SimulationError:  # a trial the plant cannot step: a worse one
+                continue
             r_try = w * (xn_try[rows] - v_des)
             if r_try @ r_try < (r @ r if best is None else best[2] @ best[2]):
                 best = (u_try, xn_try, r_try)
