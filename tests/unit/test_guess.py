@@ -41,6 +41,17 @@ def test_the_tracking_rollout_follows_the_waypoints_and_replays_to_its_states():
     assert np.allclose(task.dynamics.rollout(task.x0, U), out.X, atol=1e-9)
 
 
+def test_a_later_window_follows_the_same_path_from_its_start_time():
+    """A receding-horizon window (or an MPC tail) asks for the guess from a state at step k:
+    from the rollout's own state at k it continues the same controls."""
+    task = Task.load("finger-wheel", WAYPOINTS)
+    from hydroilqr.model.guess import position_guess
+
+    whole = position_guess(task, task.steps)
+    tail = task.initial_guess(5, whole.X[10], start=10)
+    assert np.allclose(tail, whole.U[10:15], atol=1e-9)
+
+
 def test_a_target_and_a_period():
     task = Task.load("finger-wheel", ["initial_guess={target: {finger_shoulder: 0.3}}"])
     from hydroilqr.model.guess import position_guess

@@ -31,7 +31,7 @@ from hydroilqr.model.plant import SimulationError
 from hydroilqr.problem.config import ConfigError
 
 #: Gauss-Newton iterations per time step and the finite-difference step on u (N·m or N).
-ITERATIONS = 4
+ITERATIONS = 10
 FD_STEP = 1e-3
 #: Trials of the backtracking search along a Gauss-Newton step (step sizes 1, 1/2, ...).
 SEARCH_STEPS = 12
