@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,15 @@ import pytest
 import yaml
 
 from hydroilqr import Task
+
+
+def pytest_configure(config):
+    """pytest-xdist's worker processes ignore SIGINT (the controller handles Ctrl+C), and an
+    ignored SIGINT is inherited by every command a test starts: a test of Ctrl+C would then
+    test nohup. Tests run as a terminal's foreground job does, with Python's own handler."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
 
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 

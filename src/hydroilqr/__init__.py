@@ -5,6 +5,7 @@ Data flow: task YAML (config.py) -> plant/dynamics (plant.py) -> derivatives (de
 -> iLQR (ilqr.py, cost.py) -> Solution (solution.py) -> outputs, playback, replay.
 """
 
+import importlib as _importlib
 import locale as _locale
 import sys as _sys
 
@@ -28,7 +29,7 @@ _API = {
     "SimulationError": "hydroilqr.model.plant",
     "Solution": "hydroilqr.solver.solution",
     "SolverConfig": "hydroilqr.problem.config",
-    "Task": "hydroilqr.problem.task",
+    "Task": "hydroilqr.model.task",
     "TaskConfig": "hydroilqr.problem.config",
     "explain": "hydroilqr.solver.explain",
     "linearize": "hydroilqr.model.derivatives",
@@ -38,9 +39,7 @@ _API = {
 
 def __getattr__(name: str):
     if name in _API:
-        import importlib
-
-        value = getattr(importlib.import_module(_API[name]), name)
+        value = getattr(_importlib.import_module(_API[name]), name)
         globals()[name] = value
         return value
     raise AttributeError(f"module 'hydroilqr' has no attribute {name!r}")

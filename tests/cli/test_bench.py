@@ -82,7 +82,6 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     from types import SimpleNamespace
 
     from hydroilqr import Task
-    from hydroilqr.solver import ilqr
     from hydroilqr.studies import bench
 
     seen, order = [], []
@@ -94,7 +93,7 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
                 cb(SimpleNamespace(U=np.full(1, 10.0 * problem + k + 1), mu=0.5 * (k + 1)))
         return problem
 
-    monkeypatch.setattr(ilqr, "solve", fake_solve)
+    monkeypatch.setattr(bench, "solve", fake_solve)
     tasks = [
         SimpleNamespace(
             problem=lambda i=i: i,
@@ -118,7 +117,7 @@ def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     same(U0, 1e-3)
     assert len(same.seconds) == 1 and same.seconds[0] > 0 and not same.errors
     assert same.phases["rollout"] == [0.0] and same.phases["derivatives"][0] > 0
-    assert same.settings.regularization_init == 1e-3
+    assert task.config.solver.regularization_init != 1e-3  # μ is passed, the task unchanged
     same._failed("rollout failed")  # stays aligned with (b)'s iterations
     fast = SimpleNamespace(
         iteration_seconds=[0.5, 0.2], phase_seconds={"rollout": [0.4, 0.0]}
@@ -136,7 +135,6 @@ def test_three_runners_take_turns_and_a_finished_one_is_skipped(monkeypatch):
 
     import numpy as np
 
-    from hydroilqr.solver import ilqr
     from hydroilqr.studies import bench
 
     order = []
@@ -148,7 +146,7 @@ def test_three_runners_take_turns_and_a_finished_one_is_skipped(monkeypatch):
                 cb(None)
         return problem
 
-    monkeypatch.setattr(ilqr, "solve", fake_solve)
+    monkeypatch.setattr(bench, "solve", fake_solve)
     tasks = [
         SimpleNamespace(problem=lambda i=i: i, config=SimpleNamespace(solver=None))
         for i in (0, 1, 2)

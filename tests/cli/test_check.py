@@ -9,7 +9,7 @@ from tests.conftest import assert_one_line, edit, write_case
 
 
 def test_check_warns_that_a_rigid_geometrys_modulus_is_unused():
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     task = Task.load(
         "cartpole-wall",

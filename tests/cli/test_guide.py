@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task, cli, solve
-from hydroilqr.problem.check import check_task
+from hydroilqr.metrics import validate_task
+from hydroilqr.studies.check import check_task
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -49,7 +50,7 @@ def guide_steps() -> list[tuple[str, str]]:
 
 def test_acrobot_from_yaml_check():
     task = Task.from_yaml(EXAMPLES / "acrobot-swingup.yaml")
-    task.validate()
+    validate_task(task)
     facts = check_task(task)
     names = [b["name"] for b in facts["blocks"]]
     assert names[:2] == ["angles", "rates"]  # task groups first
@@ -131,5 +132,5 @@ def test_guide_commands_run(tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize("example", sorted(p.name for p in EXAMPLES.glob("*.yaml")))
 def test_examples_validate(example):
     task = Task.from_yaml(EXAMPLES / example, smoke=True)
-    task.validate()
+    validate_task(task)
     assert np.all(np.isfinite(task.x0))

@@ -16,13 +16,13 @@ def test_short_initial_guess_file_is_an_error(tmp_path, capsys):
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "has 2 rows; the task needs 5")
     (tmp_path / "U.csv").write_text("0.1\n")  # one row: a constant control
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     np.testing.assert_allclose(Task.load(str(path)).initial_guess(5), np.full((5, 1), 0.1))
 
 
 def test_command_line_guess_path_is_relative_to_the_working_directory(tmp_path, monkeypatch):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     task_dir, work = tmp_path / "tasks", tmp_path / "work"
     task_dir.mkdir()
@@ -45,7 +45,7 @@ def test_empty_guess_file_is_one_line(tmp_path, capsys):
 def test_command_line_paths_inside_override_sections_are_relative_to_the_working_directory(
     tmp_path, monkeypatch
 ):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     work = tmp_path / "work"
     work.mkdir()

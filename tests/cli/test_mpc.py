@@ -38,3 +38,27 @@ def test_mpc_rejects_non_finite_or_negative_options(tmp_path, capsys, option):
     rc = cli.main(["mpc", str(path), "--out", str(tmp_path / "o"), "--no-replay", *option])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, option[0].lstrip("-").split("-")[0])
+
+
+def test_mpc_goal_judges_the_closed_loop_apart_from_the_plan_goal(tmp_path, capsys):
+    """Issue 38: ``mpc.goal`` is what the loop must achieve; without it the task's goal."""
+    import json
+
+    from hydroilqr.cli import main
+
+    out = tmp_path / "loop"
+    argv = ["mpc", "cartpole-wall", "--duration", "0.1", "--no-replay", "--out", str(out)]
+    lenient = "mpc.goal={final_error.pole_angle: {max: 1000.0}}"
+    assert main([*argv, "--set", lenient]) == 0
+    goal = json.loads((out / "mpc.json").read_text())["goal"]
+    assert goal["source"] == "mpc.goal" and goal["met"] is True
+    assert [c["metric"] for c in goal["checks"]] == ["final_error.pole_angle"]
+    assert "mpc.goal, on the closed loop" in capsys.readouterr().out
+    assert main([*argv, "--set", "mpc.goal.final_error.pole_angle.max=1e-9"]) == 4
+    assert json.loads((out / "mpc.json").read_text())["goal"]["met"] is False
+    assert main(argv) in (0, 4)  # no mpc.goal: the task's goal judges the loop
+    assert json.loads((out / "mpc.json").read_text())["goal"]["source"] == "goal"
+    capsys.readouterr()
+    rc = main([*argv, "--set", "mpc.goal={nosuch_metric: {max: 1}}"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "mpc.goal.nosuch_metric")

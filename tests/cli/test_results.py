@@ -71,3 +71,26 @@ def test_results_page_has_goal_status_transfer_and_bench_sections(tmp_path):
     assert row.split("|")[3].strip().endswith(" cm")
     assert "| `kinova-forward` | 0.520 | 0.530 | 0.380 | 1.4x | 1.4x | 1.6x |" in md
     assert "(load 0.4)" in md
+
+
+def test_gait_report_section_links_the_gait_diagram(tmp_path):
+    """Issue 37: the cheetah tasks get a "Gaits" table (duty, stance slip, overlaps, phase,
+    stride frequency, cost of transport) whose rows link their gait.png, written beside the
+    page."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from hydroilqr import Task, metrics
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
+    sol = SimpleNamespace(t=task.dynamics.dt * np.arange(len(X)), X=X, U=U, extra={})
+    r = results.TaskResult("cheetah-trot-1.0", task, sol, metrics.compute(task, sol), 1.0)
+    ctx = results.Context(command="hydroilqr results", smoke=True, out=str(tmp_path))
+    (section,) = results.metric_reports([r], ctx)
+    assert section.title == "Gaits" and "stance slip m/s" in section.markdown
+    assert "[gait.png](results/cheetah-trot-1.0/gait.png)" in section.markdown
+    assert (tmp_path / "results" / "cheetah-trot-1.0" / "gait.png").exists()
+    assert results.metric_reports([], ctx) == []

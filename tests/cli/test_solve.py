@@ -14,7 +14,7 @@ import pytest
 
 from hydroilqr import IterationTable, Solution, Task, cli, solve
 from hydroilqr.problem.config import ConfigError, SolverConfig
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.loop import solve as ilqr_solve
 from tests.conftest import ACROBOT_TASK as TASK
 from tests.conftest import BASE, assert_one_line, edit, write_case, write_task
 
@@ -140,10 +140,10 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     env = summary["environment"]
     assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
     assert env["command"] == f"hydroilqr solve {task} --out {out} --no-replay"
-    from hydroilqr.output import report
+    from hydroilqr.io import environment
 
-    assert not hasattr(report, "COMMAND")  # no global: nothing carried into later Python calls
-    assert report.environment()["command"] is None
+    assert not hasattr(environment, "COMMAND")  # no global: nothing carried into later calls
+    assert environment.environment()["command"] is None
 
 
 def test_a_failed_resolve_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):
@@ -171,7 +171,7 @@ def test_task_name_and_task_file_together_is_an_error(tmp_path, capsys):
 
 def test_interrupted_ilqr_statistics_are_consistent():
     """stop_on_interrupt: every per-iteration list has one entry per recorded iteration."""
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     calls = []
 

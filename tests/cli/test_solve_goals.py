@@ -10,7 +10,7 @@ import sys
 
 from hydroilqr import cli
 from hydroilqr.cli.solve import GOAL_NOT_MET
-from hydroilqr.output import rundir
+from hydroilqr.io import rundir
 from tests.conftest import ACROBOT_TASK
 from tests.conftest import write_task as write_acrobot_task
 
@@ -127,15 +127,15 @@ def test_a_full_disk_while_writing_leaves_the_earlier_set(tmp_path, capsys, monk
     import errno
 
     out, npz, first = _complete_run(tmp_path)
-    from hydroilqr.output import report
+    from hydroilqr.output import results
 
-    real = report.write_json
+    real = results.write_json
 
     def full(path, data):
         real(path, data)
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(report, "write_json", full)
+    monkeypatch.setattr(results, "write_json", full)
     rc = cli.main(["solve", str(write_task(tmp_path)), "--out", str(out), "--no-replay"])
     assert rc == 1 and "No space left on device" in capsys.readouterr().err
     assert (out / "solution.npz").read_bytes() == npz and summary(out) == first

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import ConfigError, SimulationError, Solution, SolverConfig, Task, solve
+from hydroilqr.metrics import validate_task
 
 
 @pytest.fixture(scope="module")
@@ -189,9 +190,9 @@ def test_version_names_what_decides_the_last_bits(capsys):
 def test_version_says_unknown_when_git_gives_no_commit(capsys, monkeypatch):
     """Outside a git checkout, or one git refuses (another user's: "dubious ownership")."""
     from hydroilqr import cli
-    from hydroilqr.output import report
+    from hydroilqr.io import environment
 
-    monkeypatch.setattr(report, "code_version", lambda: "")
+    monkeypatch.setattr(environment, "code_version", lambda: "")
     with pytest.raises(SystemExit):
         cli.main(["--version"])
     assert "(code unknown; drake " in capsys.readouterr().out
@@ -231,7 +232,7 @@ def test_continuation_is_checked_before_solving():
         Task.load("cheetah-trot-1.0", smoke=True, overrides={"continuation": [{"plant.x": 1}]})
     bad = Task.load("cartpole-wall", smoke=True, overrides={"continuation": [{"tipp.friction": 1}]})
     with pytest.raises(ConfigError, match=r"continuation\[0\]"):
-        bad.validate()
+        validate_task(bad)
 
 
 def test_stopping_inside_a_stage_returns_the_task_models_trajectory(task):
@@ -253,7 +254,7 @@ def test_a_worker_dying_during_autodiff_costs_time_not_the_solve(monkeypatch):
     from concurrent.futures.process import BrokenProcessPool
 
     from hydroilqr.model import workers
-    from hydroilqr.model.derivatives import autodiff_serial
+    from hydroilqr.model.autodiff import autodiff_serial
 
     class Dead:  # the future of a chunk whose worker process was killed
         def result(self):
@@ -280,7 +281,7 @@ def test_settings_dict_changes_each_stage_own_solver_section():
 
 
 def test_continuation_stage_solves_its_model_and_seeds_the_next():
-    from hydroilqr.solver.ilqr import solve as ilqr_solve
+    from hydroilqr.solver.loop import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", smoke=True, overrides="solver.max_iterations=2")
     staged = task.with_overrides({"continuation": [{"tip.hydroelastic_modulus": 1.0e5}]})
@@ -310,7 +311,7 @@ def test_a_dict_task_extends_a_file_relative_to_its_base_dir(tmp_path):
     assert soft.name == "soft" and soft.steps == Task.load("cartpole-wall").steps
     assert soft.config.geometry["tip"].hydroelastic_modulus == 1e5
     assert soft.config.geometry["tip"].dissipation == 0.0  # the rest of the parent's entry
-    soft.validate()  # the parent's model path resolves
+    validate_task(soft)  # the parent's model path resolves
     # from another directory the parent's relative paths still resolve (to its own directory)
     elsewhere = Task.from_dict({**data, "extends": str(TASKS_DIR / "cartpole-wall.yaml")}, tmp_path)
     assert elsewhere.dynamics.nx == 4

@@ -9,7 +9,7 @@ from hydroilqr import Task
 
 
 def _check(task, **kw):
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     return check_task(task, **kw)
 

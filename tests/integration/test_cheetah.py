@@ -151,7 +151,7 @@ def test_standing_partials_autodiff_equal_central_differences(fd_forces):
 
 
 def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
-    from hydroilqr.output import report
+    from hydroilqr.output import results
 
     task, sol, _ = smoke_run
     rh = task.config.receding_horizon
@@ -181,7 +181,7 @@ def test_smoke_solve_shapes_and_cost_decrease(smoke_run, tmp_path):
     assert np.isfinite(sol.extra["trajectory_cost"]) and sol.extra["trajectory_cost"] > 0
     assert m["target_velocity_mps"] == 1.0 and m["body_ground_contact_steps"] == 0
     assert m["max_foot_faces"] > 0
-    summary = report.write_outputs(task, sol, tmp_path, replay=False)
+    summary = results.write_solve(task, sol, tmp_path, replay=False)
     assert (tmp_path / "velocity.png").exists() and (tmp_path / "gait.png").exists()
     saved = json.loads((tmp_path / "summary.json").read_text())
     assert saved["metrics"]["duty_factor"] == summary["metrics"]["duty_factor"]

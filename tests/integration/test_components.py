@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.metrics import compute
+from hydroilqr.metrics import compute, validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.problem.config import ConfigError
 
@@ -91,7 +91,7 @@ def test_final_error_and_goal_on_a_component(tmp_path):
     from types import SimpleNamespace
 
     task = _task(tmp_path, goal={"final_error.base.x": {"max": 0.5}})
-    task.validate()
+    validate_task(task)
     dyn = task.dynamics
     U = np.zeros((5, dyn.nu))
     X = dyn.rollout(task.x0, U)
@@ -112,7 +112,7 @@ def test_groups_of_components_and_unknown_components(tmp_path):
         layout.block("base.y").coords[0],
     )
     with pytest.raises(ConfigError, match=r"cost.Q.base.w: unknown state block .*components"):
-        _task(tmp_path, **{"cost": {"Q": {"base.w": 1.0}}}).validate()
+        validate_task(_task(tmp_path, **{"cost": {"Q": {"base.w": 1.0}}}))
 
 
 def test_nominal_relative_to_the_start_and_a_rate_that_stops(tmp_path):
@@ -124,7 +124,7 @@ def test_nominal_relative_to_the_start_and_a_rate_that_stops(tmp_path):
         "nominal_relative_to_start": ["base.y", "ball.position"],
     }
     task = _task(tmp_path, cost=cost_cfg)
-    task.validate()
+    validate_task(task)
     layout, x0 = task.dynamics.layout, task.x0
     (ix,), (iy,) = layout.block("base.x").coords, layout.block("base.y").coords
     ball = list(layout.block("ball.position").coords)
@@ -147,4 +147,4 @@ def test_nominal_relative_to_the_start_and_a_rate_that_stops(tmp_path):
 )
 def test_bad_relative_nominals_and_rate_ends_are_one_line_errors(tmp_path, cost, message):
     with pytest.raises(ConfigError, match=message):
-        _task(tmp_path, cost={"Qf": {"base.x": 1.0}, **cost}).validate()
+        validate_task(_task(tmp_path, cost={"Qf": {"base.x": 1.0}, **cost}))

@@ -109,7 +109,7 @@ def test_rollout_next_states_serve_as_the_unperturbed_steps():
 
 
 def test_check_reports_the_steps_per_time_step():
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     grip = check_task(Task.load(GRIPPER, overrides=["num_steps=10"]), rollout_steps=3)
     assert grip["fd_steps_per_time_step"] == 18  # nq + nv = 9 + 9, not nx + nu = 24

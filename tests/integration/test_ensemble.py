@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task, solve
+from hydroilqr.metrics import validate_task
 from hydroilqr.model.derivatives import Linearizer
 from hydroilqr.model.ensemble import EnsembleCost, EnsembleDynamics, EnsembleLinearizer
 from hydroilqr.problem.config import ConfigError, SolverConfig
@@ -111,7 +112,7 @@ def test_ensemble_cost_is_the_weighted_sum(robust):
 
 def test_robust_solve_decreases_the_summed_cost(robust):
     robust = robust.with_overrides({"ensemble_warm_start": False})  # from the guess itself
-    robust.validate()
+    validate_task(robust)
     sol = solve(robust)
     n = robust.dynamics.nx
     assert sol.X.shape == (robust.steps + 1, n) and sol.K.shape == (robust.steps, 1, n)
@@ -171,11 +172,13 @@ def test_member_that_changes_the_time_step_is_refused(task):
         task.with_overrides({"ensemble": [{"plant.time_step": 0.01}]})
     nested = task.with_overrides({"ensemble": [{"plant": {"time_step": 0.01}}]})
     with pytest.raises(ConfigError, match=r"ensemble\[0\]: the time grid") as e:
-        nested.validate()
+        validate_task(nested)
     assert "\n" not in str(e.value)
-    from hydroilqr.control.mpc import MPCSettings
+    from hydroilqr.control.mpc import check_settings
+    from hydroilqr.problem.config import MPCConfig
 
-    MPCSettings().check(task.with_overrides({"ensemble": [HEAVY]}))  # mpc: the nominal model
+    # mpc: the nominal model
+    check_settings(MPCConfig(), task.with_overrides({"ensemble": [HEAVY]}))
 
 
 def test_a_member_whose_coordinates_mean_other_joints_is_refused(tmp_path):
@@ -192,7 +195,7 @@ def test_a_member_whose_coordinates_mean_other_joints_is_refused(tmp_path):
     member = {"models.0.file": str(knee)}
     task = Task.load(str(write_task(tmp_path, base, num_steps=5, ensemble=[member])))
     with pytest.raises(ConfigError, match=r"ensemble\[0\]: orders or names the state"):
-        task.validate()
+        validate_task(task)
 
 
 def test_stopped_in_the_warm_start_says_the_plan_is_not_robust(robust):

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hydroilqr.metrics import validate_task
 from hydroilqr.problem import inputs
 from hydroilqr.problem.config import ConfigError, load_raw, yaml_value
 
@@ -111,7 +112,7 @@ def _parser(func):
 
 @pytest.fixture(scope="module")
 def receding_run(tmp_path_factory):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
     from hydroilqr.solver import api
 
     d = tmp_path_factory.mktemp("rh")
@@ -191,7 +192,7 @@ def test_cli_devices_fail_with_one_line(args, tmp_path):
 
 
 def test_initial_guess_cap_and_npz_bomb(tmp_path):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     big = tmp_path / "U.csv"
     with open(big, "wb") as f:
@@ -238,20 +239,20 @@ def test_cli_alias_bomb_in_metric_params_refused_before_solving(tmp_path):
 
 
 def test_memory_estimate_refuses_huge_window_and_horizon(monkeypatch):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     monkeypatch.setenv(inputs.MEMORY_LIMIT_ENV, str(2 << 30))
     task = Task.load("cartpole-wall", {**SMOKE_RH, "receding_horizon.window_steps": 990000})
     with pytest.raises(ConfigError, match=r"receding_horizon.window_steps: 990000 time steps"):
-        task.validate()
+        validate_task(task)
     task = Task.load("cartpole-wall", {"num_steps": 990000})  # under the step cap
     with pytest.raises(ConfigError, match=r"horizon: 990000 time steps of nx=4, nu=1 need"):
-        task.validate()
+        validate_task(task)
     from hydroilqr.solver import api
 
     with pytest.raises(ConfigError, match="need about"):
         api.solve(task)  # the Python API checks too
-    Task.load("cartpole-wall", smoke=True).validate()  # small tasks pass
+    validate_task(Task.load("cartpole-wall", smoke=True))  # small tasks pass
     assert inputs.horizon_bytes(100, 4, 1) < inputs.horizon_bytes(100, 37, 12)
 
 
@@ -396,7 +397,7 @@ def test_cli_resume_from_nan_checkpoint_is_one_line(tmp_path):
     sets = [f"--set={k}={v}" for k, v in SMOKE_RH.items() if k != "num_steps"]
     sets[-1:] = [sets[-1], "--set=solver.max_iterations=1"]
     # a checkpoint only: the run was interrupted after its first window
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
     from hydroilqr.solver import api
 
     task = Task.load("cartpole-wall", [s.split("=", 1)[1] for s in sets])

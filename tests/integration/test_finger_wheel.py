@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 
 from hydroilqr import Task, solve
-from hydroilqr.metrics import compute
+from hydroilqr.metrics import compute, validate_task
 from hydroilqr.metrics.goals import evaluate
 
 
 def test_the_guess_touches_nothing_and_only_the_stage_has_the_approach_term():
     task = Task.load("finger-wheel", smoke=True)
-    task.validate()
+    validate_task(task)
     assert not np.any(task.initial_guess(task.steps))  # zero torque: a still start
     X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
     assert np.allclose(X, task.x0)  # nothing moves (the plane is horizontal)
@@ -40,7 +40,7 @@ def test_smoke_solve_makes_contact_and_turns_the_wheel():
 
 def test_no_progress_without_contact_names_the_approach_stage_and_check_says_the_same():
     from hydroilqr import explain
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     # without its approach stage the still start touches nothing: no gradient, no progress
     bare = Task.load("finger-wheel", ["continuation=[]"], smoke=True)

@@ -5,7 +5,7 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.metrics import compute
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.loop import solve as ilqr_solve
 
 TASKS = ["kinova-forward", "kinova-left", "kinova-up"]
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.control.mpc import MPCSettings, run_mpc
+from hydroilqr.control.mpc import mpc_config, run_mpc
 from hydroilqr.model.derivatives import Linearizer, linearize
-from hydroilqr.solver.ilqr import solve
+from hydroilqr.solver.loop import solve
 
 
 def test_tolerance_zero_is_plain_linearize(cartpole_rollout):
@@ -69,7 +69,7 @@ def test_known_rollout_is_not_recomputed(cartpole_rollout, monkeypatch):
 
 def test_mpc_shrinking_horizon_on_prediction():
     task = Task.load("kinova-forward", smoke=True)  # 10 steps of 10 ms
-    settings = MPCSettings.from_task(task, duration=0.1, rate=20.0)
+    settings = mpc_config(task, duration=0.1, rate=20.0)
     assert settings.shrinking_horizon and settings.derivative_steps_per_update == 1
     res = run_mpc(task, settings)
     s = res.stats()
@@ -89,23 +89,22 @@ def test_mpc_shrinking_horizon_on_prediction():
 def test_mpc_warm_start_tail_from_guess():
     """A shifted receding-horizon plan takes its missing last controls from the task's guess
     (the cheetah's standing torques), not from its own end-of-horizon controls."""
-    from hydroilqr.control.mpc import Controller
+    from hydroilqr.control.mpc import Controller, mpc_config
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
-    settings = MPCSettings.from_task(task, horizon=0.05, iterations_per_update=1)
+    settings = mpc_config(task, horizon=0.05, iterations_per_update=1)
     assert settings.warm_start_tail == "guess"
-    ctrl = Controller(task, 10, 1, settings)
-    plan, ok = ctrl.update(task.x0, 0.0, full=True)
+    ctrl = Controller(task, 10, settings)
+    plan, ok = ctrl.update(task.x0, 0.0, 1, full=True)
     assert ok
-    ctrl.iterations = 0  # keep the warm start as it is: look at the shifted controls
-    ctrl.update(plan.X[4], 4 * task.dynamics.dt)
+    ctrl.update(plan.X[4], 4 * task.dynamics.dt, 0)  # 0 iterations: the shifted warm start
     np.testing.assert_array_equal(ctrl.U[:6], plan.U[4:])
     np.testing.assert_array_equal(ctrl.U[6:], task.initial_guess(4, plan.X[4]))
 
 
 def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
     """A guess file is a time series: the steps a shifted plan appends get their own rows."""
-    from hydroilqr.control.mpc import Controller
+    from hydroilqr.control.mpc import Controller, mpc_config
 
     base = Task.load("cheetah-trot-1.0", smoke=True)
     rows = base.initial_guess(1)[0] + 0.01 * np.arange(30)[:, None]  # row k differs from k+1
@@ -113,12 +112,11 @@ def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
     np.savetxt(guess, rows, delimiter=",")
     task = Task.load("cheetah-trot-1.0", smoke=True, overrides=[f"initial_guess={guess}"])
     np.testing.assert_array_equal(task.initial_guess(3, start=28), rows[[28, 29, 29]])
-    settings = MPCSettings.from_task(task, horizon=0.05, iterations_per_update=1)
-    ctrl = Controller(task, 10, 1, settings)
-    plan, ok = ctrl.update(task.x0, 0.0, full=True)
+    settings = mpc_config(task, horizon=0.05, iterations_per_update=1)
+    ctrl = Controller(task, 10, settings)
+    plan, ok = ctrl.update(task.x0, 0.0, 1, full=True)
     assert ok
-    ctrl.iterations = 0
-    ctrl.update(plan.X[4], 4 * task.dynamics.dt)
+    ctrl.update(plan.X[4], 4 * task.dynamics.dt, 0)
     np.testing.assert_array_equal(ctrl.U[6:], rows[10:14])
 
 
@@ -127,7 +125,7 @@ def test_shrinking_horizon_longer_than_task_is_a_config_error():
 
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="shrinking horizon"):
-        run_mpc(task, MPCSettings.from_task(task, duration=1.0))
+        run_mpc(task, mpc_config(task, duration=1.0))
 
 
 def test_interval_interpolates_linearly_between_keypoints():

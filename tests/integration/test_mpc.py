@@ -8,13 +8,13 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.cli import main
 from hydroilqr.cli.common import GOAL_NOT_MET
-from hydroilqr.control.mpc import MPCSettings, Push, run_mpc
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.control.mpc import Push, check_settings, mpc_config, run_mpc
+from hydroilqr.problem.config import ConfigError, MPCConfig
 
 
 def test_mpc_lockstep_brings_pole_up_and_reports_timing():
     task = Task.load("cartpole-wall")
-    res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.3, iterations_per_update=1))
+    res = run_mpc(task, MPCConfig(duration=0.5, rate=50.0, horizon=0.3, iterations_per_update=1))
     angle = task.dynamics.layout.block("pole_angle").coords[0]
     err = np.abs(res.X[:, angle] - np.pi)
     assert res.X.shape == (51, 4) and res.U.shape == (50, 1)
@@ -26,10 +26,10 @@ def test_mpc_lockstep_brings_pole_up_and_reports_timing():
 
 def test_mpc_push_moves_the_cart(tmp_path):
     task = Task.load("cartpole-wall", ["initial_state.pole_angular_velocity=0"])  # at rest
-    base = run_mpc(task, MPCSettings(duration=0.3, rate=50.0, horizon=0.2))
+    base = run_mpc(task, MPCConfig(duration=0.3, rate=50.0, horizon=0.2))
     pushed = run_mpc(
         task,
-        MPCSettings(
+        MPCConfig(
             duration=0.3,
             rate=50.0,
             horizon=0.2,
@@ -85,10 +85,10 @@ def test_mpc_cli(tmp_path):
 
 def test_mpc_truth_overrides_change_the_plant_only():
     task = Task.load("cartpole-wall")
-    same = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2))
+    same = run_mpc(task, MPCConfig(duration=0.2, rate=50.0, horizon=0.2))
     heavier = run_mpc(
         task,
-        MPCSettings(
+        MPCConfig(
             duration=0.2, rate=50.0, horizon=0.2, truth_overrides=["plant.gravity=[0, 0, -12]"]
         ),
     )
@@ -98,9 +98,9 @@ def test_mpc_truth_overrides_change_the_plant_only():
     assert heavier.stats()["truth_overrides"] == ["plant.gravity=[0, 0, -12]"]
     assert not np.allclose(same.X, heavier.X)
     assert task.config.plant.gravity[2] == -9.81  # the controller's model is untouched
-    bad = MPCSettings(duration=0.2, truth_overrides=["plant.time_step=0.001"])
+    bad = MPCConfig(duration=0.2, truth_overrides=["plant.time_step=0.001"])
     with pytest.raises(ConfigError, match="time step"):
-        bad.check(task)
+        check_settings(bad, task)
 
 
 def test_feedback_warm_start_without_gains_is_the_open_loop_one():
@@ -113,13 +113,13 @@ def test_feedback_warm_start_without_gains_is_the_open_loop_one():
         feedback_scale=0.0,
         truth_overrides=["plant.gravity=[0, 0, -12]"],
     )
-    a = run_mpc(task, MPCSettings(warm_start_feedback=True, **kw))
-    b = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
+    a = run_mpc(task, MPCConfig(warm_start_feedback=True, **kw))
+    b = run_mpc(task, MPCConfig(warm_start_feedback=False, **kw))
     np.testing.assert_array_equal(a.X, b.X)
 
 
 def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
-    from hydroilqr.control.mpc import Controller
+    from hydroilqr.control.mpc import Controller, check_settings
     from hydroilqr.solver.solution import Solution
 
     task = Task.load("cartpole-wall")
@@ -139,18 +139,17 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
         derivatives="forward",
     )
     sol.save(tmp_path / "solution.npz")
-    st = MPCSettings(warm_start_plan=str(tmp_path), warm_start_tail="last")
-    st.check(task)
-    ctrl = Controller(task, N, 1, st)
+    st = MPCConfig(warm_start_plan=str(tmp_path), warm_start_tail="last")
+    ctrl = Controller(task, N, st, U_ref=check_settings(st, task))
     np.testing.assert_array_equal(ctrl.U[:, 0], np.arange(N))  # the first plan's guess
     np.testing.assert_array_equal(ctrl._new_controls(25, 4, task.x0)[:, 0], [25, 26, 27, 28])
     # Past the plan's end, the tail rule: "last" repeats the plan's last control.
     np.testing.assert_array_equal(ctrl._new_controls(28, 4, task.x0)[:, 0], [28, 29, 29, 29])
     with pytest.raises(ConfigError, match="warm_start_plan"):
-        MPCSettings(warm_start_plan=str(tmp_path / "none")).check(task)
+        check_settings(MPCConfig(warm_start_plan=str(tmp_path / "none")), task)
     res = run_mpc(
         task,
-        MPCSettings(duration=0.1, rate=50.0, horizon=0.1, **{"warm_start_plan": str(tmp_path)}),
+        MPCConfig(duration=0.1, rate=50.0, horizon=0.1, **{"warm_start_plan": str(tmp_path)}),
     )
     assert np.all(np.isfinite(res.X)) and res.stats()["warm_start_plan"] == str(tmp_path)
 
@@ -173,7 +172,7 @@ def test_warm_start_plan_seeds_new_steps_by_time(tmp_path):
 def test_mpc_settings_that_cannot_run_are_refused(settings, needle):
     task = Task.load("cartpole-wall")
     with pytest.raises(ConfigError, match=needle):
-        MPCSettings(**{"duration": 1.0, **settings}).check(task)
+        check_settings(MPCConfig(**{"duration": 1.0, **settings}), task)
 
 
 def test_warm_start_plan_of_another_task_is_refused(tmp_path):
@@ -183,7 +182,7 @@ def test_warm_start_plan_of_another_task_is_refused(tmp_path):
 
     solve(task).save(tmp_path / "solution.npz")
     with pytest.raises(ConfigError, match="run of task 'kinova-forward'"):
-        MPCSettings(warm_start_plan=str(tmp_path)).check(task)
+        check_settings(MPCConfig(warm_start_plan=str(tmp_path)), task)
 
 
 def test_ctrl_c_keeps_the_closed_loop_run_so_far(tmp_path):
@@ -193,7 +192,7 @@ def test_ctrl_c_keeps_the_closed_loop_run_so_far(tmp_path):
         if k >= 10:
             raise KeyboardInterrupt
 
-    res = run_mpc(task, MPCSettings(duration=0.5, rate=50.0, horizon=0.2), on_update=interrupt)
+    res = run_mpc(task, MPCConfig(duration=0.5, rate=50.0, horizon=0.2), on_update=interrupt)
     assert res.interrupted and res.stats()["interrupted"]
     assert res.U.shape[0] == 10 and res.X.shape[0] == 11 and len(res.t) == 11
 
@@ -201,13 +200,13 @@ def test_ctrl_c_keeps_the_closed_loop_run_so_far(tmp_path):
 def test_push_on_a_body_welded_to_the_world_is_refused():
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="no movable body named 'base_link'"):
-        MPCSettings(duration=1.0, pushes=[Push(0.1, "base_link", np.zeros(3))]).check(task)
+        check_settings(MPCConfig(duration=1.0, pushes=[Push(0.1, "base_link", np.zeros(3))]), task)
 
 
 def test_a_passed_deadline_cuts_the_line_search_short():
     import time
 
-    from hydroilqr.solver.ilqr import solve as ilqr_solve
+    from hydroilqr.solver.loop import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", ["num_steps=30"])
     sol = ilqr_solve(
@@ -219,10 +218,10 @@ def test_a_passed_deadline_cuts_the_line_search_short():
     assert sol.reason == "deadline" and not sol.converged and len(sol.costs) == 2
     assert sol.costs[-1] == sol.costs[0] and np.any(sol.K != 0)  # fresh gains, no step
     # In the loop: updates past the deadline keep their warm start and the loop goes on.
-    s = MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9, realtime=True)
+    s = MPCConfig(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9, realtime=True)
     res = run_mpc(task, s)
     assert res.past_deadline == res.stats()["updates_past_deadline"] > 0
-    lock = run_mpc(task, MPCSettings(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
+    lock = run_mpc(task, MPCConfig(duration=0.2, rate=50.0, horizon=0.2, deadline=1e-9))
     assert lock.past_deadline == 0  # lock-step runs ignore the deadline: reproducible
     assert np.all(np.isfinite(res.X)) and res.U.shape[0] == 20
 
@@ -233,7 +232,7 @@ def test_continuation_seeds_the_first_plan():
     )
     plain = Task.load("cartpole-wall", smoke=True)
     s = dict(duration=0.1, rate=50.0, horizon=0.2)
-    res, ref = run_mpc(task, MPCSettings(**s)), run_mpc(plain, MPCSettings(**s))
+    res, ref = run_mpc(task, MPCConfig(**s)), run_mpc(plain, MPCConfig(**s))
     assert np.all(np.isfinite(res.X)) and res.U.shape == ref.U.shape
     assert not np.array_equal(res.U, ref.U)  # the soft stage changed the first plan
 
@@ -252,7 +251,7 @@ def test_pushes_last_whole_steps_add_up_and_leave_the_task_alone():
     back = Push(0.1, "cart", np.array([-100.0, 0, 0]), 0.05)
     both = truth.step(x0, u0, 12, [push, back])[0]
     np.testing.assert_allclose(both, free, atol=1e-12)  # opposite pushes cancel
-    run_mpc(task, MPCSettings(duration=0.04, rate=50.0, horizon=0.1, derivatives="forward"))
+    run_mpc(task, MPCConfig(duration=0.04, rate=50.0, horizon=0.1, derivatives="forward"))
     assert task.config.solver is solver_before and task.config.solver.derivatives == "central"
 
 
@@ -266,7 +265,8 @@ def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
 
 
 def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
-    from hydroilqr.control.mpc import MPCSettings, run_mpc
+    from hydroilqr.control.mpc import run_mpc
+    from hydroilqr.problem.config import MPCConfig
 
     # Tilted away from the wall: a smooth, contact-free run. (Tilted into the wall, which of
     # the two ends nearer upright flipped between gravities -12 and -14: contact luck.)
@@ -275,29 +275,31 @@ def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
     )
     ang = task.dynamics.layout.block("pole_angle").coords[0]
     kw = dict(duration=0.5, rate=50.0, horizon=0.3, truth_overrides=["plant.gravity=[0, 0, -13]"])
-    fb = run_mpc(task, MPCSettings(**kw))
-    ff = run_mpc(task, MPCSettings(feedback_scale=0.0, **kw))
+    fb = run_mpc(task, MPCConfig(**kw))
+    ff = run_mpc(task, MPCConfig(feedback_scale=0.0, **kw))
     assert not any(task.dynamics.contact_surfaces(x) for x in np.vstack([fb.X, ff.X]))
     err_fb, err_ff = np.abs(fb.X[:, ang] - np.pi), np.abs(ff.X[:, ang] - np.pi)
     # measured 0.1369 vs 0.1396 rad (final), 0.1414 vs 0.1421 (mean)
     assert err_fb[-1] < err_ff[-1] - 1e-3 and err_fb.mean() < err_ff.mean()
-    nowarm = run_mpc(task, MPCSettings(warm_start_feedback=False, **kw))
+    nowarm = run_mpc(task, MPCConfig(warm_start_feedback=False, **kw))
     assert not np.array_equal(nowarm.X, fb.X)
 
 
 def test_realtime_latency_is_felt():
-    from hydroilqr.control.mpc import MPCSettings, run_mpc
+    from hydroilqr.control.mpc import run_mpc
+    from hydroilqr.problem.config import MPCConfig
 
     task = Task.load("cartpole-wall")
     kw = dict(duration=0.3, rate=50.0, horizon=0.2)
-    lock = run_mpc(task, MPCSettings(**kw))
-    rt = run_mpc(task, MPCSettings(realtime=True, **kw))
+    lock = run_mpc(task, MPCConfig(**kw))
+    rt = run_mpc(task, MPCConfig(realtime=True, **kw))
     assert not np.array_equal(rt.X, lock.X)
 
 
 def test_mpc_applies_the_plan_policy(monkeypatch):
     from hydroilqr.control import mpc
-    from hydroilqr.control.mpc import MPCSettings, run_mpc
+    from hydroilqr.control.mpc import run_mpc
+    from hydroilqr.problem.config import MPCConfig
 
     plans = []
     real = mpc.Controller.update
@@ -311,7 +313,7 @@ def test_mpc_applies_the_plan_policy(monkeypatch):
     task = Task.load("cartpole-wall")
     res = run_mpc(
         task,
-        MPCSettings(
+        MPCConfig(
             duration=0.1, rate=50.0, horizon=0.2, truth_overrides=["plant.gravity=[0, 0, -12]"]
         ),
     )
@@ -345,7 +347,7 @@ def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(mpc, "ilqr_solve", third_fails)
-    res = run_mpc(Task.load("cartpole-wall"), MPCSettings(duration=0.1, rate=50.0, horizon=0.2))
+    res = run_mpc(Task.load("cartpole-wall"), MPCConfig(duration=0.1, rate=50.0, horizon=0.2))
     assert res.failures == 1
     assert len(res.derivative_steps) == len(res.reused_prediction) == len(res.solve_seconds)
     assert np.isnan(res.derivative_steps).sum() == 1
@@ -354,9 +356,9 @@ def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
 
 def test_settings_from_the_task_refuse_unknown_names():
     task = Task.load("cartpole-wall")
-    assert MPCSettings.from_task(task, duration=0.3).rate == 100.0  # the task's mpc section
+    assert mpc_config(task, duration=0.3).rate == 100.0  # the task's mpc section
     with pytest.raises(TypeError, match="unknown setting 'durration' .did you mean 'duration'"):
-        MPCSettings.from_task(task, durration=0.3)  # was silently ignored
+        mpc_config(task, durration=0.3)  # was silently ignored
     short = task.with_overrides({"mpc.duration": 0.05})
     res = run_mpc(short)  # no settings: the task's own (100 Hz, 0.3 s horizon)
     assert res.settings.rate == 100.0 and res.X.shape == (6, 4)
@@ -364,10 +366,10 @@ def test_settings_from_the_task_refuse_unknown_names():
 
 def test_settings_built_in_python_get_the_task_file_checks_and_are_not_changed():
     task = Task.load("cartpole-wall", smoke=True)
-    for bad in (MPCSettings(deadline=2.0), MPCSettings(derivatives="bogus")):
+    for bad in (MPCConfig(deadline=2.0), MPCConfig(derivatives="bogus")):
         with pytest.raises(ConfigError, match="mpc.dead|mpc.deriv"):
-            bad.check(task)  # only a task file's mpc: section was checked for these
-    s = MPCSettings(duration=0.03, rate=100.0, horizon=0.3, shrinking_horizon=True)
+            check_settings(bad, task)  # only a task file's mpc: section was checked for these
+    s = MPCConfig(duration=0.03, rate=100.0, horizon=0.3, shrinking_horizon=True)
     res = run_mpc(task, s)
     assert s.horizon == 0.3  # the caller's settings stay as given
     assert res.settings.horizon == pytest.approx(task.steps * task.config.plant.time_step)
@@ -400,7 +402,7 @@ def test_horizon_on_a_shrinking_horizon_task_is_refused_not_ignored(tmp_path, ca
 
 
 def test_mpc_plot_shows_position_blocks_not_velocity_groups_with_units():
-    from hydroilqr.control.mpc import plotted_blocks
+    from hydroilqr.output.plots import plotted_blocks
 
     cartpole = [("cart_position", "m"), ("pole_angle", "rad")]
     assert plotted_blocks(Task.load("cartpole-wall")) == cartpole

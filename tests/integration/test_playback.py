@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from hydroilqr.control.playback import PlaybackSettings, advisories, load_run, playback
-from hydroilqr.output import report
+from hydroilqr.model.task import Task
+from hydroilqr.output import results
 from hydroilqr.problem.config import ConfigError
-from hydroilqr.problem.task import Task
 from hydroilqr.solver.api import solve
 from tests.conftest import rollout_plan
 
@@ -29,7 +29,7 @@ def run_dir(tmp_path_factory):
     )
     sol = solve(task)
     out = tmp_path_factory.mktemp("cp")
-    report.write_outputs(task, sol, out, replay=False)
+    results.write_solve(task, sol, out, replay=False)
     return out
 
 
@@ -316,7 +316,7 @@ def test_mismatch_case_plays_as_its_truth_overrides(tmp_path, capsys):
         smoke=True,
     )
     run = tmp_path / "run"
-    report.write_outputs(task, solve(task), run, replay=False)
+    results.write_solve(task, solve(task), run, replay=False)
     args = ["playback", str(run), "--policy", "ilqr", "--no-replay", "--out"]
     assert main([*args, str(tmp_path / "a"), "--mismatch", "soft"]) == 0
     assert main([*args, str(tmp_path / "b"), "--truth-set", "tip.friction=0.05"]) == 0

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task, solve
-from hydroilqr.metrics import compute
+from hydroilqr.metrics import compute, validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.problem.config import ConfigError
 
 
 def test_kinova_reach_smoke_solve_reduces_the_hand_error_and_reports_its_goal_metric():
     task = Task.load("kinova-reach", smoke=True)
-    task.validate()  # names, metrics and the goal's metric (term_error.hand) before a solve
+    validate_task(task)  # names, metrics and the goal's metric (term_error.hand) before a solve
     sol = solve(task)
     assert sol.costs[-1] < sol.costs[0]
     metrics = compute(task, sol)
@@ -30,7 +30,7 @@ def test_kinova_reach_smoke_solve_reduces_the_hand_error_and_reports_its_goal_me
 
 def test_the_terms_metric_needs_terms():
     with pytest.raises(ConfigError, match="metrics: the terms metric needs cost.terms"):
-        Task.load("cartpole-wall", ["metrics=[default, terms]", "num_steps=5"]).validate()
+        validate_task(Task.load("cartpole-wall", ["metrics=[default, terms]", "num_steps=5"]))
 
 
 def test_check_lists_the_terms_on_the_initial_guess(capsys):

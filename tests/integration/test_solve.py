@@ -9,7 +9,7 @@ from hydroilqr import Task, solve
 from hydroilqr.model.state import StateLayout
 from hydroilqr.problem.config import ConfigError, SolverConfig
 from hydroilqr.solver.ilqr import backward_pass
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.loop import solve as ilqr_solve
 
 
 def test_falling_body_falls(tmp_path):

@@ -252,8 +252,6 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
     client (remote workers run elsewhere)."""
     from concurrent.futures import CancelledError
 
-    import distributed
-
     from hydroilqr.problem.config import ConfigError
     from hydroilqr.studies import sweep as sweep_mod
 
@@ -278,7 +276,7 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
             pass
 
     monkeypatch.setattr(sweep_mod, "open_client", lambda s, w: (FakeClient(), None))
-    monkeypatch.setattr(distributed, "as_completed", lambda futs: list(futs))
+    monkeypatch.setattr(sweep_mod, "as_completed", lambda futs: list(futs))
     out = tmp_path / "sw"
     with pytest.raises(ConfigError, match="2 point"):
         sweep_mod.run_sweep("cartpole-wall", [(KEY, [1e5, 1e6])], out, sets=SMALL, plots=False)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from hydroilqr import Task, linearize
-from hydroilqr.solver.ilqr import Problem
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.model.task import Problem
+from hydroilqr.solver.loop import solve as ilqr_solve
 
 
 def test_line_search_rounds_go_to_the_workers_and_stop_at_max_steps(monkeypatch):
@@ -14,7 +14,7 @@ def test_line_search_rounds_go_to_the_workers_and_stop_at_max_steps(monkeypatch)
     one taken (bitwise the serial iterates), and never more trials than line_search_max_steps."""
     from hydroilqr.model import workers
     from hydroilqr.model.plant import SimulationError
-    from hydroilqr.solver.ilqr import solve as ilqr_solve
+    from hydroilqr.solver.loop import solve as ilqr_solve
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
     dyn = task.dynamics

@@ -66,7 +66,6 @@ def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
 
 
 def test_bench_alternates_blocks_of_iterations(monkeypatch):
-    from hydroilqr.solver import ilqr
     from hydroilqr.studies import bench
 
     order = []
@@ -78,7 +77,7 @@ def test_bench_alternates_blocks_of_iterations(monkeypatch):
                 cb(None)
         return problem
 
-    monkeypatch.setattr(ilqr, "solve", fake_solve)
+    monkeypatch.setattr(bench, "solve", fake_solve)
     tasks = [
         SimpleNamespace(problem=lambda i=i: i, config=SimpleNamespace(solver=None)) for i in (0, 1)
     ]
@@ -112,7 +111,6 @@ def test_contact_polygons_and_classes():
 
 
 def test_probe_and_thread_scaling_read_the_times_the_right_way_round(monkeypatch):
-    from hydroilqr.model import derivatives
     from hydroilqr.studies import bench
 
     clock = [0.0]  # bench's perf_counter: advanced only by the fake linearize (no sleeps)
@@ -122,8 +120,8 @@ def test_probe_and_thread_scaling_read_the_times_the_right_way_round(monkeypatch
         return None
 
     monkeypatch.setattr(bench, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
-    monkeypatch.setattr(derivatives, "linearize", fake_linearize)
-    monkeypatch.setattr(derivatives, "num_threads", lambda n: 2)
+    monkeypatch.setattr(bench, "linearize", fake_linearize)
+    monkeypatch.setattr(bench, "num_threads", lambda n: 2)
     task = Task.load("cartpole-wall", ["num_steps=5"])
     U0 = np.zeros((5, 1))
     monkeypatch.setattr(task.dynamics, "autodiff", lambda: None)

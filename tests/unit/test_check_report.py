@@ -6,7 +6,7 @@ import io
 
 from rich.console import Console
 
-from hydroilqr.problem.check import _autodiff_point_warning
+from hydroilqr.studies.check import _autodiff_point_warning
 
 
 def _pair(shapes: str, model: str = "point (fallback)") -> dict:

@@ -194,7 +194,7 @@ def test_extends_across_directories_keeps_base_paths(tmp_path):
 
 def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
     """Velocity blocks (`shoulder.v`) and floating-body blocks (`ball.position`) by --set."""
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     path = write_case(tmp_path, BASE)
     task = Task.load(
@@ -207,7 +207,7 @@ def test_set_reaches_blocks_with_dots_in_their_names(tmp_path):
 
 
 def test_horizon_on_the_command_line_wins_over_num_steps(tmp_path):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     path = write_case(tmp_path, BASE)  # num_steps: 5
     assert Task.load(str(path), ["horizon=0.2"]).config.steps == 10
@@ -242,7 +242,7 @@ def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
 
 
 def test_continuation_stages_keep_the_grid_and_read_paths_from_the_task_file(tmp_path):
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     path = write_case(tmp_path, edit(continuation=[{"plant": {"time_step": 0.04}}]))
     with pytest.raises(ConfigError, match="time grid"):

@@ -152,7 +152,7 @@ def test_cost_terms_add_up_to_the_cost_when_blocks_overlap():
 
 
 def test_scalar_weight_still_applies_to_a_whole_block():
-    from hydroilqr.problem.task import Task
+    from hydroilqr.model.task import Task
 
     path_spec = edit(initial_state={"angles": 0.05})
     import tempfile

@@ -44,7 +44,7 @@ def test_an_ignored_sigint_stays_ignored_and_a_read_lock_upgrades(tmp_path):
 def test_atomic_writes_leave_the_old_file_when_a_write_fails(tmp_path, monkeypatch):
     import os
 
-    from hydroilqr.output import files
+    from hydroilqr.io import files
 
     p = files.atomic_write(tmp_path / "a.json", '{"old": 1}')
     files.atomic_savez(tmp_path / "a.npz", X=np.arange(3.0))

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydroilqr import Task
+from hydroilqr import Task, cli
+from hydroilqr.model.guess import position_guess
 from hydroilqr.problem.config import ConfigError, PositionGuess
 
 # The finger of finger-wheel moves in a horizontal plane (no gravity work); this path brushes
@@ -21,8 +22,6 @@ WAYPOINTS = [
 def test_the_tracking_rollout_follows_the_waypoints_and_replays_to_its_states():
     task = Task.load("finger-wheel", WAYPOINTS)
     assert isinstance(task.config.initial_guess, PositionGuess)
-    from hydroilqr.model.guess import position_guess
-
     out = position_guess(task, task.steps)
     dt = task.config.plant.time_step
     shoulder = task.dynamics.layout.block("finger_shoulder").coords[0]
@@ -45,8 +44,6 @@ def test_a_later_window_follows_the_same_path_from_its_start_time():
     """A receding-horizon window (or an MPC tail) asks for the guess from a state at step k:
     from the rollout's own state at k it continues the same controls."""
     task = Task.load("finger-wheel", WAYPOINTS)
-    from hydroilqr.model.guess import position_guess
-
     whole = position_guess(task, task.steps)
     tail = task.initial_guess(5, whole.X[10], start=10)
     assert np.allclose(tail, whole.U[10:15], atol=1e-9)
@@ -54,8 +51,6 @@ def test_a_later_window_follows_the_same_path_from_its_start_time():
 
 def test_a_target_and_a_period():
     task = Task.load("finger-wheel", ["initial_guess={target: {finger_shoulder: 0.3}}"])
-    from hydroilqr.model.guess import position_guess
-
     out = position_guess(task, task.steps)
     assert out.Q_ref[-1, 0] == pytest.approx(0.3)  # reached at the end, linearly
     assert out.Q_ref[task.steps // 2, 0] == pytest.approx(0.15)
@@ -98,8 +93,6 @@ def test_bad_names_are_refused_when_the_plant_is_built(name, words):
 
 
 def test_check_shows_the_tracking_rollout(capsys):
-    from hydroilqr import cli
-
     args = ["check", "finger-wheel"] + [a for w in WAYPOINTS for a in ("--set", w)]
     assert cli.main(args) == 0
     out = capsys.readouterr().out

@@ -6,9 +6,10 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.model.cost import Quadratization
 from hydroilqr.model.state import StateLayout
+from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import SolverConfig
-from hydroilqr.solver.ilqr import Problem, backward_pass
-from hydroilqr.solver.ilqr import solve as ilqr_solve
+from hydroilqr.solver.ilqr import backward_pass
+from hydroilqr.solver.loop import solve as ilqr_solve
 
 
 def riccati_gains(A, B, Q, R, Qf, N):

@@ -7,6 +7,7 @@ import pytest
 
 import hydroilqr
 from hydroilqr import ConfigError, Task
+from hydroilqr.metrics import validate_task
 
 CARTPOLE = Path(hydroilqr.__file__).parent / "models" / "cartpole_wall" / "cartpole.sdf"
 
@@ -40,7 +41,7 @@ def test_without_names_the_second_copy_is_refused_in_one_line(tmp_path):
         "plant: {time_step: 0.01}\nhorizon: 0.05\ncost: {R: 0.01}\n"
     )
     with pytest.raises(ConfigError, match=r"models\[1\]\.file: could not parse"):
-        Task.load(str(path)).validate()
+        validate_task(Task.load(str(path)))
 
 
 def test_a_name_used_twice_is_refused(tmp_path):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.metrics import flight
+from hydroilqr.metrics import flight, validate_task
 from hydroilqr.problem.config import ConfigError
 
 
@@ -31,8 +31,8 @@ def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monke
 
 def test_the_flight_metric_needs_a_foot_and_a_base():
     with pytest.raises(ConfigError, match="needs foot"):
-        Task.load("hopper-forward", ["metric_params={base: torso}"]).validate()
+        validate_task(Task.load("hopper-forward", ["metric_params={base: torso}"]))
     with pytest.raises(ConfigError, match="unknown body"):
-        Task.load("hopper-forward", ["metric_params.base=nothing"]).validate()
+        validate_task(Task.load("hopper-forward", ["metric_params.base=nothing"]))
     with pytest.raises(ConfigError, match="no collision geometry"):
-        Task.load("hopper-forward", ["metric_params.foot=hand"]).validate()
+        validate_task(Task.load("hopper-forward", ["metric_params.foot=hand"]))

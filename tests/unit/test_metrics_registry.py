@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from hydroilqr import metrics
+from hydroilqr.metrics import validate_task
+from hydroilqr.model.task import Task
 from hydroilqr.problem.config import ConfigError
-from hydroilqr.problem.task import Task
 
 
 def test_registry_declares_compute_plots_and_sweep_columns():
@@ -68,7 +69,7 @@ def test_bad_metric_params_fail_before_any_solve(task_name, overrides, message, 
         metrics.validate(task)
     assert "\n" not in str(e.value)
     with pytest.raises(ConfigError, match=message):
-        task.validate()  # what solve, sweep and mpc run first
+        validate_task(task)  # what solve, sweep and mpc run first
 
 
 def test_object_metric_needs_a_body():
@@ -136,7 +137,8 @@ def test_kinova_tasks_use_object_and_keep_their_keys():
 
 def test_contact_timeline_pairs_intervals_and_forces(tmp_path):
     from hydroilqr.metrics import common
-    from hydroilqr.metrics.contacts import contact_metrics, touched_pairs
+    from hydroilqr.metrics.contacts import contact_metrics
+    from hydroilqr.model.contacts import touched_pairs
 
     task = Task.load("kinova-forward", ["num_steps=4"], smoke=True)
     U = task.initial_guess(4)
@@ -167,7 +169,7 @@ def test_contact_timeline_pairs_intervals_and_forces(tmp_path):
 
 
 def test_contact_timeline_is_in_the_default_metric():
-    from hydroilqr.metrics.contacts import runs
+    from hydroilqr.model.contacts import runs
 
     assert runs(np.array([0, 1, 1, 0, 1], bool)) == [(1, 2), (4, 4)]
     task = Task.load("cartpole-wall", ["num_steps=3"], smoke=True)
@@ -179,7 +181,7 @@ def test_contact_timeline_is_in_the_default_metric():
 
 def test_check_reports_touched_pairs(capsys):
     from hydroilqr.cli import main
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     facts = check_task(Task.load("kinova-forward", smoke=True), 3)
     assert any(set(t["bodies"]) == {"ball", "world"} for t in facts["touched_pairs"])
@@ -189,7 +191,7 @@ def test_check_reports_touched_pairs(capsys):
 
 
 def test_savefig_writes_and_closes(tmp_path):
-    from hydroilqr.output.plots import pyplot, savefig
+    from hydroilqr.io.figures import pyplot, savefig
 
     plt = pyplot()
     fig, ax = plt.subplots()
@@ -225,8 +227,8 @@ def test_metric_decorator_registers_a_metric_of_ones_own(monkeypatch):
 
 
 def test_check_warns_when_no_touched_pair_involves_a_tracked_object():
-    from hydroilqr.metrics import contacts
-    from hydroilqr.problem.check import _untracked_contact_warning
+    from hydroilqr.model import contacts
+    from hydroilqr.studies.check import _untracked_contact_warning
 
     task = Task.load("kinova-forward", smoke=True)
     assert {"ball", "shoulder_link"} <= contacts.tracked_bodies(task)

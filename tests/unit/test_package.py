@@ -29,7 +29,7 @@ def test_an_installed_copy_names_the_commit_it_was_built_from(tmp_path):
     recorded at build time, or says honestly that it is unknown; a checkout names its own."""
     from pathlib import Path
 
-    from hydroilqr.output import report
+    from hydroilqr.io import environment as report
 
     pkg = tmp_path / "site-packages" / "hydroilqr"
     pkg.mkdir(parents=True)

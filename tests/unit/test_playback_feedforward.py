@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hydroilqr.control.playback import PlanSampler, PlaybackSettings, feedforward, playback
+from hydroilqr.model.task import Task
 from hydroilqr.problem.config import ConfigError
-from hydroilqr.problem.task import Task
 from tests.conftest import rollout_plan, write_task
 
 

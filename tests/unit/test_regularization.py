@@ -12,7 +12,8 @@ def test_final_gains_are_regularized_only_as_q_uu_needs():
     eq. (8): the backward pass around the final trajectory at the smallest workable μ, not
     gains shrunk to ~0 by the solver's μ."""
     from hydroilqr.model.derivatives import linearize
-    from hydroilqr.solver.ilqr import backward_pass, solve
+    from hydroilqr.solver.ilqr import backward_pass
+    from hydroilqr.solver.loop import solve
 
     task = Task.load(
         "cartpole-wall",

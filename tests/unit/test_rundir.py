@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from hydroilqr.output import rundir
+from hydroilqr.io import rundir
 
 OLD = {"summary.json": "old-summary", "solution.npz": "old-solution", "convergence.png": "old"}
 
@@ -79,7 +79,7 @@ def test_killed_at_any_step_of_a_commit_leaves_one_complete_set(tmp_path, step):
     out = tmp_path / "run"
     _old_run(out)
     script = (
-        "import sys\nfrom pathlib import Path\nfrom hydroilqr.output import rundir\n"
+        "import sys\nfrom pathlib import Path\nfrom hydroilqr.io import rundir\n"
         f"out = Path({str(out)!r})\n"
         f"with rundir.result_set(out, {RETIRE!r}) as st:\n"
         f"    for n, t in {NEW!r}.items():\n"
@@ -167,7 +167,7 @@ def test_a_previous_or_stage_that_links_outside_is_never_used(tmp_path):
 
 
 def test_plot_file_names_stay_in_the_output_directory():
-    from hydroilqr.output.files import file_name
+    from hydroilqr.io.files import file_name
 
     assert file_name("ball") == "ball.png"
     assert file_name("../escape_ball") == "escape_ball.png"

@@ -47,7 +47,7 @@ def test_solution_save_load_round_trip_keeps_every_field(tmp_path):
 
 
 def test_an_existing_file_is_loaded_as_given_not_its_npz_sibling(tmp_path):
-    from hydroilqr.solver.solution import solution_file
+    from hydroilqr.io.rundir import solution_file
 
     (tmp_path / "plan").write_bytes(b"x")
     (tmp_path / "plan.npz").write_bytes(b"y")
@@ -60,9 +60,9 @@ def test_an_existing_file_is_loaded_as_given_not_its_npz_sibling(tmp_path):
 def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
     import numpy as np
 
-    from hydroilqr.control.mpc import MPCSettings
-    from hydroilqr.problem.config import load_task
-    from hydroilqr.problem.task import Task
+    from hydroilqr.control.mpc import check_settings
+    from hydroilqr.model.task import Task
+    from hydroilqr.problem.config import MPCConfig, load_task
     from hydroilqr.solver.solution import Solution
 
     for bad in (["horizon=2e6"], ["num_steps=20000000"]):
@@ -72,7 +72,7 @@ def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
         load_task("cheetah-trot-1.0", ["receding_horizon.resolves=10000000"])
     task = Task.load("cartpole-wall", smoke=True)
     with pytest.raises(ConfigError, match="mpc horizon 1e\\+06 s: more than"):
-        MPCSettings(horizon=1e6).check(task)
+        check_settings(MPCConfig(horizon=1e6), task)
     from hydroilqr.solver.api import solve
 
     sol = solve(task.with_overrides({"solver.max_iterations": 1}))
@@ -109,7 +109,7 @@ def test_loading_a_run_directory_killed_during_its_commit_completes_the_commit(t
     solution.npz, and Solution.load failed; the reader now completes the commit first."""
     import json
 
-    from hydroilqr.output import rundir
+    from hydroilqr.io import rundir
     from hydroilqr.solver.solution import Solution
 
     z = np.zeros

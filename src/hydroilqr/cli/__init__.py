@@ -8,9 +8,12 @@ to stdout.
 from __future__ import annotations
 
 import argparse
+import codecs
 import os
+import shlex
 import sys
 
+from hydroilqr import __version__
 from hydroilqr.cli.common import (  # noqa: F401 - also importable from here, as before
     add_task_args,
     console,
@@ -19,6 +22,7 @@ from hydroilqr.cli.common import (  # noqa: F401 - also importable from here, as
     task_name_from_args,
     warn,
 )
+from hydroilqr.io.environment import environment
 from hydroilqr.problem.config import ConfigError
 
 
@@ -62,9 +66,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version_line() -> str:
-    from hydroilqr import __version__
-    from hydroilqr.output.report import environment
-
     e = environment()
     return (
         f"hydroilqr {__version__} (code {e['code'] or 'unknown'}; drake {e['drake']}, "
@@ -123,7 +124,6 @@ def _escape_unencodable_output() -> None:
     """Output streams that cannot encode every character (PYTHONIOENCODING=ascii, or
     PYTHONUTF8=0 under LANG=C) print the units and symbols the messages use (μ, ε, τ, ū, ≥)
     as escapes such as ``\\u03bc`` instead of failing on them."""
-    import codecs
 
     for stream in (sys.stdout, sys.stderr):
         encoding = getattr(stream, "encoding", None)
@@ -155,7 +155,6 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(getattr(args, "out", None), str) and not args.out.strip():
         print("hydroilqr: error: --out: an empty directory name", file=sys.stderr)
         return 2
-    import shlex
 
     # recorded in the results as environment.command
     args.command_line = shlex.join(["hydroilqr", *argv])

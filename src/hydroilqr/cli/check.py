@@ -34,12 +34,13 @@ def _table(title: str, columns) -> Table:
 
 def run(args) -> int:
     task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
-    from hydroilqr.problem.check import check_task
+    from hydroilqr.studies.check import check_task
 
     if not args.smoke:  # the task's `smoke:` section must work too (tests rely on it)
-        from hydroilqr.problem.task import Task
+        from hydroilqr.metrics import validate_task
+        from hydroilqr.model.task import Task
 
-        Task.load(task_name_from_args(args), list(args.set or []), args.config, True).validate()
+        validate_task(Task.load(task_name_from_args(args), list(args.set or []), args.config, True))
     check_task(task, on_section=print_section)
     return 0
 

@@ -7,7 +7,8 @@ import sys
 
 from rich.console import Console
 
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem import inputs
+from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, load_task
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
@@ -66,8 +67,6 @@ def task_name_from_args(args) -> str | None:
 def load_task_from_args(args, extra_overrides: list[str] | None = None):
     """The task the arguments name, validated. Its files are read and checked before Drake
     is loaded, so bad input is refused at once."""
-    from hydroilqr.problem import inputs
-    from hydroilqr.problem.config import GUESS_KEYWORDS, load_task
 
     name = task_name_from_args(args)
     if not name:
@@ -79,10 +78,11 @@ def load_task_from_args(args, extra_overrides: list[str] | None = None):
         # (the cap that fits the task's size is applied when the guess is read)
         guess = cfg.resolve_path(cfg.initial_guess)
         inputs.check_file(guess, "initial_guess:", inputs.MAX_ARRAY_FILE_BYTES)
-    from hydroilqr.problem.task import Task
+    from hydroilqr.metrics import validate_task
+    from hydroilqr.model.task import Task
 
     task = Task(cfg)
-    task.validate()
+    validate_task(task)
     return task
 
 

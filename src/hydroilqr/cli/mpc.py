@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from rich.progress import Progress
+
 from hydroilqr.cli.common import (
     add_task_args,
     command_line,
@@ -73,16 +75,16 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.control.mpc import write_outputs
     from hydroilqr.model.plant import SimulationError
+    from hydroilqr.output.results import write_mpc
 
-    task, settings = _settings(args)
+    task, settings, loop = _settings(args)
     out = _output_dir(task, args)
     _print_header(task, settings)
-    res = _simulate(task, settings)
+    res = _simulate(loop)
     if res.failure and len(res.U) == 0:  # nothing to keep: an earlier run's files stay
         raise SimulationError(f"the controlled plant failed at {res.failure} (no step completed)")
-    data = write_outputs(task, res, out, replay=not args.no_replay, command=command_line(args))
+    data = write_mpc(task, res, out, replay=not args.no_replay, command=command_line(args))
     _print_summary(data, settings)
     console.print(
         f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
@@ -94,18 +96,22 @@ def run(args) -> int:
         raise SimulationError(
             f"the controlled plant failed at {res.failure} (results up to then are in {out})"
         )
-    return print_goal(data.get("goal"), args.smoke, "on the closed loop")
+    where = "on the closed loop"
+    if (data.get("goal") or {}).get("source") == "mpc.goal":
+        where = "mpc.goal, on the closed loop"
+    return print_goal(data.get("goal"), args.smoke, where)
 
 
 def _settings(args):
-    """The task and its MPCSettings, with the command line's options applied and checked."""
-    from hydroilqr.control.mpc import SMOKE_UPDATES, MPCSettings, Push
+    """The task, its MPC settings with the command line's options applied, and the closed
+    loop they build (checked: ConfigError before any work)."""
+    from hydroilqr.control.mpc import SMOKE_UPDATES, Push, mpc_config, prepare
 
     if args.push_duration is not None and not args.push:
         raise ConfigError("--push-duration: given without --push")
     push_duration = 0.1 if args.push_duration is None else args.push_duration
     task = load_task_from_args(args)
-    settings = MPCSettings.from_task(
+    settings = mpc_config(
         task,
         duration=args.duration,
         rate=args.rate,
@@ -126,8 +132,7 @@ def _settings(args):
         )
     if args.smoke and args.duration is None and settings.rate > 0:  # a quick try: at most
         settings.duration = min(settings.duration, SMOKE_UPDATES / settings.rate)  # 10 updates
-    settings.check(task)
-    return task, settings
+    return task, settings, prepare(task, settings)
 
 
 def _output_dir(task, args):
@@ -153,15 +158,12 @@ def _print_header(task, settings) -> None:
         )
 
 
-def _simulate(task, settings):
-    """run_mpc under a transient progress bar."""
-    from rich.progress import Progress
-
-    from hydroilqr.control.mpc import run_mpc
+def _simulate(loop):
+    """The closed loop's run under a transient progress bar."""
 
     with Progress(transient=True) as prog:
         bar = prog.add_task("simulating", total=1.0)
-        return run_mpc(task, settings, lambda k, n: prog.update(bar, completed=k / n))
+        return loop.run(lambda k, n: prog.update(bar, completed=k / n))
 
 
 def _print_summary(data: dict, settings) -> None:
@@ -174,6 +176,12 @@ def _print_summary(data: dict, settings) -> None:
         f"{data['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{data['realtime_factor']:.2f}"
     )
+    phases = data.get("phase_seconds_mean") or {}
+    if phases:  # where an update's time goes
+        console.print(
+            "per update (mean): "
+            + ", ".join(f"{k.replace('_', ' ')} {1e3 * v:.1f} ms" for k, v in phases.items())
+        )
     if settings.realtime and data["achieved_rate_hz"] < 0.95 * settings.rate:
         # In real time the simulation waits for the controller, so the loop's factor stays
         # near 1 whatever the latency: the achieved rate is what shows a slow controller.

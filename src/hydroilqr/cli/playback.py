@@ -10,6 +10,7 @@ from hydroilqr.problem.config import (
     PLAYBACK_FEEDFORWARDS,
     PLAYBACK_POLICIES,
     ConfigError,
+    mismatch_overrides,
 )
 
 HELP = (
@@ -101,8 +102,9 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.control.playback import advisories, playback, write_outputs
-    from hydroilqr.output.report import deferred_interrupt, read_lock
+    from hydroilqr.control.playback import advisories, playback
+    from hydroilqr.output.report import read_lock
+    from hydroilqr.output.results import write_playback
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
     task, sol, settings = _settings(args)
@@ -112,16 +114,15 @@ def run(args) -> int:
     for w in early:
         warn(w)
     r = playback(task, sol, settings)
-    with deferred_interrupt():  # Ctrl+C here: after the set is complete
-        data = write_outputs(
-            task,
-            r,
-            out,
-            replay=not args.no_replay,
-            run_dir=args.dir,
-            command=command_line(args),
-            plan=sol,
-        )
+    data = write_playback(  # Ctrl+C while it writes: after the set is complete
+        task,
+        r,
+        out,
+        replay=not args.no_replay,
+        run_dir=args.dir,
+        command=command_line(args),
+        plan=sol,
+    )
     _print_result(data, r.wall_seconds)
     for w in data.get("warnings", []):
         if w not in early:
@@ -137,7 +138,6 @@ def run(args) -> int:
 def _settings(args):
     """The solved run's task and solution, and the PlaybackSettings the options ask for."""
     from hydroilqr.control.playback import PlaybackSettings, load_run
-    from hydroilqr.problem.config import mismatch_overrides
 
     pd_loop = {
         k: getattr(args, k)

@@ -7,7 +7,8 @@ import math
 from pathlib import Path
 
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.io.files import atomic_write
+from hydroilqr.problem.config import ConfigError, load_task
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
 
@@ -62,7 +63,6 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.problem.config import load_task
     from hydroilqr.studies.results import DEFAULT_TASKS
 
     _check(args)
@@ -83,7 +83,6 @@ def run(args) -> int:
         raise ConfigError("a task is named twice")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from hydroilqr.output.files import atomic_write
     from hydroilqr.studies.robustness import run_robustness, table
 
     where = args.scheduler or "a local Dask cluster"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from hydroilqr.problem.schema import task_schema
+
 HELP = "print the JSON Schema of task files (for editors: see docs/task-format.md)"
 
 
@@ -17,7 +19,5 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.problem.schema import task_schema
-
     print(json.dumps(task_schema(), indent=2))
     return 0

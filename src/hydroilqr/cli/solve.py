@@ -59,7 +59,8 @@ def setup(p) -> None:
         type=float,
         default=0.1,
         metavar="F",
-        help="multi-start: perturbation size, a fraction of each input's scale (default 0.1)",
+        help="multi-start: perturbation size, a fraction of each input's scale: its RMS over "
+        "the guess, or its effort limit where the guess is zero (default 0.1)",
     )
     p.add_argument(
         "--scheduler",
@@ -73,7 +74,6 @@ def setup(p) -> None:
 
 def run(args) -> int:
     task = load_task_from_args(args, _solver_overrides(args))  # (before Drake is loaded)
-    from hydroilqr.output import report
 
     _check_starts(task, args)
     if args.resume:
@@ -98,8 +98,7 @@ def run(args) -> int:
         console.print(f"live view: {meshcat_instance().web_url()}")
     # An earlier solve's results are replaced only once this one's are complete: a failed or
     # killed run leaves them as they were (output/rundir.py).
-    with report.deferred_interrupt():  # Ctrl+C here: after the new results are complete
-        summary = _write_results(task, sol, out, args, wall, extra)
+    summary = _write_results(task, sol, out, args, wall, extra)  # Ctrl+C: after the set
     if extra.get("multistart", {}).get("interrupted"):
         ms = extra["multistart"]
         console.print(
@@ -294,7 +293,7 @@ def _print_header(task, out: Path) -> None:
 
 
 def _warn_about_start(task) -> None:
-    from hydroilqr.problem.check import start_warning
+    from hydroilqr.studies.check import start_warning
 
     warning = start_warning(task)
     if warning:
@@ -356,22 +355,22 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict
     """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
     set's files and the playbacks of its plan are retired in the same commit."""
     from hydroilqr import metrics as metrics_mod
-    from hydroilqr.output import report, rundir
+    from hydroilqr.output import report
+    from hydroilqr.output.results import write_solve
     from hydroilqr.solver import receding
 
     retire = [p.name for p in report.solve_outputs(out) if p.name != receding.CHECKPOINT]
     if retire:
         console.print(f"replacing the previous results in {out} ({len(retire)} files/directories)")
-    with rundir.result_set(out, retire) as stage:
-        summary = report.write_outputs(
-            task,
-            sol,
-            stage,
-            replay=not args.no_replay,
-            wall_seconds=wall,
-            command=command_line(args),
-            extra_summary=extra,
-        )
+    summary = write_solve(
+        task,
+        sol,
+        out,
+        replay=not args.no_replay,
+        wall_seconds=wall,
+        command=command_line(args),
+        extra_summary=extra,
+    )
     for line in metrics_mod.summary_lines(summary["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]

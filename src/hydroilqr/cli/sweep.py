@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import atexit
+import logging
 import sys
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
 from hydroilqr.cli.common import add_task_args, command_line, console, task_name_from_args
-from hydroilqr.problem.config import ConfigError
-from hydroilqr.studies.sweep import SweepMonitor, parse_values, run_sweep
+from hydroilqr.problem.config import ConfigError, load_task
 
 HELP = "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)"
 
@@ -50,6 +53,8 @@ def run(args) -> int:
     keys, specs = args.param or [], args.values or []
     if len(keys) != len(specs):
         raise ConfigError("give one --values after each --param")
+    from hydroilqr.studies.sweep import parse_values, run_sweep
+
     params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
@@ -84,13 +89,12 @@ def run(args) -> int:
 
 def _default_out(task: str, args) -> str:
     """runs/NAME-sweep, NAME the task's name (as solve and mpc use)."""
-    from hydroilqr.problem.config import load_task
 
     name = load_task(task, args.set, args.config, args.smoke).name
     return f"runs/{name}{'-smoke' if args.smoke else ''}-sweep"
 
 
-class ProgressBar(SweepMonitor):
+class ProgressBar:  # a studies.sweep.SweepMonitor (not imported: Drake loads with it)
     """Rich progress bar: done / running / failed (running from worker start events), and a
     line per finished point above it."""
 
@@ -105,14 +109,6 @@ class ProgressBar(SweepMonitor):
         console.print(text)
 
     def begin(self, total: int, done: int, failed: int) -> None:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-        )
-
         self.progress = Progress(
             TextColumn("[bold]points"),
             BarColumn(),
@@ -172,8 +168,6 @@ def describe(row: dict, param_keys: list[str]) -> str:
 def _quiet_cluster_teardown() -> None:
     """After Ctrl+C, close what is left of an embedded Dask cluster here, quietly: interrupted
     while it was starting, Dask's own exit hook would print a long traceback."""
-    import atexit
-    import logging
 
     try:
         from distributed.deploy import spec

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from hydroilqr.cli.common import console
+from hydroilqr.problem.config import TASKS_DIR, list_tasks, load_raw
 
 HELP = "list the built-in tasks"
 
@@ -12,8 +13,6 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.problem.config import TASKS_DIR, list_tasks, load_raw
-
     for name in list_tasks():
         desc = load_raw(TASKS_DIR / f"{name}.yaml").get("description", "")
         console.print(f"[bold]{name:<22}[/bold] {desc}")

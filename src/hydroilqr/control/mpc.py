@@ -28,15 +28,17 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.multibody.tree import BodyIndex
 
+from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.derivatives import Linearizer
-from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
-from hydroilqr.output.files import atomic_savez
+from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import (
     MAX_STEPS,
     ConfigError,
@@ -48,7 +50,6 @@ from hydroilqr.problem.config import (
     validate_mpc,
     with_overrides,
 )
-from hydroilqr.solver.ilqr import Problem
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
@@ -75,24 +76,21 @@ class Push:
             raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
 
 
-# The settings of a run: one type with the task file's ``mpc:`` section.
-MPCSettings = MPCConfig
-
-
-def check_settings(settings: MPCSettings, task) -> None:
-    """Raises ConfigError for settings that cannot run on ``task`` (``MPCSettings.check``).
-    A task's ``ensemble:`` is not used: MPC re-plans on the task's own model."""
+def check_settings(settings: MPCConfig, task) -> np.ndarray | None:
+    """Raises ConfigError for settings that cannot run on ``task``; returns the warm-start
+    plan's controls, U: [M, nu] (None without one). A task's ``ensemble:`` is not used: MPC
+    re-plans on the task's own model."""
     dt = task.config.plant.time_step
     _check_timing(settings, dt)
     _check_iteration(settings)
     validate_mpc(settings)  # the checks shared with a task file's mpc: section
-    if settings.warm_start_plan:
-        settings.plan_controls(task)
+    U_ref = plan_controls(settings, task) if settings.warm_start_plan else None
     _check_pushes(settings, task.dynamics.plant)
     _check_truth(settings, task, dt)
+    return U_ref
 
 
-def _check_timing(settings: MPCSettings, dt: float) -> None:
+def _check_timing(settings: MPCConfig, dt: float) -> None:
     """Rate, horizon and duration: positive, within MAX_STEPS, whole time steps of ``dt``."""
     if not all(
         math.isfinite(v) and v > 0 for v in (settings.rate, settings.horizon, settings.duration)
@@ -128,7 +126,7 @@ def _check_timing(settings: MPCSettings, dt: float) -> None:
         )
 
 
-def _check_iteration(settings: MPCSettings) -> None:
+def _check_iteration(settings: MPCConfig) -> None:
     """Iterations per update, feedback scale and line search of each update."""
     if settings.iterations_per_update < 1:
         raise ConfigError("mpc iterations per update: at least 1")
@@ -138,7 +136,7 @@ def _check_iteration(settings: MPCSettings) -> None:
         raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
 
 
-def _check_pushes(settings: MPCSettings, plant) -> None:
+def _check_pushes(settings: MPCConfig, plant) -> None:
     """Each push: on a movable body of ``plant``, of positive duration, within the run."""
     welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
     for p in settings.pushes:
@@ -156,7 +154,7 @@ def _check_pushes(settings: MPCSettings, plant) -> None:
             )
 
 
-def _check_truth(settings: MPCSettings, task, dt: float) -> None:
+def _check_truth(settings: MPCConfig, task, dt: float) -> None:
     """The simulated plant's overrides, and a shrinking horizon that ends with the task."""
     if settings.truth_overrides:
         check_truth_overrides(settings.truth_overrides)
@@ -173,9 +171,9 @@ def _check_truth(settings: MPCSettings, task, dt: float) -> None:
         )
 
 
-def plan_controls(settings: MPCSettings, task) -> np.ndarray | None:
+def plan_controls(settings: MPCConfig, task) -> np.ndarray | None:
     """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
-    cannot be read or does not fit the task (``MPCSettings.plan_controls``)."""
+    cannot be read or does not fit the task ."""
     if not settings.warm_start_plan:
         return None
     plan, path = load_run_solution(settings.warm_start_plan, "mpc.warm_start_plan")
@@ -187,8 +185,6 @@ def plan_controls(settings: MPCSettings, task) -> np.ndarray | None:
         )
     if not np.all(np.isfinite(U)):
         raise ConfigError(f"mpc.warm_start_plan: {path} holds NaN or infinite controls")
-    from hydroilqr.output.report import previous_task
-
     other = previous_task(path.parent)  # another task with as many actuators is wrong too
     if other is not None and other != task.name:
         raise ConfigError(
@@ -202,9 +198,9 @@ def plan_controls(settings: MPCSettings, task) -> np.ndarray | None:
     return U
 
 
-def settings_from_task(task, **overrides) -> MPCSettings:
-    """The task's ``mpc:`` section, with keyword overrides (None = keep the task's): a copy
-    (``MPCSettings.from_task``)."""
+def mpc_config(task, **overrides) -> MPCConfig:
+    """The task's ``mpc:`` section, with keyword overrides (None = keep the task's): a copy.
+    TypeError naming an unknown setting."""
     m = task.config.mpc
     s = dataclasses.replace(m, truth_overrides=list(m.truth_overrides), pushes=list(m.pushes))
     if m.warm_start_plan:
@@ -214,11 +210,11 @@ def settings_from_task(task, **overrides) -> MPCSettings:
         # The task's default duration cannot outlast the task itself (e.g. under --smoke,
         # which shortens the task); an explicit duration that does is refused in check().
         s.duration = min(s.duration, task.steps * task.config.plant.time_step)
-    fields = [f.name for f in dataclasses.fields(MPCSettings)]
+    fields = [f.name for f in dataclasses.fields(MPCConfig)]
     for k, v in overrides.items():
         if k not in fields:  # setattr would add an attribute nothing reads
             msg = unknown_key(k, fields, f"setting {k!r}")
-            raise TypeError(f"MPCSettings.from_task: {msg}")
+            raise TypeError(f"mpc_config: {msg}")
         if v is not None:
             setattr(s, k, v)
     return s
@@ -242,7 +238,7 @@ class MPCResult:
     iterations: list[int]
     failures: int
     wall_seconds: float
-    settings: MPCSettings
+    settings: MPCConfig
     failure: str = ""  # set when the simulated plant failed (the run stops there)
     derivative_steps: list[float] = field(default_factory=list)  # per update (NaN: failed)
     reused_prediction: list[bool] = field(default_factory=list)  # no initial rollout needed
@@ -344,13 +340,14 @@ class Controller:
         self,
         task,
         horizon_steps: int,
-        iterations: int,
-        settings: MPCSettings | None = None,
+        settings: MPCConfig | None = None,
         solver: SolverConfig | None = None,
+        U_ref: np.ndarray | None = None,
     ):
         """``solver``: the solver settings of the first, full plan (default: the task's);
-        later updates search fewer step sizes (``settings.line_search_steps``)."""
-        settings = settings or MPCSettings()
+        later updates search fewer step sizes (``settings.line_search_steps``). ``U_ref``:
+        the controls of a warm-start plan by time step, [M, nu] (``check_settings``)."""
+        settings = settings or MPCConfig()
         self.task = task
         self.dyn = task.dynamics
         self.cost = task.cost
@@ -359,8 +356,7 @@ class Controller:
         self.tail = settings.warm_start_tail
         self.warm_feedback = settings.warm_start_feedback
         self.feedback_scale = settings.feedback_scale
-        self.iterations = iterations
-        self.U_ref = settings.plan_controls(task)  # controls by time step, or None
+        self.U_ref = U_ref  # controls by time step, or None
         self.U = self._new_controls(0, horizon_steps, task.x0)
         self.t_plan = 0.0
         self.plan: Solution | None = None
@@ -388,18 +384,28 @@ class Controller:
             line_search_retries=max(0, settings.line_search_retries),
         )
 
+    def seed(self, U: np.ndarray) -> None:
+        """Controls U: [N, nu] the next update starts from (a continuation's first plan)."""
+        self.U = np.array(U, float)
+
     def update(
-        self, x: np.ndarray, t: float, full: bool = False, deadline: float | None = None
+        self,
+        x: np.ndarray,
+        t: float,
+        iterations: int,
+        full: bool = False,
+        deadline: float | None = None,
     ) -> UpdateResult:
-        """A new plan from the measured state x: [nx] at time t (s). ``full``: no reuse and no
-        cap on the partials (the first, converged plan). ``deadline``: a ``time.perf_counter()``
+        """A new plan from the measured state x: [nx] at time t (s), after at most
+        ``iterations`` iLQR iterations. ``full``: no reuse and no cap on the partials (the
+        first, converged plan). ``deadline``: a ``time.perf_counter()``
         value after which no line-search trial starts."""
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
         X0, on_prediction = self._warm_start(x, t) if self.plan is not None else (None, False)
         self.reused_prediction.append(on_prediction)
         pre_rollout = time.perf_counter() - t_pre
-        sol = self._solve(x, t, X0, full, deadline)
+        sol = self._solve(x, t, X0, iterations, full, deadline)
         if sol is None:
             return self._failed(U_before)
         self.derivative_steps.append(int(sum(sol.extra.get("derivative_steps", []))))
@@ -444,7 +450,9 @@ class Controller:
             X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
         return X0, on_prediction
 
-    def _solve(self, x, t, X0, full: bool, deadline: float | None) -> Solution | None:
+    def _solve(
+        self, x, t, X0, iterations: int, full: bool, deadline: float | None
+    ) -> Solution | None:
         """At most ``iterations`` iLQR iterations from x at time t; None if the solve failed
         (its per-update statistics then NaN)."""
         lin = self.linearizer
@@ -456,7 +464,7 @@ class Controller:
                 Problem(self.dyn, self.cost, x, t),
                 self.U,
                 self.solver if full else self.solver_update,
-                max_iterations=self.iterations,
+                max_iterations=iterations,
                 final_gains=False,
                 linearizer=lin,
                 X0=X0,
@@ -538,9 +546,6 @@ class Truth:
         self._set_force(())
 
     def _set_force(self, pushes: tuple[Push, ...]):
-        from pydrake.multibody.math import SpatialForce
-        from pydrake.multibody.plant import ExternallyAppliedSpatialForce
-
         if pushes == self._pushing:
             return
         forces = []
@@ -572,30 +577,34 @@ class Truth:
         return self.dyn.step(x, u), u
 
 
-def run_mpc(task, settings: MPCSettings | None = None, on_update=None) -> MPCResult:
-    """Runs the closed loop for ``settings.duration`` seconds of simulated time.
-
-    ``settings``: default ``MPCSettings.from_task(task)``, the task's ``mpc:`` section (as the
-    ``mpc`` command uses); a bare ``MPCSettings(...)`` starts from generic defaults instead.
-    ``on_update(k, n)``: called with the time steps simulated so far and in all."""
+def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
+    """The closed loop of ``task`` under ``settings``, checked and built, before any solve:
+    ConfigError for settings that cannot run. ``settings``: default ``mpc_config(task)``, the
+    task's ``mpc:`` section (as the ``mpc`` command uses); a bare ``MPCConfig(...)`` starts
+    from generic defaults instead. ``run_mpc`` is ``prepare`` then ``ClosedLoop.run``."""
     validate_for_solve(task.config)
     if settings is None:
-        settings = MPCSettings.from_task(task)
+        settings = mpc_config(task)
     dt = task.dynamics.dt
-    settings.check(task)
+    U_ref = check_settings(settings, task)
     N = max(2, int(round(settings.horizon / dt)))
     if settings.shrinking_horizon:
         N = task.steps
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
     task.check_memory(N, "mpc.horizon")
     solver = controller_solver(task.config.solver, settings)
-    ctrl = Controller(task, N, settings.iterations_per_update, settings, solver)
-    loop = ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides))
-    loop.first_plan()
-    return loop.run(on_update)
+    ctrl = Controller(task, N, settings, solver, U_ref)
+    return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides))
 
 
-def controller_solver(solver: SolverConfig, settings: MPCSettings) -> SolverConfig:
+def run_mpc(task, settings: MPCConfig | None = None, on_update=None) -> MPCResult:
+    """Runs the closed loop for ``settings.duration`` seconds of simulated time (``prepare``:
+    the settings). ``on_update(k, n)``: called with the time steps simulated so far and in
+    all."""
+    return prepare(task, settings).run(on_update)
+
+
+def controller_solver(solver: SolverConfig, settings: MPCConfig) -> SolverConfig:
     """The task's solver settings with the controller's threads and derivatives."""
     return dataclasses.replace(
         solver,
@@ -609,7 +618,7 @@ class ClosedLoop:
     """The simulated plant under the controller's plans: states X, applied inputs U, and per
     update its time, solve seconds and iterations."""
 
-    def __init__(self, task, settings: MPCSettings, ctrl: Controller, truth: Truth):
+    def __init__(self, task, settings: MPCConfig, ctrl: Controller, truth: Truth):
         self.task, self.settings, self.ctrl, self.truth = task, settings, ctrl, truth
         self.dt = task.dynamics.dt
         self.total = int(round(settings.duration / self.dt))
@@ -626,7 +635,6 @@ class ClosedLoop:
         before it moves), seeded by the task's continuation if any (not over a given
         warm-start plan), with the derivative settings this run uses."""
         ctrl, solver, x = self.ctrl, self.ctrl.solver, self.x
-        ctrl.iterations = solver.max_iterations
         stages = self.task.stages() if ctrl.U_ref is None else []
         for stage in stages:
             s_stage = dataclasses.replace(
@@ -637,11 +645,10 @@ class ClosedLoop:
             )
             try:
                 problem = Problem(stage.dynamics, stage.cost, x, 0.0)
-                ctrl.U = ilqr_solve(problem, ctrl.U, s_stage, final_gains=False).U
+                ctrl.seed(ilqr_solve(problem, ctrl.U, s_stage, final_gains=False).U)
             except SimulationError:
                 break  # plan from the controls so far
-        self.plan, ok = ctrl.update(x, 0.0, full=True)
-        ctrl.iterations = self.settings.iterations_per_update  # later updates: at most K
+        self.plan, ok = ctrl.update(x, 0.0, solver.max_iterations, full=True)
         if self.plan is None:
             raise SimulationError("mpc: the first plan failed")
 
@@ -662,7 +669,10 @@ class ClosedLoop:
             self.k += 1
 
     def run(self, on_update=None) -> MPCResult:
-        """Updates and simulates to the end (or a simulation failure, or Ctrl+C)."""
+        """The first plan (``first_plan``, before the clock starts), then updates and simulates
+        to the end (or a simulation failure, or Ctrl+C)."""
+        if self.plan is None:
+            self.first_plan()
         wall0 = time.perf_counter()
         first = True
         try:
@@ -700,7 +710,8 @@ class ClosedLoop:
         # Only where latency is felt: lock-step runs stay reproducible.
         on = s.deadline and s.realtime
         deadline = t0 + s.deadline / s.rate if on else None
-        new_plan, ok = self.ctrl.update(self.x, t_now, deadline=deadline)
+        K = self.settings.iterations_per_update  # later updates: at most K iterations
+        new_plan, ok = self.ctrl.update(self.x, t_now, K, deadline=deadline)
         w = time.perf_counter() - t0
         self.failures += 0 if ok else 1
         self.solve_s.append(w)
@@ -745,134 +756,3 @@ class ClosedLoop:
             ctrl.past_deadline,
             self.truth.saturated / max(1, self.truth.commands),
         )
-
-
-# ------------------------------------------------------------------------------------------
-# Outputs
-# ------------------------------------------------------------------------------------------
-
-
-def plotted_blocks(task) -> list[tuple[str, str]]:
-    """(name, unit) of the (at most 4) weighted position blocks of the running cost that
-    mpc.png plots: euclidean blocks whose coordinates all lie in q (a velocity group such as
-    the Kinova's ``arm_v`` is left out whatever its name). The unit: "m" or "rad" when every
-    coordinate is a prismatic/revolute joint's or a floating body's position, else ""."""
-    layout, plant = task.dynamics.layout, task.dynamics.plant
-    from pydrake.multibody.tree import JointIndex
-
-    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
-
-    def unit(coords) -> str:
-        units = {
-            position_unit(j)
-            for c in coords
-            for j in joints
-            if j.position_start() <= c < j.position_start() + j.num_positions()
-        }
-        return units.pop() if len(units) == 1 else ""
-
-    return [
-        (n, unit(layout.block(n).coords))
-        for n, w in task.config.cost.Q.items()
-        if np.any(np.asarray(w, float) > 0)
-        and layout.block(n).kind == "euclidean"
-        and all(c < layout.nq for c in layout.block(n).coords)
-    ][:4]
-
-
-def plot_mpc(task, res: MPCResult, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hydroilqr.output.plots import savefig
-
-    layout = task.dynamics.layout
-    blocks = plotted_blocks(task)
-    fig, axes = plt.subplots(len(blocks) + 1, 1, figsize=(7, 2.0 * (len(blocks) + 1)), sharex=True)
-    axes = np.atleast_1d(axes)
-    xn = task.cost.nominal(res.t)
-    for ax, (name, unit) in zip(axes, blocks):
-        b = layout.block(name)
-        for j, c in enumerate(b.coords):
-            lab = f"{name}[{j}]" if len(b.coords) > 1 else name
-            (line,) = ax.plot(res.t, res.X[:, c], label=lab)
-            # the nominal in its coordinate's colour: several share a panel (a ball's x, y, z)
-            ax.plot(res.t, xn[:, c], "--", color=line.get_color(), lw=0.8, label=f"{lab} nominal")
-        ax.set_ylabel(f"{name} [{unit}]" if unit else f"{name}\n(model units)")
-    for i, p in enumerate(res.settings.pushes):
-        for ax in axes:
-            ax.axvspan(
-                p.time,
-                p.time + p.duration,
-                color="red",
-                alpha=0.15,
-                label="push" if i == 0 else None,
-            )
-    for ax in axes[:-1]:  # beside the panel: a legend inside hid a target line
-        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
-    ax = axes[-1]
-    solve_ms = 1e3 * np.array(res.solve_seconds)
-    period = 1e3 / res.settings.rate
-    ax.plot(res.update_times, solve_ms, ".", ms=3, label="solve time")
-    ax.axhline(period, color="k", ls="--", lw=0.8, label="control period")
-    span = solve_ms[solve_ms > 0]
-    if span.size and max(span.max(), period) / min(span.min(), period) > 30:
-        ax.set_yscale("log")  # solve times far above (or below) the period: all visible
-    ax.set_ylabel("solve time [ms]")
-    ax.set_xlabel("time [s]")
-    ax.set_xlim(res.t[0], res.t[-1])  # a push lasting past the run's end widened the axis
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
-    axes[0].set_title(f"{task.name}: closed-loop MPC at {res.settings.rate:g} Hz")
-    savefig(fig, path)
-
-
-def write_outputs(
-    task, res: MPCResult, out: Path, replay: bool = True, command: str | None = None
-) -> dict:
-    """mpc.npz, mpc.png, mpc.html (unless ``replay`` is false) and mpc.json in ``out``;
-    returns the mpc.json dict (``res.stats()``, the task's metrics on the simulated plant and
-    the environment, the task's ``goal`` judged on them; ``command`` its command line). The
-    files replace an earlier run's as one set (``output/rundir.py``)."""
-    from hydroilqr import metrics
-    from hydroilqr.output import report
-
-    stats = res.stats()
-    sol = res.as_solution()
-    try:
-        # On the plant that was simulated (truth overrides cannot touch the cost).
-        sim_task = task
-        if res.settings.truth_overrides:
-            sim_task = task.with_overrides(res.settings.truth_overrides)
-        task_metrics = metrics.compute(sim_task, sol)
-    except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
-        task_metrics = {"error": str(e).strip().splitlines()[0]}
-    from hydroilqr.metrics.goals import judge
-    from hydroilqr.output import rundir
-
-    data = {
-        "task": task.name,
-        **stats,
-        "goal": judge(task.config, task_metrics),
-        "metrics": task_metrics,
-        "environment": report.environment(command),
-    }
-    retire = ["mpc.json", "mpc.npz", "mpc.png", "mpc.html"]
-    with report.deferred_interrupt(), rundir.result_set(out, retire) as stage:
-        # (the earlier run's set stays whole until this one is complete: output/rundir.py)
-        atomic_savez(
-            stage / "mpc.npz",
-            X=res.X,
-            U=res.U,
-            t=res.t,
-            update_times=np.array(res.update_times),
-            solve_seconds=np.array(res.solve_seconds),
-        )
-        plot_mpc(task, res, stage / "mpc.png")
-        if replay:
-            from hydroilqr.output.replay import write_replay
-
-            write_replay(task, res.X, res.t, stage / "mpc.html", inputs=res.U)
-        report.write_json(stage / "mpc.json", data)
-    return data

@@ -6,10 +6,11 @@ updated every 20 ms, with no feedback on the ball. Here the robot is a second si
 the same task: a finer time step (1 ms by default) and a different discrete contact
 approximation from the planner's, started from the plan's initial state.
 
-    from hydroilqr.control.playback import PlaybackSettings, load_run, playback, write_outputs
+    from hydroilqr.control.playback import PlaybackSettings, load_run, playback
+    from hydroilqr.output.results import write_playback
     task, sol, _ = load_run("runs/kinova-forward")
     result = playback(task, sol, PlaybackSettings(speed=0.5))
-    write_outputs(task, result, "runs/kinova-forward/playback-pd")
+    write_playback(task, result, "runs/kinova-forward/playback-pd")
 
 Policies:
 
@@ -35,21 +36,24 @@ saturated commands is reported.
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
+from hydroilqr import metrics
+from hydroilqr.metrics.goals import judge
+from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
 from hydroilqr.model.state import quat_conj, quat_mul
-from hydroilqr.output.files import atomic_savez
+from hydroilqr.model.task import Task
 from hydroilqr.problem.config import (
     APPROXIMATIONS,
     MAX_STEPS,
@@ -61,6 +65,7 @@ from hydroilqr.problem.config import (
     task_from_dict,
     with_overrides,
 )
+from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
 from hydroilqr.solver.solution import Solution, load_run_solution
 
 #: Default "real" contact approximation for each planner approximation (always a different one).
@@ -92,7 +97,6 @@ def damping_note(planner_contact: str, truth_contact: str) -> str | None:
 def plan_touches(task, X: np.ndarray) -> bool:
     """Some state of the plan X: [N+1, nx] has contact (else no contact is damped, and a note
     about contact damping says nothing)."""
-    from hydroilqr.metrics.contacts import touched_pairs
 
     if not task.dynamics.scene_graph.model_inspector().GetCollisionCandidates():
         return False
@@ -288,8 +292,6 @@ class SolvedRun(NamedTuple):
 
 def load_run(run_dir: str | Path) -> SolvedRun:
     """The task, Solution and summary.json of a ``hydroilqr solve`` output directory."""
-    from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
-    from hydroilqr.problem.task import Task
 
     run_dir = Path(run_dir)
     summary_path, sol_path = run_dir / "summary.json", run_dir / "solution.npz"
@@ -310,19 +312,19 @@ def load_run(run_dir: str | Path) -> SolvedRun:
     candidates = [summary.get("base_dir"), str(TASKS_DIR), str(run_dir)]
     err: ConfigError | None = None
     task = None
+    # A smoke-sized plan's task is the shrunk one (its config holds the shrunk values), and
+    # its goal is the full task's: recorded as not judged, as the solve did.
+    smoke = bool(summary.get("smoke"))
     for base in candidates:
         if not base:
             continue
         try:
-            task = Task(task_from_dict(config, base))
+            task = Task(dataclasses.replace(task_from_dict(config, base), smoke_run=smoke))
             break
         except ConfigError as e:
             err = err or e
     if task is None:
         raise ConfigError(f"{summary_path}: cannot rebuild the task: {err}")
-    # A smoke-sized plan's task is the shrunk one (its config holds the shrunk values), and
-    # its goal is the full task's: recorded as not judged, as the solve did.
-    task.config.smoke_run = bool(summary.get("smoke"))
     sol, _ = load_run_solution(sol_path, str(run_dir))
     return SolvedRun(task, sol, summary)
 
@@ -1100,100 +1102,11 @@ def _metrics(r: PlaybackResult, qi, vi, limits, vscale, saturated, controls, x_p
     }
 
 
-# ------------------------------------------------------------------------------------------
-# Outputs
-# ------------------------------------------------------------------------------------------
-
-
-def write_reference_csv(r: PlaybackResult, path: Path) -> None:
-    """time, q̄_J, v̄_J, ū at the update rate; units in the column names (docs/playback.md)."""
-
-    def vunit(u):
-        return "m_per_s" if u == "m" else "rad_per_s"
-
-    header = ["time_s"]
-    header += [f"q_{j}_{u}" for j, u in zip(r.joints, r.joint_units)]
-    header += [f"v_{j}_{vunit(u)}" for j, u in zip(r.joints, r.joint_units)]
-    header += [f"u_{a}_{'N' if u == 'm' else 'Nm'}" for a, u in zip(r.actuators, r.joint_units)]
-    ref = r.reference
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for i in range(len(ref.t)):
-            w.writerow(
-                [f"{ref.t[i]:.6f}"] + [f"{v:.9g}" for v in np.r_[ref.q[i], ref.v[i], ref.u[i]]]
-            )
-
-
-def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hydroilqr.output.plots import savefig
-
-    c = list(r.obj.coords)
-    t, X, X_plan = r.t, r.X, r.X_plan
-    if r.hold is not None and len(r.hold.t):  # the hold after the plan, on the same axes
-        t = np.concatenate([t, r.hold.t])
-        X = np.concatenate([X, r.hold.X])
-        X_plan = np.concatenate([X_plan, r.hold.X_plan])
-    labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
-    if len(c) != len(labels):
-        labels = [f"{r.obj.name}[{i}]" for i in range(len(c))]
-    rows = len(c) + 1
-    fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
-    for i, ax in enumerate(axes[:-1]):
-        stretched = abs(r.settings.speed - 1.0) > 1e-12
-        plan_label = "planned (time-stretched)" if stretched else "planned"
-        ax.plot(t, X_plan[:, c[i]], "--", color="0.4", label=plan_label)
-        ax.plot(t, X[:, c[i]], color="C0", label="actual")
-        ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
-        ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8, loc="best")
-    ax = axes[-1]
-    m = r.metrics
-    qi = r.q_indices
-    for i, name in enumerate(r.joints):
-        ax.plot(t, X[:, qi[i]] - X_plan[:, qi[i]], lw=1, label=name)
-    units = set(r.joint_units)
-    unit = f" [{units.pop()}]" if len(units) == 1 else " [m or rad]"
-    ax.set_ylabel(f"joint error{unit}\n(actual − plan)")
-    ax.set_xlabel("playback time [s]")
-    ax.grid(alpha=0.3)
-    if len(r.joints) <= 12:  # one joint too: which one it is (the cart-pole's cart)
-        ax.legend(fontsize=6, ncol=4, loc="best")
-    ob = m["object"]
-    gaps = f"final gap {ob['final_gap']:.3g} {r.obj.unit}"
-    if ob.get("resting_gap") is not None:
-        gaps = f"resting gap {ob['resting_gap']:.3g} {r.obj.unit} (at the plan's end {gaps[6:]})"
-    fig.suptitle(
-        f"{title}: {m['policy']} playback at speed {r.settings.speed:g}, truth plant "
-        f"{r.truth_contact} contact, dt={r.settings.truth_time_step:g} s\n{gaps}, max deviation "
-        f"{ob['max_deviation']:.3g} {r.obj.unit}",
-        fontsize=9,
-    )
-    if len(t) > len(r.t):
-        for ax in axes:  # the plan's end; after it the robot holds its last reference
-            ax.axvline(r.t[-1], color="0.6", lw=0.8, ls=":")
-    savefig(fig, path)
-
-
-def write_replay(task, r: PlaybackResult, path: Path) -> None:
-    """Meshcat HTML: the actual motion first, then (after a short pause) the plan at the same
-    playback speed."""
-    from hydroilqr.output import replay
-
-    replay.write_replay(task, [r.X, r.X_plan], r.t, path, inputs=[r.U, r.U_plan])
-
-
 def executed(task, sol, r: PlaybackResult):
     """The executed motion as a plan-shaped trajectory, for the task's metrics and goal: the
     actual state at each plan time (playback time (t_k - t_0) / speed), except that the last
     state is where the robot left things at rest (the end of the hold, when there is one).
     t: [N+1], X: [N+1, nx], U: [N, nu] (the plan's inputs)."""
-    from types import SimpleNamespace
 
     tau = (np.asarray(sol.t, float) - float(sol.t[0])) / r.settings.speed
     idx = np.clip(np.searchsorted(r.t, tau - 1e-9), 0, len(r.t) - 1)
@@ -1208,78 +1121,9 @@ def executed_goal(task, sol, r: PlaybackResult) -> dict:
     {"metrics": ..., "goal": {met, checks, judged}} (``judged`` false for a smoke-sized plan,
     as its solve recorded); a metric the truth state cannot give is an error entry (and fails
     the checks that need it)."""
-    from hydroilqr import metrics
-    from hydroilqr.metrics.goals import judge
 
     try:
         m = metrics.compute(task, executed(task, sol, r))
     except (RuntimeError, SimulationError, ValueError) as e:
         m = {"error": str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__}
     return {"metrics": m, "goal": judge(task.config, m)}
-
-
-def write_outputs(
-    task,
-    r: PlaybackResult,
-    out: str | Path,
-    replay: bool = True,
-    run_dir: str | Path | None = None,
-    command: str | None = None,
-    plan=None,
-) -> dict:
-    """playback.json, playback.png, reference.csv, playback.npz and (optionally)
-    playback.html in ``out``, replacing an earlier playback's set whole (output/rundir.py).
-    Returns the JSON dict (``command``: the command line that ran the playback, recorded as
-    ``environment.command``; ``plan``: the played Solution, whose task metrics and goal are
-    then judged on the executed motion: ``executed_metrics``, ``goal``)."""
-    from hydroilqr.output import rundir
-    from hydroilqr.output.report import environment
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    data = {"task": task.name, "run": str(run_dir) if run_dir else None, **r.metrics}
-    if plan is not None:
-        judged = executed_goal(task, plan, r)
-        data["goal"], data["executed_metrics"] = judged["goal"], judged["metrics"]
-        # (final values: where the hold left things, unlike object.final_gap at the plan's end)
-        data["executed_metrics_final_state"] = (
-            "end of the hold after the plan"
-            if r.hold is not None and len(r.hold.X)
-            else "end of the plan"
-        )
-    data["environment"] = environment(command)
-    names = ["playback.json", "reference.csv", "playback.npz", "playback.png", "playback.html"]
-    with rundir.result_set(out, names) as stage:
-        _write_set(task, r, stage, data, replay)
-    return data
-
-
-def _write_set(task, r: PlaybackResult, out: Path, data: dict, replay: bool) -> None:
-    from hydroilqr.output.report import write_json
-
-    write_json(out / "playback.json", data)
-    write_reference_csv(r, out / "reference.csv")
-    atomic_savez(
-        out / "playback.npz",
-        t=r.t,
-        X=r.X,
-        U=r.U,
-        X_plan=r.X_plan,
-        ref_t=r.reference.t,
-        ref_q=r.reference.q,
-        ref_v=r.reference.v,
-        ref_u=r.reference.u,
-        **(
-            {
-                "hold_t": r.hold.t,
-                "hold_X": r.hold.X,
-                "hold_U": r.hold.U,
-                "hold_X_plan": r.hold.X_plan,
-            }
-            if r.hold is not None
-            else {}
-        ),
-    )
-    plot_playback(r, out / "playback.png", task.name)
-    if replay:
-        write_replay(task, r, out / "playback.html")

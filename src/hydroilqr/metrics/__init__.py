@@ -17,126 +17,55 @@ contact timeline and the cheetah's foot loads also use the contact solve of each
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
-from hydroilqr.problem.config import ConfigError
-
-
-@dataclass(frozen=True)
-class Metric:
-    """A registered metric.
-
-    compute: fn(task, sol) -> dict, merged into summary.json ``metrics``.
-    plot: fn(task, sol, out) writing ``files`` into the run directory ``out`` (or None).
-    files: the plot's file names, or fn(metric_params) -> names where they depend on the
-        task's parameters (e.g. named after a body).
-    sweep_columns: columns a sweep table always shows (after final_cost) for tasks with this
-        metric; sweep_extra_columns: shown after the solve's own columns where points have them.
-    sweep_arrays: fn(task, X) -> {name: array} stored with each sweep point's trajectory.
-    validate: fn(task) raising ConfigError (one line) on bad ``metric_params``; runs before
-        any solve.
-    """
-
-    name: str
-    compute: Callable
-    plot: Callable | None = None
-    files: tuple[str, ...] | Callable = ()
-    sweep_columns: tuple[str, ...] = ()
-    sweep_extra_columns: tuple[str, ...] = ()
-    sweep_arrays: Callable | None = None
-    validate: Callable | None = None
-
-    def file_names(self, params: dict | None = None) -> tuple[str, ...]:
-        if callable(self.files):
-            return tuple(self.files(dict(params or {})))
-        return tuple(self.files)
-
-
-METRICS: dict[str, Metric] = {}
-
-
-def register(m: Metric) -> Metric:
-    METRICS[m.name] = m
-    return m
-
-
-def metric(name: str, **fields):
-    """Decorator: registers fn(task, sol) -> dict as metric ``name`` (``fields``: the other
-    ``Metric`` fields, e.g. plot=, files=, validate=)."""
-
-    def deco(fn):
-        register(Metric(name, compute=fn, **fields))
-        return fn
-
-    return deco
-
-
-def get(name: str) -> Metric:
-    if name not in METRICS:
-        raise ConfigError(f"metrics: unknown metric {name!r} (known: {', '.join(METRICS)})")
-    return METRICS[name]
+# The families register their metrics in the registry when imported.
+from hydroilqr.metrics import cartpole, cheetah, flight, kinova, objects, terms  # noqa: F401
+from hydroilqr.metrics.common import (  # noqa: F401
+    beyond_limits,
+    command_limit_ratio,
+    contact_pairs,
+    default_metrics,
+    geometry_ids,
+    involves,
+    max_contact_faces,
+    signed_distance,
+    validate_camera,
+)
+from hydroilqr.metrics.goals import check_names
+from hydroilqr.metrics.registry import (  # noqa: F401
+    METRICS,
+    Metric,
+    Report,
+    compute,
+    get,
+    headline,
+    metric,
+    moves_object,
+    plot,
+    plot_files,
+    register,
+    reports,
+    sweep_arrays,
+    sweep_columns,
+    sweep_panels,
+    sweep_plots,
+)
+from hydroilqr.metrics.registry import validate as validate_params
 
 
 def validate(task) -> None:
-    """Checks the task's metric names and every selected metric's ``metric_params`` (ConfigError
-    with one line); builds the task's plant where a check needs it. No solve."""
-    for name in task.config.metrics:
-        m = get(name)
-        if m.validate is not None:
-            m.validate(task)
-    common.validate_camera(task)
+    """The task's metric names, every selected metric's ``metric_params`` and the replay
+    camera (ConfigError with one line); builds the task's plant where a check needs it."""
+    validate_params(task)
+    validate_camera(task)
 
 
-def compute(task, sol) -> dict:
-    out: dict = {}
-    for name in task.config.metrics:
-        out.update(get(name).compute(task, sol))
-    return out
-
-
-def plot(task, sol, out) -> None:
-    """Writes the plots of the task's metrics into ``out`` (each plot function once)."""
-    done = set()
-    for name in task.config.metrics:
-        m = get(name)
-        if m.plot is not None and m.plot not in done:
-            done.add(m.plot)
-            m.plot(task, sol, out)
-
-
-def plot_files(names=None, params: dict | None = None) -> set[str]:
-    """File names the plots of metrics ``names`` write (default every registered metric; plots
-    named after ``metric_params`` only where ``params`` is given)."""
-    names = list(METRICS) if names is None else names
-    files: set[str] = set()
-    for name in names:
-        m = METRICS.get(name)
-        if m is None or (callable(m.files) and params is None):
-            continue
-        files.update(m.file_names(params))
-    return files
-
-
-def sweep_columns(names) -> tuple[list[str], list[str]]:
-    """(columns always shown, columns shown where points have them) of metrics ``names``."""
-    lead: list[str] = []
-    extra: list[str] = []
-    for name in names:
-        m = get(name)
-        lead += [c for c in m.sweep_columns if c not in lead]
-        extra += [c for c in m.sweep_extra_columns if c not in extra]
-    return lead, extra
-
-
-def sweep_arrays(task, X) -> dict:
-    """Arrays the task's metrics store with a sweep point's trajectory X: [T, nx]."""
-    out: dict = {}
-    for name in task.config.metrics:
-        m = get(name)
-        if m.sweep_arrays is not None:
-            out.update(m.sweep_arrays(task, X))
-    return out
+def validate_task(task, mismatch: bool = True) -> None:
+    """Everything that can fail on bad input before a solve (ConfigError, one line): the task
+    builds (``Task.validate``), its metric names and ``metric_params`` hold, the replay camera
+    is well formed, and its goal names metrics the task reports."""
+    task.validate(mismatch)
+    validate(task)
+    check_names(task)
 
 
 def _fixed(x) -> str:
@@ -180,17 +109,3 @@ def summary_lines(m: dict) -> list[str]:
             + ", ".join(f"{k}={fmt(v)}" for k, v in m["final_error"].items())
         )
     return lines
-
-
-# The families register their metrics (after the registry above exists).
-from hydroilqr.metrics import cartpole, cheetah, common, flight, kinova, objects, terms  # noqa: E402, F401
-from hydroilqr.metrics.common import (  # noqa: E402, F401
-    beyond_limits,
-    command_limit_ratio,
-    contact_pairs,
-    default_metrics,
-    geometry_ids,
-    involves,
-    max_contact_faces,
-    signed_distance,
-)

@@ -15,11 +15,17 @@ points have them, and per point the tip/pin/cart paths and the pair's signed dis
 
 from __future__ import annotations
 
-import numpy as np
+from pathlib import Path
 
-from hydroilqr.metrics import Metric, register
+import numpy as np
+from matplotlib.patches import Circle, Rectangle
+
+from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.common import contact_pairs, geometry_ids, involves, signed_distance
+from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.problem.config import ConfigError
+
+plt = pyplot()
 
 
 def _pair(task) -> tuple[str, str]:
@@ -116,10 +122,98 @@ def cartpole_geometry(task, X: np.ndarray) -> dict[str, np.ndarray]:
     return out
 
 
+def _representative(rows: list[dict], key: str, n: int = 4) -> list[dict]:
+    ok = sorted((r for r in rows if r.get("status") == "ok"), key=lambda r: r[f"param:{key}"])
+    if len(ok) <= n:
+        return ok
+    idx = sorted({int(round(i)) for i in np.linspace(0, len(ok) - 1, n)})
+    return [ok[i] for i in idx]
+
+
+def plot_snapshots(
+    path: Path, points_dir: Path, task_cfg, param_keys: list[str], rows: list[dict]
+) -> bool:
+    """Pole + wall in the x-z plane at the step of maximum overlap, a few points side by side."""
+
+    key = param_keys[0]
+    chosen = []
+    for r in _representative(rows, key):
+        try:
+            with np.load(points_dir / f"{r['id']}.npz") as d:
+                if "tip_xyz" not in d or "pin_xyz" not in d:
+                    continue
+                chosen.append((r, {k: d[k] for k in d.files}))
+        except (OSError, ValueError):
+            continue
+    if not chosen:
+        return False
+    walls = [o for o in task_cfg.scene if o.shape == "box"]
+    # Common limits: every tip path and cart, plus a margin.
+    xs = np.concatenate([np.r_[d["tip_xyz"][:, 0], d["cart_xyz"][:, 0]] for _, d in chosen])
+    zs = np.concatenate([np.r_[d["tip_xyz"][:, 2], d["cart_xyz"][:, 2]] for _, d in chosen])
+    xlim = (float(xs.min()) - 0.2, float(xs.max()) + 0.2)
+    ylim = (float(zs.min()) - 0.15, float(zs.max()) + 0.15)
+    # equal-aspect panels ~2.6 in wide; the height follows (plus titles), no empty band
+    aspect = (ylim[1] - ylim[0]) / (xlim[1] - xlim[0])
+    fig, axes = plt.subplots(
+        1, len(chosen), figsize=(3.1 * len(chosen), 2.6 * aspect + 1.4), squeeze=False
+    )
+    unit = " Pa" if key.endswith("hydroelastic_modulus") else ""
+    for ax, (r, d) in zip(axes[0], chosen):
+        k = int(np.argmin(d["signed_distance"])) if "signed_distance" in d else 0
+        tip, pin, cart = d["tip_xyz"], d["pin_xyz"], d["cart_xyz"]
+        rad = float(d["tip_radius"])
+        for o in walls:
+            color = o.color[:3] if len(o.color) >= 3 else (0.5, 0.5, 0.5)
+            ax.add_patch(
+                Rectangle(
+                    (o.xyz[0] - o.size[0] / 2, o.xyz[2] - o.size[2] / 2),
+                    o.size[0],
+                    o.size[2],
+                    color=color,
+                    alpha=0.7,
+                    lw=0,
+                )
+            )
+        ax.plot(tip[:, 0], tip[:, 2], "-", color="0.6", lw=0.8, label="tip path")
+        ax.add_patch(
+            Rectangle((cart[k, 0] - 0.12, cart[k, 2] - 0.06), 0.24, 0.12, color=(0.2, 0.3, 0.8))
+        )
+        ax.plot([pin[k, 0], tip[k, 0]], [pin[k, 2], tip[k, 2]], "-", color="0.3", lw=3)
+        ax.add_patch(Circle((tip[k, 0], tip[k, 2]), rad, color=(0.9, 0.4, 0.1), alpha=0.9))
+        ax.set_aspect("equal")
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        ov = r.get("max_overlap_m") or 0.0
+        tun = " TUNNELLED" if r.get("tunnelled") else ""
+        ax.set_title(
+            f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}{unit}\n"
+            f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}",
+            fontsize=8,
+        )
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("x [m]", fontsize=8)
+    axes[0, 0].set_ylabel("z [m]", fontsize=8)
+    axes[0, 0].legend(fontsize=7, loc="upper right")
+    fig.suptitle(
+        f"{task_cfg.name}: configuration of maximum overlap (grey: tip path over the horizon)",
+        fontsize=9,
+    )
+    savefig(fig, path)
+    return True
+
+
 register(
     Metric(
         "cartpole_wall",
         compute=cartpole_wall,
+        headline=(
+            ("angle err rad", "final_angle_error_rad", ".3f", 1.0),
+            ("wall steps", "wall_contact_steps", "d", 1.0),
+        ),
+        sweep_panels=(("max_overlap_m", "max overlap [m]"),),
+        sweep_plot=plot_snapshots,
+        sweep_plot_file="snapshots.png",
         sweep_columns=("max_overlap_m", "tunnelled"),
         sweep_extra_columns=(
             "final_angle_error_rad",

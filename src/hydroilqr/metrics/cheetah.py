@@ -22,6 +22,18 @@
 * ``foot_slip_mps``: per foot, the median horizontal speed of the foot's lowest material point
   while it touches the ground (t ≥ 0.2 s): ~0 for a planted (rolling, pivoting) foot, large
   for one that slides;
+* ``stance_slip_mps``: per foot, the mean of that speed over the same states, and
+  ``mean_stance_slip_mps`` its mean over the feet (the gait report's stance slip: a walkable
+  gait keeps it to a few cm/s);
+* ``stride_frequency_hz``: per foot, one over the mean time between its touchdowns (t ≥ 0.2 s;
+  0 with fewer than two), and ``mean_stride_frequency_hz``;
+* ``pair_phase``: for the diagonal and lateral pairs, the phase of the second foot's
+  touchdowns after the first's, as a fraction of the first foot's stride (0 = together,
+  0.5 = alternating), folded to [0, 0.5] and averaged over the pairs of a kind (a trot:
+  diagonal near 0, lateral near 0.5); None where a foot has fewer than two touchdowns;
+* ``cost_of_transport``: the actuators' absolute mechanical work Σ|u·v| dt over t ≥ 0.2 s
+  (u the commanded efforts, v the actuated joints' velocities), divided by m·g times the base's
+  forward distance over that time (None without forward progress);
 * ``foot_load``: per foot, its mean vertical ground force while it touches the ground (t ≥ 0.2
   s), as a fraction of the robot's weight m·g, from the contact solve of each step (x_k, u_k):
   a standing robot has ~0.25 on each foot; a foot that touches but carries ~0 only grazes
@@ -45,8 +57,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.metrics import Metric, register
+from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.common import contact_pairs
+from hydroilqr.metrics.registry import Metric, Report, register
+from hydroilqr.model.contacts import runs
 from hydroilqr.problem.config import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
@@ -236,7 +250,9 @@ def cheetah_metrics(task, sol) -> dict:
         "lateral_pair_overlap": float(np.mean([np.sum(f[:, a] & f[:, b]) / n for a, b in LATERAL])),
         "pair_sync": pair_sync(f),
         "foot_touchdowns": {lab: int(touchdowns[j]) for j, lab in enumerate(labels)},
-        "foot_slip_mps": _stance_slip(task, sol, feet, settled, labels),
+        **_slip(task, sol, feet, settled, labels),
+        **_strides(t, f, t[settled], labels),
+        "cost_of_transport": cost_of_transport(task, sol, settled),
         "foot_load": _foot_load(task, sol, feet, settled, labels),
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
@@ -248,16 +264,103 @@ def cheetah_metrics(task, sol) -> dict:
     return out
 
 
-def _stance_slip(task, sol, feet, settled, labels) -> dict[str, float]:
-    """Per foot, the median slip speed (``foot_slip_speeds``) over states where it touches the
-    ground (t ≥ settle). The median: a foot lands still moving and sticks within a few steps,
-    so a mean is dominated by touchdowns and grazes."""
+def _slip(task, sol, feet, settled, labels) -> dict:
+    """Per foot, the median (``foot_slip_mps``) and the mean (``stance_slip_mps``) slip speed
+    (``foot_slip_speeds``) over states where it touches the ground (t ≥ settle), and the mean
+    over the feet. The median shows a planted foot (a foot lands still moving and sticks
+    within a few steps); the mean counts the sliding at touchdowns and grazes too."""
     S = foot_slip_speeds(task, sol)
     on = feet & settled[:, None]
+
+    def per_foot(stat) -> dict[str, float]:
+        return {
+            lab: float(stat(S[on[:, j], j])) if on[:, j].any() else 0.0
+            for j, lab in enumerate(labels)
+        }
+
+    mean = per_foot(np.mean)
     return {
-        lab: float(np.median(S[on[:, j], j])) if on[:, j].any() else 0.0
-        for j, lab in enumerate(labels)
+        "foot_slip_mps": per_foot(np.median),
+        "stance_slip_mps": mean,
+        "mean_stance_slip_mps": float(np.mean(list(mean.values()))),
     }
+
+
+def _touchdown_times(t: np.ndarray, on: np.ndarray) -> np.ndarray:
+    """Times of the states at which ``on`` goes from False to True."""
+    return t[1:][on[1:] & ~on[:-1]] if len(on) > 1 else t[:0]
+
+
+def _strides(t: np.ndarray, f: np.ndarray, t_settled: np.ndarray, labels) -> dict:
+    """Stride frequency per foot and the phase relation of the diagonal and lateral pairs,
+    from the touchdowns in ``f``: [T, 4] (the settled states, at times ``t_settled``)."""
+    down = [_touchdown_times(t_settled, f[:, j]) for j in range(4)]
+    freq = {lab: _frequency(down[j]) for j, lab in enumerate(labels)}
+    phase = {}
+    for kind in ("diagonal", "lateral"):
+        values = [_phase(down[a], down[b]) for a, b in PAIRS[kind]]
+        values = [v for v in values if v is not None]
+        phase[kind] = float(np.mean(values)) if values else None
+    return {
+        "stride_frequency_hz": freq,
+        "mean_stride_frequency_hz": float(np.mean(list(freq.values()))),
+        "pair_phase": phase,
+    }
+
+
+def _frequency(touchdowns: np.ndarray) -> float:
+    """Strides per second: one over the mean time between successive touchdowns (0 with
+    fewer than two)."""
+    if len(touchdowns) < 2:
+        return 0.0
+    return float((len(touchdowns) - 1) / (touchdowns[-1] - touchdowns[0]))
+
+
+def _phase(ta: np.ndarray, tb: np.ndarray) -> float | None:
+    """The phase of foot b's touchdowns after foot a's, as a fraction of a's stride, folded
+    to [0, 0.5] (0: together, 0.5: alternating); the circular mean over a's strides that
+    contain a touchdown of b. None with fewer than two touchdowns of a or none of b."""
+    if len(ta) < 2 or len(tb) == 0:
+        return None
+    angles = []
+    for t0, t1 in zip(ta[:-1], ta[1:]):
+        inside = tb[(tb >= t0) & (tb < t1)]
+        if len(inside):
+            angles.append(2 * np.pi * (inside[0] - t0) / (t1 - t0))
+    if not angles:
+        return None
+    mean = np.angle(np.mean(np.exp(1j * np.array(angles)))) / (2 * np.pi) % 1.0
+    return float(min(mean, 1.0 - mean))
+
+
+def cost_of_transport(task, sol, settled: np.ndarray) -> float | None:
+    """Σ|u_k · v_k| dt over the settled steps (absolute mechanical power of the actuators:
+    efforts u against the actuated joints' velocities, ``B^T v`` with Drake's actuation matrix
+    B), divided by m·g times the base's forward travel over them; None for a run without
+    controls or without forward progress."""
+    dyn = task.dynamics
+    U = getattr(sol, "U", None)
+    X = np.asarray(sol.X)
+    if U is None or len(U) == 0 or len(U) >= len(X):
+        return None
+    U = np.asarray(U)
+    B = dyn.plant.MakeActuationMatrix()  # [nv, nu]
+    V = X[: len(U), dyn.nq :]
+    power = np.abs(np.einsum("ki,ki->k", U, V @ B))
+    steps = settled[: len(U)]
+    work = float(np.sum(power[steps]) * dyn.dt)
+    pos, _ = _blocks(task, _params(task)["body"])
+    idx = np.flatnonzero(steps)
+    if not len(idx):
+        return None
+    x = X[:, pos.coords[0]]
+    distance = float(x[idx[-1] + 1] - x[idx[0]])
+    weight = dyn.plant.CalcTotalMass(dyn.plant_context) * float(
+        np.linalg.norm(dyn.plant.gravity_field().gravity_vector())
+    )
+    if distance <= 1e-6 or weight <= 0:
+        return None
+    return work / (weight * distance)
 
 
 def _foot_load(task, sol, feet, settled, labels) -> dict[str, float]:
@@ -278,8 +381,6 @@ def _foot_load(task, sol, feet, settled, labels) -> dict[str, float]:
 
 
 def plot_cheetah(task, sol, out: Path) -> None:
-    from hydroilqr.output.plots import pyplot, savefig
-
     plt = pyplot()
 
     t = np.asarray(sol.t)
@@ -315,7 +416,6 @@ def plot_cheetah(task, sol, out: Path) -> None:
 
 def _runs(t: np.ndarray, on: np.ndarray, dt: float) -> list[tuple[float, float]]:
     """(start, width) of every run of True in ``on``."""
-    from hydroilqr.metrics.contacts import runs
 
     return [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in runs(on)]
 
@@ -338,6 +438,59 @@ def validate(task) -> None:
     _check_names(task, p)
 
 
+def _num(v, fmt: str) -> str:
+    return format(v, fmt) if isinstance(v, (int, float)) and not isinstance(v, bool) else "-"
+
+
+def _per_foot(m: dict, key: str, fmt: str) -> str:
+    d = m.get(key) or {}
+    return "/".join(_num(d.get(f), fmt) for f in ("FL", "FR", "HL", "HR")) if d else "-"
+
+
+GAIT_REPORT = Report(
+    title="Gaits",
+    intro=(
+        "The cheetah tasks' gaits, from the solved plan (t ≥ 0.2 s). `duty` is the fraction "
+        "of time each foot (FL/FR/HL/HR) is down; `stance slip` the mean horizontal speed of "
+        "the feet's contact points while down; `overlap` the fraction of time both feet of "
+        "the diagonal / lateral pairs are down together; `phase` the lag of a pair's second "
+        "touchdown after its first as a fraction of the stride (0 together, 0.5 alternating: "
+        "a trot has diagonal near 0 and lateral near 0.5); `CoT` the cost of transport "
+        "(absolute actuator work over m·g·distance)."
+    ),
+    columns=(
+        ("v m/s", lambda m: _num(m.get("mean_forward_velocity_mps"), ".2f")),
+        ("duty FL/FR/HL/HR", lambda m: _per_foot(m, "duty_factor", ".2f")),
+        ("stance slip m/s", lambda m: _num(m.get("mean_stance_slip_mps"), ".3f")),
+        (
+            "overlap diag/lat",
+            lambda m: (
+                f"{_num(m.get('diagonal_pair_overlap'), '.2f')}/"
+                f"{_num(m.get('lateral_pair_overlap'), '.2f')}"
+            ),
+        ),
+        (
+            "phase diag/lat",
+            lambda m: (
+                f"{_num((m.get('pair_phase') or {}).get('diagonal'), '.2f')}/"
+                f"{_num((m.get('pair_phase') or {}).get('lateral'), '.2f')}"
+            ),
+        ),
+        ("stride Hz", lambda m: _num(m.get("mean_stride_frequency_hz"), ".2f")),
+        ("CoT", lambda m: _num(m.get("cost_of_transport"), ".2f")),
+        ("body contact steps", lambda m: _num(m.get("body_ground_contact_steps"), "d")),
+    ),
+    figures=("gait.png", "velocity.png"),
+)
+
+
+def _overlaps(m: dict) -> list[str]:
+    diag, lat = m.get("diagonal_pair_overlap"), m.get("lateral_pair_overlap")
+    if isinstance(diag, (int, float)) and isinstance(lat, (int, float)):
+        return [f"diag/lat overlap {diag:.3f}/{lat:.3f}"]
+    return []
+
+
 register(
     Metric(
         "cheetah",
@@ -345,5 +498,11 @@ register(
         plot=plot_cheetah,
         files=("velocity.png", "gait.png"),
         validate=validate,
+        headline=(
+            ("v m/s", "mean_forward_velocity_mps", ".2f", 1.0),
+            ("body contact steps", "body_ground_contact_steps", "d", 1.0),
+        ),
+        headline_more=_overlaps,
+        report=GAIT_REPORT,
     )
 )

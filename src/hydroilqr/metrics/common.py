@@ -5,9 +5,10 @@ the contact timeline)."""
 from __future__ import annotations
 
 import numpy as np
+from pydrake.multibody.tree import BodyIndex
 
-from hydroilqr.metrics import Metric, register
 from hydroilqr.metrics.contacts import contact_metrics, plot_contacts
+from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.problem.config import ConfigError
 
 # ------------------------------------------------------------------------------------------
@@ -64,7 +65,6 @@ def floating_block(task, name: str, param: str):
 
 def body_order(task) -> list[str]:
     """The plant's body names in index order."""
-    from pydrake.multibody.tree import BodyIndex
 
     plant = task.dynamics.plant
     return [plant.get_body(BodyIndex(i)).name() for i in range(plant.num_bodies())]

@@ -12,7 +12,8 @@ normal force of the pair over the steps, from the contact solve of each step (x_
 final state has no step: it adds contact but no force). Plot: ``contacts.png``, pairs against
 time, a bar wherever a pair touches.
 
-``touched_pairs(task)`` gives the pairs a rollout of the initial guess touches (``check``).
+``model.contacts.touched_pairs(task)`` gives the pairs a rollout of the initial guess touches
+(``check``).
 """
 
 from __future__ import annotations
@@ -21,80 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.metrics import Metric, register
+from hydroilqr.io.figures import pyplot, savefig
+from hydroilqr.metrics.registry import Metric, register
+from hydroilqr.model.contacts import runs, timeline
 
 _cache: dict = {}
-
-
-def _normal_force_hydro(info) -> float:
-    """Normal force of a hydroelastic contact: the force along the area-weighted mean normal
-    of its surface."""
-    s = info.contact_surface()
-    F = np.asarray(info.F_Ac_W().translational())
-    n = np.zeros(3)
-    for i in range(s.num_faces()):
-        n += s.area(i) * np.asarray(s.face_normal(i))
-    norm = np.linalg.norm(n)
-    return float(abs(F @ n) / norm) if norm > 0 else float(np.linalg.norm(F))
-
-
-def timeline(task, X: np.ndarray, U: np.ndarray | None):
-    """Contact of every state of X: [T, nx] stepped with U: [T-1, nu] (or fewer rows / None:
-    the states without a control contribute contact from a geometry query, no force).
-
-    Returns (pairs: list of ((geom A, geom B), (body A, body B)) in order of first contact,
-    on: [T, P] bool, force: [T, P] peak normal force per state (0 without a step))."""
-    dyn = task.dynamics
-    plant = dyn.plant
-    names = dyn.geometry_names()
-    unknown = ("?", "?")
-    X = np.asarray(X)
-    U = np.zeros((0, dyn.nu)) if U is None else np.asarray(U)
-    if U.ndim != 2 or U.shape[1] != dyn.nu:
-        U = np.zeros((0, dyn.nu))
-    index: dict = {}
-    pairs: list = []
-    rows: list[dict] = []
-    port = plant.get_contact_results_output_port()
-
-    def add(row, ida, idb, f):
-        a, b = names.get(ida, unknown), names.get(idb, unknown)
-        key = (a[0], b[0]) if a[0] <= b[0] else (b[0], a[0])
-        if key not in index:
-            index[key] = len(pairs)
-            pairs.append((key, (a[1], b[1]) if key[0] == a[0] else (b[1], a[1])))
-        j = index[key]
-        row[j] = max(row.get(j, 0.0), f)
-
-    for k, x in enumerate(X):
-        row: dict = {}
-        if k < len(U) and k < len(X) - 1:
-            plant.SetPositionsAndVelocities(dyn.plant_context, x)
-            dyn._input.FixValue(dyn.context, U[k])
-            results = port.Eval(dyn.plant_context)
-            for i in range(results.num_hydroelastic_contacts()):
-                info = results.hydroelastic_contact_info(i)
-                s = info.contact_surface()
-                add(row, s.id_M(), s.id_N(), _normal_force_hydro(info))
-            for i in range(results.num_point_pair_contacts()):
-                info = results.point_pair_contact_info(i)
-                pp = info.point_pair()
-                f = float(abs(np.asarray(info.contact_force()) @ np.asarray(pp.nhat_BA_W)))
-                add(row, pp.id_A, pp.id_B, f)
-        else:
-            surfaces, points = dyn.contact_query(x)
-            for s in surfaces:
-                add(row, s.id_M(), s.id_N(), 0.0)
-            for pp in points:
-                add(row, pp.id_A, pp.id_B, 0.0)
-        rows.append(row)
-    on = np.zeros((len(X), len(pairs)), bool)
-    force = np.zeros((len(X), len(pairs)))
-    for k, row in enumerate(rows):
-        for j, f in row.items():
-            on[k, j] = True
-            force[k, j] = f
-    return pairs, on, force
 
 
 def _cached(task, sol):
@@ -104,22 +36,6 @@ def _cached(task, sol):
         _cache["key"] = key
         _cache["value"] = timeline(task, sol.X, getattr(sol, "U", None))
     return _cache["value"]
-
-
-def runs(on: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last) index of every run of True in ``on``."""
-    out = []
-    k = 0
-    while k < len(on):
-        if on[k]:
-            j = k
-            while j + 1 < len(on) and on[j + 1]:
-                j += 1
-            out.append((k, j))
-            k = j + 1
-        else:
-            k += 1
-    return out
 
 
 def contact_metrics(task, sol) -> dict:
@@ -142,8 +58,6 @@ def contact_metrics(task, sol) -> dict:
 
 
 def plot_contacts(task, sol, out) -> None:
-    from hydroilqr.output.plots import pyplot, savefig
-
     plt = pyplot()
     pairs, on, _ = _cached(task, sol)
     t = np.asarray(sol.t)
@@ -164,139 +78,4 @@ def plot_contacts(task, sol, out) -> None:
     savefig(fig, Path(out) / "contacts.png")
 
 
-def touched_pairs(task, X: np.ndarray | None = None, steps: int | None = None) -> list[dict]:
-    """Pairs that touch along X: [T, nx] (default: a rollout of the task's initial guess from
-    x0 over ``steps`` steps, default the task's): [{pair, bodies, steps}] in order of first
-    contact. A geometry query per state: no contact solve beyond the rollout's own."""
-    if X is None:
-        N = task.steps if steps is None else int(steps)
-        X = task.dynamics.rollout(task.x0, task.initial_guess(N))
-    pairs, on, _ = timeline(task, X, None)
-    return [
-        {"pair": list(key), "bodies": list(bodies), "steps": int(np.sum(on[:, j]))}
-        for j, (key, bodies) in enumerate(pairs)
-    ]
-
-
-def tracked_bodies(task) -> set[str]:
-    """Bodies whose motion the cost weighs: the bodies moved by every joint (floating ones
-    included) with a state weight > 0 in cost.Q or cost.Qf."""
-    from pydrake.multibody.tree import JointIndex
-
-    dyn = task.dynamics
-    plant = dyn.plant
-    nv = dyn.nv
-    w = np.asarray(task.cost.q) + np.asarray(task.cost.qf)
-    joints = []
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        v0, n = j.velocity_start(), j.num_velocities()
-        if n and (np.any(w[v0 : v0 + n] > 0) or np.any(w[nv + v0 : nv + v0 + n] > 0)):
-            joints.append(j.index())
-    if not joints:
-        return set()
-    return {plant.get_body(b).name() for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
-
-
-def tracked_objects(task) -> set[str]:
-    """The tracked bodies (``tracked_bodies``) that the robot can move only through contact:
-    neither moved by an actuated joint nor on the path from the world to one (a robot's own
-    links and base are excluded), and not welded to the world. A pushed ball or block."""
-    from pydrake.multibody.tree import JointIndex
-
-    plant = task.dynamics.plant
-    parent = {}
-    for i in range(plant.num_joints()):
-        j = plant.get_joint(JointIndex(i))
-        parent[j.child_body().index()] = j.parent_body().index()
-    actuated = [plant.get_joint_actuator(i).joint() for i in plant.GetJointActuatorIndices()]
-    robot = set(plant.GetBodiesKinematicallyAffectedBy([j.index() for j in actuated]))
-    for j in actuated:
-        b = j.parent_body().index()
-        while b in parent and b not in robot:
-            robot.add(b)
-            b = parent[b]
-    robot |= {b.index() for b in plant.GetBodiesWeldedTo(plant.world_body())}
-    names = {plant.get_body(b).name() for b in robot}
-    return tracked_bodies(task) - names
-
-
-def fixed_bodies(task) -> set[str]:
-    """The world and the bodies welded to it (the ground, a table, a wall): touching them
-    moves nothing the robot could push."""
-    plant = task.dynamics.plant
-    return {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
-
-
-#: What to do when no moving body touches a tracked object along the initial guess (solve's
-#: status sentence and check's warning say the same).
-NO_CONTACT_REMEDY = (
-    "give an initial guess that moves the robot into contact with it (an initial_guess file: "
-    "docs/task-format.md) or start them touching; a closer start alone does not help"
-)
-
-
-def touches_moving(pairs: list[dict], tracked: set[str], fixed: set[str]) -> bool:
-    """Some pair of ``pairs`` ([{bodies: [a, b], ...}], as from ``touched_pairs``) has a
-    tracked body touching a body that moves (not one of ``fixed``)."""
-    for p in pairs:
-        a, b = p["bodies"]
-        if (a in tracked and b not in fixed and b != a) or (
-            b in tracked and a not in fixed and a != b
-        ):
-            return True
-    return False
-
-
 register(Metric("contacts", compute=contact_metrics, plot=plot_contacts, files=("contacts.png",)))
-
-
-def touches_tracked(task, X: np.ndarray) -> bool:
-    """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
-    or what is welded to it, such as the ground)."""
-    return touches_moving(touched_pairs(task, X), tracked_objects(task), fixed_bodies(task))
-
-
-def no_contact_remedy(task, X: np.ndarray | None = None, names: str = "the object") -> str:
-    """What to do when no contact along the guess gives the solver no gradient (``check``'s
-    warning and ``solve``'s no-progress sentence): an approach term (a ``distance`` term with
-    ``max``) in a first continuation stage, dropped later, or a guess that moves; a closer
-    start alone does not help. If the task has an approach term: before a solve (``X`` None),
-    that it is there for this; after a solve whose states ``X`` [T, nx] touch nothing, how to
-    strengthen it."""
-    approach = approach_terms(task)
-    if approach:
-        which = f"the approach term{'s' if len(approach) > 1 else ''} {', '.join(approach)}"
-        if X is None:
-            return f"{which} (cost.terms) should bring them into contact first"
-        if not touches_tracked(task, X):
-            return (
-                f"{which} did not bring them into contact: give it more weight, a max below "
-                "0 (a touch, not a near miss) and a window that starts when the robot can be "
-                "there, or an initial guess that moves the robot into contact"
-            )
-    return (
-        "add an approach term (a distance term in cost.terms between the robot's geometry and "
-        f"{names}, with max slightly below 0) in a first continuation stage, with weight 0 in "
-        "the task as written, or give an initial guess that moves the robot into contact; a "
-        'closer start alone does not help (docs/guide.md, "From no contact to contact")'
-    )
-
-
-def approach_terms(task) -> list[str]:
-    """Names of the approach terms (distance terms with a ``max`` or a ``target``, not a
-    clearance ``min`` alone) with a positive weight in the task or one of its continuation
-    stages."""
-    tasks = [task]
-    try:
-        tasks += task.stages()
-    except Exception:  # (a stage that does not build: its error is reported elsewhere)
-        pass
-    names = []
-    for t in tasks:
-        for term in t.config.cost.terms:
-            pulls = term.max is not None or term.target is not None
-            if term.type == "distance" and pulls and np.any(np.asarray(term.weight, float) > 0):
-                if term.name not in names:
-                    names.append(term.name)
-    return names

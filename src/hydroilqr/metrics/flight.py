@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroilqr.metrics import Metric, register
-from hydroilqr.metrics.contacts import _cached, runs
+from hydroilqr.metrics.contacts import _cached
+from hydroilqr.metrics.registry import Metric, register
+from hydroilqr.model.contacts import runs
 from hydroilqr.problem.config import ConfigError
 
 
@@ -80,4 +81,15 @@ def validate_flight(task) -> None:
             raise ConfigError(f"metric_params.foot: no collision geometry or body {f!r}")
 
 
-register(Metric("flight", compute=flight_metrics, validate=validate_flight))
+register(
+    Metric(
+        "flight",
+        compute=flight_metrics,
+        validate=validate_flight,
+        headline=(
+            ("forward m", "base_forward_m", ".3f", 1.0),
+            ("flights", "flight_phases", "d", 1.0),
+            ("longest flight s", "longest_flight_s", ".2f", 1.0),
+        ),
+    )
+)

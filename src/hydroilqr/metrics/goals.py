@@ -17,22 +17,15 @@ is met when every check holds; a task without checks has no goal (``met`` is ``N
 
 from __future__ import annotations
 
+import difflib
 import math
+from types import SimpleNamespace
 from typing import Any
 
-from hydroilqr.problem.config import BOUNDS, ConfigError, GoalCheck
+import numpy as np
 
-
-def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
-    """Raises ConfigError for a check with no bound or with inverted bounds."""
-    for name, check in goal.items():
-        key = f"{where}.{name}"
-        if not name:
-            raise ConfigError(f"{where}: a check needs a metric name")
-        if all(getattr(check, b) is None for b in BOUNDS):
-            raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
-        if check.min is not None and check.max is not None and check.min > check.max:
-            raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
+from hydroilqr.metrics.registry import compute
+from hydroilqr.problem.config import ConfigError, GoalCheck
 
 
 def lookup(metrics: dict, name: str) -> Any:
@@ -102,6 +95,13 @@ def judge(config, metrics: dict) -> dict:
     return {**evaluate(config.goal, metrics), "judged": not config.smoke_run}
 
 
+def judge_loop(config, metrics: dict) -> dict:
+    """The goal record of a closed loop (``mpc.json``): ``mpc.goal`` where the task declares
+    one, else its ``goal``, evaluated on the loop's ``metrics``; ``source`` names which."""
+    goal, source = (config.mpc.goal, "mpc.goal") if config.mpc.goal else (config.goal, "goal")
+    return {**evaluate(goal, metrics), "judged": not config.smoke_run, "source": source}
+
+
 def verdict_line(result: dict) -> str:
     """``goal: PASS (2/2 checks)`` or ``goal: FAIL (1/2): target_error_m 0.067 > 0.03``."""
     checks = result.get("checks") or []
@@ -132,21 +132,24 @@ def check_names(task) -> None:
     (a misspelled name would otherwise fail only after the solve). The names come from the
     task's metrics computed on a two-step rollout of its initial guess; if that probe cannot
     be computed, the names are checked after the solve instead."""
-    goal = task.config.goal
-    if not goal:
+    goals = [("goal", task.config.goal), ("mpc.goal", task.config.mpc.goal)]
+    if not any(goal for _, goal in goals):
         return
     names = _probe_names(task)
     if names is None:
         return
+    for where_goal, goal in goals:
+        _check_goal_names(task, goal, where_goal, names)
+
+
+def _check_goal_names(task, goal: dict, key: str, names: set[str]) -> None:
     for name, check in goal.items():
         for ref, where in (
-            (name, f"goal.{name}"),
-            (check.above, f"goal.{name}.above"),
-            (check.below, f"goal.{name}.below"),
+            (name, f"{key}.{name}"),
+            (check.above, f"{key}.{name}.above"),
+            (check.below, f"{key}.{name}.below"),
         ):
             if ref is not None and ref not in names:
-                import difflib
-
                 close = difflib.get_close_matches(ref, sorted(names), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else ""
                 raise ConfigError(
@@ -156,17 +159,11 @@ def check_names(task) -> None:
 
 
 def _probe_names(task) -> set[str] | None:
-    from types import SimpleNamespace
-
-    import numpy as np
-
-    from hydroilqr import metrics as metrics_mod
-
     try:
         dyn = task.dynamics
         U = task.initial_guess(2)
         X = dyn.rollout(task.x0, U)
         probe = SimpleNamespace(t=dyn.dt * np.arange(3), X=X, U=U, extra={}, costs=[0.0])
-        return reported_names(metrics_mod.compute(task, probe))
+        return reported_names(compute(task, probe))
     except Exception:  # noqa: BLE001 - a probe only: the goal is checked after the solve
         return None

@@ -14,14 +14,15 @@ named by ``metric_params.ball``, default ``ball``): it gives the ``object`` metr
 
 from __future__ import annotations
 
-from hydroilqr.metrics import Metric, register
 from hydroilqr.metrics.objects import (
+    HEADLINE,
     object_metrics,
     object_values,
     plot_files,
     plot_object,
     validate_kinova,
 )
+from hydroilqr.metrics.registry import Metric, register
 
 
 def kinova_metrics(task, sol) -> dict:
@@ -38,5 +39,7 @@ register(
         plot=plot_object,
         files=plot_files,
         validate=validate_kinova,
+        headline=HEADLINE,
+        moves_object=True,
     )
 )

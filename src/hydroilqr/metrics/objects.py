@@ -30,9 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.metrics import Metric, register
+from hydroilqr.io.figures import pyplot, savefig
+from hydroilqr.io.files import file_name
 from hydroilqr.metrics.common import body_order, contact_pairs, floating_block
-from hydroilqr.output.files import file_name
+from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.problem.config import ConfigError
 
 _cache: dict = {}
@@ -146,8 +147,6 @@ def object_metrics(task, sol) -> dict:
 
 
 def plot_object(task, sol, out: Path) -> None:
-    from hydroilqr.output.plots import pyplot, savefig
-
     plt = pyplot()
     name, P, targets, w = track(task, sol)
     t = np.asarray(sol.t)
@@ -168,6 +167,12 @@ def plot_files(params: dict) -> tuple[str, ...]:
     return (file_name(object_name(params)),)
 
 
+#: The object's numbers on the results page (the Kinova ball: target error, lift).
+HEADLINE = (
+    ("ball err cm", "target_error_m", ".1f", 100.0),
+    ("lift cm", "max_ball_height_gain_m", ".1f", 100.0),
+)
+
 register(
     Metric(
         "object",
@@ -175,5 +180,7 @@ register(
         plot=plot_object,
         files=plot_files,
         validate=validate,
+        headline=HEADLINE,
+        moves_object=True,
     )
 )

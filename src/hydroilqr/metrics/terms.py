@@ -10,7 +10,7 @@ A goal can check them (``term_error.reach: {max: 0.02}``). Each term's cost is i
 
 from __future__ import annotations
 
-from hydroilqr.metrics import Metric, register
+from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.problem.config import ConfigError
 
 
@@ -65,4 +65,13 @@ def validate_terms(task) -> None:
         raise ConfigError("metrics: the terms metric needs cost.terms (the task has none)")
 
 
-register(Metric("terms", compute=term_metrics, validate=validate_terms))
+def _term_errors(m: dict) -> list[str]:
+    """Each task-space term's final error, in its units."""
+    return [
+        f"term {term} err {err:.3g}"
+        for term, err in (m.get("term_error") or {}).items()
+        if isinstance(err, (int, float)) and not isinstance(err, bool)
+    ]
+
+
+register(Metric("terms", compute=term_metrics, validate=validate_terms, headline_more=_term_errors))

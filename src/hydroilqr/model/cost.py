@@ -33,8 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroilqr.io.rundir import read_run_arrays
 from hydroilqr.model.state import StateLayout
+from hydroilqr.model.terms import TaskSpaceTerms
 from hydroilqr.problem.config import ConfigError, CostConfig
+from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
 
 
 @dataclass
@@ -116,7 +119,6 @@ class QuadraticCost:
             if dynamics is None:
                 raise ConfigError("cost.terms: task-space terms need the task's plant")
             # (late: model/terms.py loads pydrake, which a cost without terms never needs)
-            from hydroilqr.model.terms import TaskSpaceTerms
 
             x0 = dynamics.initial_state() if x0 is None else x0
             cost.task_terms = TaskSpaceTerms(
@@ -313,10 +315,8 @@ class QuadraticCost:
 def _load_reference(
     layout: StateLayout, cfg: CostConfig, resolve, models=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    from hydroilqr.solver.solution import load_run_solution
-
-    sol, path = load_run_solution(
-        resolve(cfg.reference) if resolve else cfg.reference, "cost.reference"
+    arrays, path = read_run_arrays(
+        resolve(cfg.reference) if resolve else cfg.reference, ("X", "t"), "cost.reference"
     )
     theirs = _run_models(path.parent)
     if models is not None and theirs is not None:
@@ -326,7 +326,7 @@ def _load_reference(
                 f"cost.reference: {path.parent} is a run of other models ({', '.join(theirs)}), "
                 f"not this task's ({', '.join(mine)})"
             )
-    X, t = np.asarray(sol.X, float), np.asarray(sol.t, float)
+    X, t = np.asarray(arrays["X"], float), np.asarray(arrays["t"], float)
     if X.ndim != 2 or X.shape[1] != layout.nx or t.shape != (X.shape[0],):
         raise ConfigError(
             f"cost.reference: {path} holds states of shape {X.shape}, not [M, {layout.nx}]"
@@ -339,8 +339,6 @@ def _load_reference(
 def _run_models(run_dir: Path) -> list[str] | None:
     """File names of the models a run's summary.json records (None: not recorded)."""
     try:
-        from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
-
         text = read_bounded(run_dir / "summary.json", "summary", MAX_JSON_BYTES)
         models = json.loads(text)["config"]["models"]
         return sorted(Path(m["file"]).name for m in models)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -26,14 +28,20 @@ from pydrake.geometry import (
     Cylinder,
     GeometrySet,
     HalfSpace,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
     ProximityProperties,
+    Role,
     RoleAssign,
     SceneGraph,
     Sphere,
 )
+from pydrake.geometry import HydroelasticContactRepresentation as Rep
 from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, MultibodyPlantConfig
+from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
 from hydroilqr.model.state import StateLayout
@@ -45,7 +53,9 @@ from hydroilqr.problem.config import (
     PlantConfig,
     SceneObject,
     TaskConfig,
+    unknown_key,
 )
+from hydroilqr.problem.inputs import MAX_MESH_BYTES, MAX_MODEL_BYTES, check_file, read_bounded
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6
@@ -353,9 +363,6 @@ def check_model_references(path: Path | None, package_map, key: str, depth: int 
     models, followed) is a regular file within its size cap: ConfigError naming the model
     and the file otherwise, before Drake reads any (a mesh that is /dev/zero or a named pipe
     would exhaust memory or wait forever). References it cannot resolve are left to Drake."""
-    import xml.etree.ElementTree as ET
-
-    from hydroilqr.problem.inputs import MAX_MESH_BYTES, MAX_MODEL_BYTES, check_file, read_bounded
 
     if path is None or depth > MODEL_INCLUDE_DEPTH:
         return
@@ -411,7 +418,6 @@ def _drake_warnings():
     """The messages Drake logs (pydrake's "drake" logger) inside the block, as a list; held
     back while it runs and logged as usual after it unless ``_refuse_replaced_inertia``
     turns one into the command's one error line."""
-    import logging
 
     class _Collect(logging.Handler):
         def emit(self, record):
@@ -441,7 +447,6 @@ def _refuse_replaced_inertia(messages: list[str], where: str) -> None:
     """Drake parses an ``<inertial>`` that no body has (a negative mass, an impossible
     inertia) with a warning and a made-up inertia in its place: refused here, naming the
     line."""
-    import re
 
     for msg in messages:
         if _replaced_inertia(msg):
@@ -464,7 +469,6 @@ def apply_actuators(task: TaskConfig, plant) -> None:
     for i in plant.GetJointActuatorIndices():
         a = plant.get_joint_actuator(i)
         acts[a.name()] = a
-    from hydroilqr.problem.config import unknown_key
 
     for name, cfg in task.actuators.items():
         a = acts.get(name)
@@ -518,7 +522,6 @@ def check_inertias(plant) -> None:
     """ConfigError naming the first body whose mass or rotational inertia no physical body
     has (a negative or non-finite mass, an inertia that violates the triangle inequality):
     Drake would simulate it, into nonsense."""
-    from pydrake.multibody.tree import BodyIndex
 
     for i in range(1, plant.num_bodies()):  # (0: the world)
         body = plant.get_body(BodyIndex(i))
@@ -613,9 +616,6 @@ def _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer: b
     """MeshcatVisualizer (and ContactVisualizer) on ``meshcat``; none without it."""
     visualizers = ()
     if meshcat is not None:
-        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
-        from pydrake.multibody.meshcat import ContactVisualizer, ContactVisualizerParams
-
         vis = MeshcatVisualizer.AddToBuilder(
             builder, scene_graph, meshcat, MeshcatVisualizerParams(role=Role.kIllustration)
         )
@@ -884,7 +884,6 @@ class Dynamics:
     def contact_query(self, x: np.ndarray) -> tuple[list, list]:
         """(hydroelastic contact surfaces, point pairs) at x: [nx]: a geometry query, no contact
         solve, so it is cheap and works for any state and contact solver."""
-        from pydrake.geometry import HydroelasticContactRepresentation as Rep
 
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         query = self.plant.get_geometry_query_input_port().Eval(self.plant_context)

@@ -32,6 +32,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.problem.config import ConfigError
 
@@ -107,8 +108,6 @@ class StateLayout:
 
     @staticmethod
     def from_plant(plant) -> StateLayout:
-        from pydrake.multibody.tree import JointIndex
-
         nq, nv = plant.num_positions(), plant.num_velocities()
         blocks: list[Block] = []
         components: list[Block] = []

@@ -40,8 +40,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.common.eigen_geometry import Quaternion
+from pydrake.math import RollPitchYaw
+from pydrake.multibody.tree import FrameIndex, JacobianWrtVariable
 
+from hydroilqr.model.plant import named_geometries
 from hydroilqr.model.state import left_mul_matrix, quat_conj
 from hydroilqr.problem.config import AXES, ConfigError, TermConfig, unknown_key
 
@@ -130,8 +133,6 @@ class TaskSpaceTerms:
         raise ConfigError(f"{key}: {unknown_key(name, self._frame_names(), 'body or frame')}")
 
     def _frame_names(self) -> list[str]:
-        from pydrake.multibody.tree import FrameIndex
-
         names = []
         for i in range(self.plant.num_frames()):
             n = self.plant.get_frame(FrameIndex(i)).name()
@@ -160,8 +161,6 @@ class TaskSpaceTerms:
         weights = np.full(len(sel), w[0]) if w.size == 1 else w
         t = _Term(c, weights, sel)
         if c.type == "distance":
-            from hydroilqr.model.plant import named_geometries
-
             geoms = self.dynamics.geometry_names()
             a = named_geometries(c.geometry_a, geoms, f"{key}.geometry_a")
             b = named_geometries(c.geometry_b, geoms, f"{key}.geometry_b")
@@ -435,7 +434,6 @@ class TaskSpaceTerms:
 # ---------------------------------------------------------------------------------- rotations
 def _quaternion(target) -> np.ndarray:
     """A unit quaternion [w, x, y, z] from roll-pitch-yaw [3] (rad) or a quaternion [4]."""
-    from pydrake.math import RollPitchYaw
 
     v = np.asarray(target, float)
     if v.size == 3:
@@ -456,7 +454,5 @@ def _right_mul_matrix(b: np.ndarray) -> np.ndarray:
 
 def _rpy(q: np.ndarray) -> list[float]:
     """Roll, pitch, yaw (rad) of a unit quaternion [w, x, y, z]."""
-    from pydrake.common.eigen_geometry import Quaternion
-    from pydrake.math import RollPitchYaw
 
     return RollPitchYaw(Quaternion(q / np.linalg.norm(q))).vector().tolist()

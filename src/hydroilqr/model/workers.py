@@ -27,22 +27,17 @@ import multiprocessing
 import os
 import sys
 import threading
+import time
 import weakref
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
+from hydroilqr.io.environment import cores
+from hydroilqr.model.autodiff import autodiff_serial
 from hydroilqr.model.plant import Dynamics, SimulationError
 
 _DYN: Dynamics | None = None  # the plant of this worker process
-
-
-def cores() -> int:
-    """Cores this process may run on (its CPU affinity), not the host's."""
-    try:
-        return len(os.sched_getaffinity(0)) or 1
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
 
 
 def resolve(count: int) -> int:
@@ -161,8 +156,6 @@ def _exit_with_parent(parent: int, period: float = 1.0) -> None:
     wait forever on the pool's queue, holding its plant: it exits once it is orphaned."""
 
     def watch() -> None:
-        import time
-
         while os.getppid() == parent:
             time.sleep(period)
         os._exit(0)
@@ -175,8 +168,6 @@ def _ready() -> bool:
 
 
 def _autodiff(X: np.ndarray, U: np.ndarray):
-    from hydroilqr.model.derivatives import autodiff_serial
-
     return autodiff_serial(_DYN, X, U)
 
 
@@ -189,12 +180,11 @@ def _rollout(x0, Ubar, Xbar, K, kappa, eps):
 
 # ------------------------------------------------------------------------------ in this process
 def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
-    """Same result as ``derivatives.autodiff_serial`` on X: [N, nx], U: [N, nu]: the steps are
+    """Same result as ``autodiff.autodiff_serial`` on X: [N, nx], U: [N, nu]: the steps are
     dealt out to ``workers`` chunks in turn (steps i, i + workers, ...; the first chunk computed
     here), so that steps in contact, which cost several times more, spread evenly. (Contiguous
     chunks left one process idle while the other finished a stance phase: a 22-step cheetah
     call took 76-148 ms instead of 67-133 ms, measured 2026-11-24.) Raises Unavailable."""
-    from hydroilqr.model.derivatives import autodiff_serial
 
     pool(dyn, workers)
     N = U.shape[0]

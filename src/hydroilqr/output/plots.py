@@ -1,31 +1,22 @@
-"""Figures: the one place a figure is saved (``savefig``), and the convergence plot every solve
-writes. Plots of metrics live with their metric (``hydroilqr.metrics``); studies and control
-loops draw their own figures and save them here."""
+"""The plots (and the reference table) of each result set: convergence.png of a solve, mpc.png,
+playback.png, reference.csv and playback.html. Figures are saved with ``io.figures.savefig``;
+plots of metrics live with their metric (``hydroilqr.metrics``)."""
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from pydrake.multibody.tree import JointIndex
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from hydroilqr.control.mpc import MPCResult
+from hydroilqr.control.playback import PlaybackResult
+from hydroilqr.io.figures import pyplot, savefig
+from hydroilqr.model.plant import position_unit
+from hydroilqr.output.replay import write_replay
 
-DPI = 120
-
-
-def pyplot():
-    """matplotlib.pyplot on the non-interactive backend (figures are only written to files)."""
-    return plt
-
-
-def savefig(fig, path: str | Path, dpi: int = DPI) -> Path:
-    """Lays ``fig`` out (tight), writes it to ``path`` and closes it."""
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)
+plt = pyplot()
 
 
 def plot_convergence(sol, path: Path, title: str) -> None:
@@ -51,3 +42,144 @@ def plot_convergence(sol, path: Path, title: str) -> None:
     ax.set_title(f"{title}: iLQR cost per iteration")
     ax.grid(True, which="both", alpha=0.3)
     savefig(fig, path)
+
+
+def plotted_blocks(task) -> list[tuple[str, str]]:
+    """(name, unit) of the (at most 4) weighted position blocks of the running cost that
+    mpc.png plots: euclidean blocks whose coordinates all lie in q (a velocity group such as
+    the Kinova's ``arm_v`` is left out whatever its name). The unit: "m" or "rad" when every
+    coordinate is a prismatic/revolute joint's or a floating body's position, else ""."""
+    layout, plant = task.dynamics.layout, task.dynamics.plant
+    joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
+
+    def unit(coords) -> str:
+        units = {
+            position_unit(j)
+            for c in coords
+            for j in joints
+            if j.position_start() <= c < j.position_start() + j.num_positions()
+        }
+        return units.pop() if len(units) == 1 else ""
+
+    return [
+        (n, unit(layout.block(n).coords))
+        for n, w in task.config.cost.Q.items()
+        if np.any(np.asarray(w, float) > 0)
+        and layout.block(n).kind == "euclidean"
+        and all(c < layout.nq for c in layout.block(n).coords)
+    ][:4]
+
+
+def plot_mpc(task, res: MPCResult, path: Path) -> None:
+    layout = task.dynamics.layout
+    blocks = plotted_blocks(task)
+    fig, axes = plt.subplots(len(blocks) + 1, 1, figsize=(7, 2.0 * (len(blocks) + 1)), sharex=True)
+    axes = np.atleast_1d(axes)
+    xn = task.cost.nominal(res.t)
+    for ax, (name, unit) in zip(axes, blocks):
+        b = layout.block(name)
+        for j, c in enumerate(b.coords):
+            lab = f"{name}[{j}]" if len(b.coords) > 1 else name
+            (line,) = ax.plot(res.t, res.X[:, c], label=lab)
+            # the nominal in its coordinate's colour: several share a panel (a ball's x, y, z)
+            ax.plot(res.t, xn[:, c], "--", color=line.get_color(), lw=0.8, label=f"{lab} nominal")
+        ax.set_ylabel(f"{name} [{unit}]" if unit else f"{name}\n(model units)")
+    for i, p in enumerate(res.settings.pushes):
+        for ax in axes:
+            ax.axvspan(
+                p.time,
+                p.time + p.duration,
+                color="red",
+                alpha=0.15,
+                label="push" if i == 0 else None,
+            )
+    for ax in axes[:-1]:  # beside the panel: a legend inside hid a target line
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
+    ax = axes[-1]
+    solve_ms = 1e3 * np.array(res.solve_seconds)
+    period = 1e3 / res.settings.rate
+    ax.plot(res.update_times, solve_ms, ".", ms=3, label="solve time")
+    ax.axhline(period, color="k", ls="--", lw=0.8, label="control period")
+    span = solve_ms[solve_ms > 0]
+    if span.size and max(span.max(), period) / min(span.min(), period) > 30:
+        ax.set_yscale("log")  # solve times far above (or below) the period: all visible
+    ax.set_ylabel("solve time [ms]")
+    ax.set_xlabel("time [s]")
+    ax.set_xlim(res.t[0], res.t[-1])  # a push lasting past the run's end widened the axis
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
+    axes[0].set_title(f"{task.name}: closed-loop MPC at {res.settings.rate:g} Hz")
+    savefig(fig, path)
+
+
+def write_reference_csv(r: PlaybackResult, path: Path) -> None:
+    """time, q̄_J, v̄_J, ū at the update rate; units in the column names (docs/playback.md)."""
+
+    def vunit(u):
+        return "m_per_s" if u == "m" else "rad_per_s"
+
+    header = ["time_s"]
+    header += [f"q_{j}_{u}" for j, u in zip(r.joints, r.joint_units)]
+    header += [f"v_{j}_{vunit(u)}" for j, u in zip(r.joints, r.joint_units)]
+    header += [f"u_{a}_{'N' if u == 'm' else 'Nm'}" for a, u in zip(r.actuators, r.joint_units)]
+    ref = r.reference
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        for i in range(len(ref.t)):
+            w.writerow(
+                [f"{ref.t[i]:.6f}"] + [f"{v:.9g}" for v in np.r_[ref.q[i], ref.v[i], ref.u[i]]]
+            )
+
+
+def plot_playback(r: PlaybackResult, path: Path, title: str) -> None:
+    c = list(r.obj.coords)
+    t, X, X_plan = r.t, r.X, r.X_plan
+    if r.hold is not None and len(r.hold.t):  # the hold after the plan, on the same axes
+        t = np.concatenate([t, r.hold.t])
+        X = np.concatenate([X, r.hold.X])
+        X_plan = np.concatenate([X_plan, r.hold.X_plan])
+    labels = ["x", "y", "z"] if r.obj.kind == "floating" else [r.obj.name]
+    if len(c) != len(labels):
+        labels = [f"{r.obj.name}[{i}]" for i in range(len(c))]
+    rows = len(c) + 1
+    fig, axes = plt.subplots(rows, 1, figsize=(6.4, 1.9 * rows + 0.6), sharex=True)
+    for i, ax in enumerate(axes[:-1]):
+        stretched = abs(r.settings.speed - 1.0) > 1e-12
+        plan_label = "planned (time-stretched)" if stretched else "planned"
+        ax.plot(t, X_plan[:, c[i]], "--", color="0.4", label=plan_label)
+        ax.plot(t, X[:, c[i]], color="C0", label="actual")
+        ax.set_ylabel(f"{labels[i]} [{r.obj.unit}]" if r.obj.unit else labels[i])
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8, loc="best")
+    ax = axes[-1]
+    m = r.metrics
+    qi = r.q_indices
+    for i, name in enumerate(r.joints):
+        ax.plot(t, X[:, qi[i]] - X_plan[:, qi[i]], lw=1, label=name)
+    units = set(r.joint_units)
+    unit = f" [{units.pop()}]" if len(units) == 1 else " [m or rad]"
+    ax.set_ylabel(f"joint error{unit}\n(actual − plan)")
+    ax.set_xlabel("playback time [s]")
+    ax.grid(alpha=0.3)
+    if len(r.joints) <= 12:  # one joint too: which one it is (the cart-pole's cart)
+        ax.legend(fontsize=6, ncol=4, loc="best")
+    ob = m["object"]
+    gaps = f"final gap {ob['final_gap']:.3g} {r.obj.unit}"
+    if ob.get("resting_gap") is not None:
+        gaps = f"resting gap {ob['resting_gap']:.3g} {r.obj.unit} (at the plan's end {gaps[6:]})"
+    fig.suptitle(
+        f"{title}: {m['policy']} playback at speed {r.settings.speed:g}, truth plant "
+        f"{r.truth_contact} contact, dt={r.settings.truth_time_step:g} s\n{gaps}, max deviation "
+        f"{ob['max_deviation']:.3g} {r.obj.unit}",
+        fontsize=9,
+    )
+    if len(t) > len(r.t):
+        for ax in axes:  # the plan's end; after it the robot holds its last reference
+            ax.axvline(r.t[-1], color="0.6", lw=0.8, ls=":")
+    savefig(fig, path)
+
+
+def write_playback_replay(task, r: PlaybackResult, path: Path) -> None:
+    """Meshcat HTML: the actual motion first, then (after a short pause) the plan at the same
+    playback speed."""
+    write_replay(task, [r.X, r.X_plan], r.t, path, inputs=[r.U, r.U_plan])

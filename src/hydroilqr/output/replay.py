@@ -14,9 +14,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from pydrake.geometry import Meshcat, MeshcatParams
 
+from hydroilqr.io.files import atomic_write
 from hydroilqr.model.plant import build_diagram
-from hydroilqr.output.files import atomic_write
 
 _MESHCAT = None
 
@@ -29,8 +30,6 @@ def meshcat_instance():
     URL; a replay file needs none); Drake's warnings and errors still show."""
     global _MESHCAT
     if _MESHCAT is None:
-        from pydrake.geometry import Meshcat, MeshcatParams
-
         with _drake_info_held_back():
             _MESHCAT = Meshcat(MeshcatParams())
     return _MESHCAT

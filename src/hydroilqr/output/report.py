@@ -12,16 +12,23 @@ velocity.png, gait.png, ...)
 
 from __future__ import annotations
 
-import functools
+import errno
+import fcntl
 import json
 import os
+import signal
+import stat
+import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
 
 from hydroilqr import metrics as metrics_mod
-from hydroilqr.output.files import atomic_write
-from hydroilqr.output.plots import plot_convergence
+from hydroilqr.io.files import atomic_write
+from hydroilqr.io.rundir import RESULT_MARKERS, previous_task
+from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.inputs import read_bounded
 
 
 def json_safe(obj):
@@ -51,9 +58,6 @@ class deferred_interrupt:
     (so a directory never holds half of the old results and half of the new)."""
 
     def __enter__(self):
-        import signal
-        import threading
-
         self.got = False
         self.old = None
         if threading.current_thread() is threading.main_thread():
@@ -68,8 +72,6 @@ class deferred_interrupt:
         self.got = True
 
     def __exit__(self, exc_type, exc, tb) -> bool:
-        import signal
-
         if self.old is not None:
             signal.signal(signal.SIGINT, self.old)
         if self.got and exc_type is None:
@@ -77,75 +79,8 @@ class deferred_interrupt:
         return False
 
 
-def write_outputs(
-    task,
-    sol,
-    out: str | Path,
-    replay: bool = True,
-    wall_seconds: float | None = None,
-    command: str | None = None,
-    extra_summary: dict | None = None,
-) -> dict:
-    """Writes the standard outputs; returns the summary dict. ``wall_seconds``: the solve's
-    wall time as the caller measured it (setup included), recorded last in summary.json;
-    ``command``: the command line that ran the solve (``environment.command``);
-    ``extra_summary``: more top-level entries (e.g. ``multistart``)."""
-    from hydroilqr.metrics.goals import judge
-
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    sol.save(out / "solution.npz")
-    metrics = metrics_mod.compute(task, sol)
-    summary = {
-        "task": task.name,
-        **sol.stats(),
-        # judged: false for a smoke-sized run (its goal is the full task's; exit code 0)
-        "goal": judge(task.config, metrics),
-        "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
-        "metrics": metrics,
-        **(extra_summary or {}),
-        "extra": sol.extra,
-        "config": task.config.to_dict(),
-        # Directory the config's relative paths resolve against (rebuild with
-        # config.task_from_dict(summary["config"], summary["base_dir"])).
-        "base_dir": task.config.base_dir,
-        "environment": environment(command),
-    }
-    if wall_seconds is not None:
-        summary["wall_seconds"] = wall_seconds
-    write_json(out / "summary.json", summary)
-    plot_convergence(sol, out / "convergence.png", task.name)
-    metrics_mod.plot(task, sol, out)
-    if replay:
-        from hydroilqr.output.replay import write_replay
-
-        write_replay(task, sol.X, sol.t, out / "replay.html", inputs=sol.U)
-    return summary
-
-
 # Files and directories a solve (and playbacks of its solution) write into a run directory.
 SOLVE_FILES = ("summary.json", "solution.npz", "convergence.png", "replay.html", "checkpoint.npz")
-
-
-# Files that mark a directory as holding some task's results (each has a "task" field).
-RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json", "bench.json")
-
-
-def previous_task(out: Path) -> str | None:
-    """Name of the task whose results ``out`` holds (None: no results there)."""
-    from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
-
-    for marker in RESULT_MARKERS:
-        path = Path(out) / marker
-        if not path.exists():
-            continue
-        try:
-            task = json.loads(read_bounded(path, "results file", MAX_JSON_BYTES)).get("task")
-        except (OSError, ValueError, AttributeError):
-            continue
-        if task:
-            return str(task)
-    return None
 
 
 def output_dir(out: str | Path, task_name: str | None = None, playback: bool = False) -> Path:
@@ -153,7 +88,6 @@ def output_dir(out: str | Path, task_name: str | None = None, playback: bool = F
     another task's results (results are never mixed or overwritten across tasks), or (unless
     ``playback``) if it is a ``playback-*`` directory of a solved run, which the next solve
     of that run clears."""
-    from hydroilqr.problem.config import ConfigError
 
     if not str(out).strip():
         raise ConfigError("--out: an empty directory name")
@@ -197,7 +131,6 @@ _CREATED: list[list[Path]] = []  # directories this process created per output (
 def discard_empty_outputs() -> None:
     """Removes the output directories this process created that hold nothing but their lock
     file (a command that failed before writing a result leaves no empty directory behind)."""
-    import os
 
     while _CREATED:
         dirs = _CREATED.pop()
@@ -242,8 +175,6 @@ class _Foreign(Exception):
 def _open_lock_file(path: Path) -> int:
     """The lock file at ``path`` opened (created if missing) without following a link;
     _Foreign if the path is not a lock file of ours."""
-    import os
-    import stat
 
     flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
     if path.is_symlink():
@@ -251,8 +182,6 @@ def _open_lock_file(path: Path) -> int:
     try:
         fd = os.open(path, flags, 0o644)
     except OSError as e:
-        import errno
-
         if e.errno == errno.ELOOP:
             raise _Foreign from None
         raise
@@ -264,8 +193,6 @@ def _open_lock_file(path: Path) -> int:
 
 
 def _foreign_lock(path: Path):
-    from hydroilqr.problem.config import ConfigError
-
     return ConfigError(
         f"{path}: not a lock file hydroilqr made (a link or a special file): remove it and "
         "run again"
@@ -274,7 +201,6 @@ def _foreign_lock(path: Path):
 
 def _is_file_at(fd: int, path: Path) -> bool:
     """Whether the open file ``fd`` is still the file at ``path`` (not removed or replaced)."""
-    import os
 
     try:
         st = os.stat(path)
@@ -288,8 +214,6 @@ def _hold(path: Path, shared: bool, fd: int | None = None) -> int:
     """An flock on the lock file ``path`` (``fd``: already open on it, e.g. a shared lock to
     upgrade), on the file that is at ``path`` once it is held; OSError if it cannot be opened,
     _Held if another process holds it."""
-    import fcntl
-    import os
 
     mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB
     for _ in range(100):  # each retry follows a holder's release: this ends at once
@@ -312,9 +236,6 @@ def _lock(out: Path) -> None:
     held until ``release_locks`` (or the process ends, even by kill -9), or until
     ``discard_empty_outputs`` removes a directory this process created for nothing. Also
     proves the directory is writable before any work is done."""
-    import os
-
-    from hydroilqr.problem.config import ConfigError
 
     key = str(Path(out).resolve())
     if key in _LOCKS:
@@ -346,8 +267,6 @@ def _lock(out: Path) -> None:
 def _holder(path: Path) -> str:
     """Who holds the lock file ``path``, as the refusal says it."""
     try:
-        from hydroilqr.problem.inputs import read_bounded
-
         other = read_bounded(path, "lock file", 4096).decode(errors="replace").strip()
     except (OSError, ValueError):
         other = ""
@@ -358,10 +277,6 @@ def _holder(path: Path) -> str:
 
 def _probe_writable(out: Path) -> None:
     """ConfigError unless a file can be created (and removed) in ``out``."""
-    import os
-    import tempfile
-
-    from hydroilqr.problem.config import ConfigError
 
     try:
         fd, probe = tempfile.mkstemp(prefix=".hydroilqr-probe-", dir=out)
@@ -375,7 +290,6 @@ def read_lock(run_dir: Path) -> None:
     """A shared lock on a run directory this process reads (playback of its plan): a solve
     into it is refused meanwhile, so a playback never pairs an old plan with new results.
     Nothing to do where the directory is not writable (nothing can replace it either)."""
-    from hydroilqr.problem.config import ConfigError
 
     key = str(Path(run_dir).resolve())
     if key in _LOCKS or key in _READ_LOCKS:
@@ -399,7 +313,6 @@ def release_locks() -> None:
     """Releases every lock this process holds (the command is done with its directories).
     Each lock file is removed unless another process holds it too (a playback sharing a read
     lock), which then removes it when it is done."""
-    import os
 
     if os.getpid() != _PID:  # a forked copy of this process: its parent holds them
         return
@@ -413,9 +326,6 @@ _PID = os.getpid()  # the process whose tables these are (a forked child inherit
 
 
 def _release(path: Path, fd: int) -> None:
-    import fcntl
-    import os
-
     try:
         # Exclusive (a shared lock is upgraded): no other process holds this file then.
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -452,118 +362,3 @@ def _previous_plot_files(out: Path) -> set[str]:
         return metrics_mod.plot_files(cfg.get("metrics") or [], cfg.get("metric_params") or {})
     except (OSError, ValueError, AttributeError, TypeError):
         return set()
-
-
-#: Written beside the package when it is built (setup.py): the commit it was built from.
-BUILD_COMMIT_FILE = "_build_commit.txt"
-
-
-@functools.cache
-def code_version() -> str:
-    """The checkout's commit (+ "-dirty" if the package sources are modified), for provenance:
-    a resumed sweep may mix points computed by different code. An installed package (not in
-    a git checkout): the commit recorded when it was built, "COMMIT (installed build)", or
-    "installed package, commit unknown"."""
-    return package_code(Path(__file__).parent.parent)
-
-
-def package_code(package_dir: Path) -> str:
-    """``code_version`` of the package in ``package_dir``."""
-    commit = _checkout_commit(package_dir)
-    if commit:
-        return commit
-    try:
-        built = (package_dir / BUILD_COMMIT_FILE).read_text(encoding="utf-8")[:64].strip()
-    except (OSError, UnicodeDecodeError):
-        built = ""
-    return f"{built} (installed build)" if built else "installed package, commit unknown"
-
-
-def _checkout_commit(package_dir: Path) -> str:
-    """The commit of the git checkout whose tracked sources ``package_dir`` is ("" when it is
-    not one: e.g. an installed copy, even inside another repository's ignored .venv)."""
-    import subprocess
-
-    def git(*args: str) -> str:
-        return subprocess.run(
-            ["git", *args], cwd=package_dir, text=True, capture_output=True, timeout=10
-        ).stdout.strip()
-
-    try:
-        if not git("ls-files", "--", "__init__.py"):
-            return ""
-        head = git("rev-parse", "--short", "HEAD")
-        dirty = git("status", "--porcelain", "--", ".")
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return head + ("-dirty" if head and dirty else "")
-
-
-def environment(command: str | None = None) -> dict:
-    """What produced a result: code commit, package versions, CPU. Contact-rich solves are
-    sensitive to last-bit floating-point differences, so a number is only comparable with
-    numbers from the same environment. ``command``: the command line that produced it (the
-    CLI passes its own; None from Python)."""
-    import importlib.metadata as md
-    import platform
-
-    from hydroilqr.model.workers import cores
-
-    def version(pkg: str) -> str | None:
-        try:
-            return md.version(pkg)
-        except md.PackageNotFoundError:
-            return None
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(
-                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
-            )
-    except OSError:
-        pass
-    # Vector instructions decide which BLAS kernels run (last bits of every matrix product).
-    try:
-        from numpy._core._multiarray_umath import __cpu_features__ as feats
-    except ImportError:  # another numpy layout: not recorded
-        feats = {}
-    simd = [k for k in ("AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD") if feats.get(k)]
-    return {
-        "code": code_version(),
-        "python": platform.python_version(),
-        "drake": version("drake"),
-        "numpy": version("numpy"),
-        "scipy": version("scipy"),
-        "cpu": cpu,
-        "cpu_features": simd,
-        "blas_core": blas_core(),
-        "cores": cores(),
-        # 1-minute load average when the result was written: timings mean little on a busy host
-        "load_average": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
-        # the command line that produced the result (None from Python)
-        "command": command,
-    }
-
-
-def blas_core() -> str | None:
-    """The kernel set numpy's OpenBLAS picked for this CPU (e.g. SkylakeX, Zen, Haswell), or
-    None where it cannot be asked. Two machines with the same core give the same last bits."""
-    import ctypes
-    import glob
-    import os
-
-    import numpy
-
-    libs = glob.glob(os.path.join(os.path.dirname(numpy.__file__), os.pardir, "numpy.libs", "*"))
-    for path in sorted(p for p in libs if "openblas" in os.path.basename(p)):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for name in ("scipy_openblas_get_corename64_", "scipy_openblas_get_corename"):
-            f = getattr(lib, name, None)
-            if f is not None:
-                f.restype = ctypes.c_char_p
-                return f().decode(errors="replace")
-    return None

@@ -92,14 +92,13 @@ from typing import Any
 
 import yaml
 
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.inputs import MAX_MODEL_BYTES, check_file, read_text_bounded
+
 TASKS_DIR = Path(__file__).parent.parent / "tasks"
 
 
 SHAPES = ("box", "sphere", "cylinder", "halfspace")
-
-
-class ConfigError(ValueError):
-    """A task file or override is invalid. The message names the offending key."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -353,8 +352,8 @@ class RecedingHorizonConfig:
 class MPCConfig:
     """The settings of closed-loop MPC (``hydroilqr mpc``, ``control.mpc.run_mpc``): a task
     file's ``mpc:`` section, each key overridable on the command line; also built in Python
-    (``control.mpc.MPCSettings`` is this class). ``pushes`` is not a task-file key (Push
-    objects, from ``--push``)."""
+    (``control.mpc.mpc_config(task, **overrides)`` starts from a task's section). ``pushes`` is
+    not a task-file key (Push objects, from ``--push``)."""
 
     rate: float = 50.0  # Hz, control updates
     horizon: float = 0.3  # s
@@ -400,26 +399,9 @@ class MPCConfig:
     truth_overrides: list[str] = field(default_factory=list)
     # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
     pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
-
-    def check(self, task) -> None:
-        """Raises ConfigError for settings that cannot run on ``task``."""
-        from hydroilqr.control.mpc import check_settings
-
-        check_settings(self, task)
-
-    def plan_controls(self, task):
-        """The warm-start plan's controls, U: [M, nu] (None without one); ConfigError if it
-        cannot be read or does not fit the task."""
-        from hydroilqr.control.mpc import plan_controls
-
-        return plan_controls(self, task)
-
-    @staticmethod
-    def from_task(task, **overrides) -> MPCConfig:
-        """The task's ``mpc:`` section, with keyword overrides (None = keep the task's)."""
-        from hydroilqr.control.mpc import settings_from_task
-
-        return settings_from_task(task, **overrides)
+    # What the closed loop must achieve, judged on its simulated motion (the same metrics as
+    # ``goal``, e.g. a tracking error over the run); empty: the task's ``goal`` judges it.
+    goal: dict[str, GoalCheck] = field(default_factory=dict)
 
 
 BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
@@ -445,6 +427,18 @@ class GoalCheck:
         if self.below is not None:
             parts.append(f"< {self.below}")
         return " and ".join(parts)
+
+
+def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
+    """Raises ConfigError for a check with no bound or with inverted bounds."""
+    for name, check in goal.items():
+        key = f"{where}.{name}"
+        if not name:
+            raise ConfigError(f"{where}: a check needs a metric name")
+        if all(getattr(check, b) is None for b in BOUNDS):
+            raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
+        if check.min is not None and check.max is not None and check.min > check.max:
+            raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
 
 
 @dataclass
@@ -722,6 +716,8 @@ def _group_free_keys(parts: list[str]) -> list[str]:
         return ["mismatch", parts[1], ".".join(parts[2:])]
     if parts[0] == "goal" and len(parts) > 3:  # a goal on a nested metric (duty_factor.FL)
         return ["goal", ".".join(parts[1:-1]), parts[-1]]
+    if parts[:2] == ["mpc", "goal"] and len(parts) > 4:  # the closed loop's, likewise
+        return ["mpc", "goal", ".".join(parts[2:-1]), parts[-1]]
     return parts
 
 
@@ -994,8 +990,6 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
     if path.resolve() in _chain:
         loop = " -> ".join(p.name for p in (*_chain, path.resolve()))
         raise ConfigError(f"{what} {path}: `extends` loops back on itself ({loop})")
-    from hydroilqr.problem.inputs import read_text_bounded
-
     text = read_text_bounded(path, what)  # a regular file of at most 1 MiB
     try:
         data = yaml_value(text)
@@ -1273,6 +1267,7 @@ MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2
 def validate_mpc(m: Any) -> None:
     """Checks the ``mpc:`` settings that need no plant (an MPCConfig); ConfigError naming the
     key."""
+    validate_goal(m.goal, "mpc.goal")
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
@@ -1377,8 +1372,6 @@ def validate(cfg: TaskConfig) -> None:
         raise ConfigError(f"horizon: must be positive, got {cfg.horizon}")
     validate_solver(cfg.solver)
     validate_mpc(cfg.mpc)
-    from hydroilqr.metrics.goals import validate_goal
-
     validate_goal(cfg.goal)
     _validate_steps(cfg)
     for name, p in cfg.geometry.items():
@@ -1531,8 +1524,6 @@ def _validate_models(cfg: TaskConfig) -> None:
         if not m.file.startswith("package://") and not cfg.resolve_path(m.file).exists():
             raise ConfigError(f"models[{i}].file: no such file {cfg.resolve_path(m.file)}")
         if not m.file.startswith("package://"):
-            from hydroilqr.problem.inputs import MAX_MODEL_BYTES, check_file
-
             check_file(cfg.resolve_path(m.file), f"models[{i}].file:", MAX_MODEL_BYTES)
     for i, m in enumerate(cfg.models):
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []

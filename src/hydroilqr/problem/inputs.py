@@ -12,6 +12,8 @@ import stat
 import zipfile
 from pathlib import Path
 
+from hydroilqr.problem.errors import ConfigError
+
 MiB = 1 << 20
 MAX_YAML_BYTES = 1 * MiB  # task files, --config files, extends targets
 MAX_TABLE_BYTES = 16 * MiB  # an initial-guess CSV/.npz at least may be this large
@@ -28,8 +30,6 @@ MEMORY_FRACTION = 0.75
 
 
 def _config_error(msg: str) -> Exception:
-    from hydroilqr.problem.config import ConfigError
-
     return ConfigError(msg)
 
 

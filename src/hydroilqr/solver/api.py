@@ -15,8 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import SolverConfig, validate_for_solve, validate_solver
-from hydroilqr.problem.task import Task
+from hydroilqr.model.task import Task
+from hydroilqr.problem.config import (
+    SolverConfig,
+    _build_dataclass,
+    validate_for_solve,
+    validate_solver,
+)
 from hydroilqr.solver import stopping
 from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
 from hydroilqr.solver.ilqr import IterationInfo
@@ -175,8 +180,6 @@ def _settings_for(solver: SolverConfig, settings: SolverConfig | dict | None) ->
 def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
     """``settings`` if it is a SolverConfig, else ``solver`` with the dict's fields changed."""
     if isinstance(settings, dict):
-        from hydroilqr.problem.config import _build_dataclass
-
         settings = _build_dataclass(
             SolverConfig, {**dataclasses.asdict(solver), **settings}, "settings"
         )

@@ -4,11 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroilqr.metrics.contacts import (  # noqa: F401 - no_contact_remedy read from here too
-    no_contact_remedy,
-    touches_tracked,
-    tracked_objects,
-)
+from hydroilqr.model.contacts import no_contact_remedy, touches_tracked, tracked_objects
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.solver.solution import Solution
 

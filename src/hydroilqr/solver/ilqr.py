@@ -36,8 +36,9 @@ from typing import NamedTuple
 import numpy as np
 
 from hydroilqr.model import workers
-from hydroilqr.model.cost import QuadraticCost, Quadratization
-from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.model.cost import Quadratization
+from hydroilqr.model.plant import SimulationError
+from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import SolverConfig
 from hydroilqr.solver import regularization
 
@@ -194,26 +195,6 @@ class IterationInfo:
     U: np.ndarray | None = None
 
 
-@dataclass
-class Problem:
-    """An optimal control problem (4): dynamics, cost, x0, horizon start time t0."""
-
-    dynamics: Dynamics
-    cost: QuadraticCost
-    x0: np.ndarray
-    t0: float = 0.0
-
-
-def check_finite(name: str, a: np.ndarray) -> None:
-    """ValueError naming the first NaN or infinite entry of the array ``name``, if any."""
-    if not np.isfinite(a).all():
-        where = np.argwhere(~np.isfinite(a))[0].tolist()
-        raise ValueError(
-            f"{name} must be finite (no NaN or infinite entries): "
-            f"{name}{where} is {a[tuple(where)]}"
-        )
-
-
 class FeedbackGains(NamedTuple):
     """K: [N, nu, nx], kappa: [N, nu] and the regularization μ they were computed at."""
 
@@ -253,13 +234,3 @@ def _trials(dyn, x0, U, X, K, kappa, eps_list):
         except SimulationError as err:
             out.append(err)
     return out
-
-
-def __getattr__(name: str):
-    # The iteration loop lives in ``loop`` (which imports this module): ``solve`` and
-    # ``callback_list`` stay importable from here.
-    if name in ("solve", "callback_list"):
-        from hydroilqr.solver import loop
-
-        return getattr(loop, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

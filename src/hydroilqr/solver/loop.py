@@ -23,13 +23,12 @@ import numpy as np
 from hydroilqr.model import workers
 from hydroilqr.model.derivatives import DerivativeMethod, Linearizer
 from hydroilqr.model.plant import SimulationError
+from hydroilqr.model.task import Problem, check_finite
 from hydroilqr.problem.config import ConfigError, SolverConfig, validate_solver
 from hydroilqr.solver import regularization, stopping
 from hydroilqr.solver.ilqr import (
     IterationInfo,
-    Problem,
     backward_pass,
-    check_finite,
     expected_decrease,
     feedback_gains,
     line_search,

@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroilqr.io.environment import environment
+from hydroilqr.io.files import atomic_savez, content_hash
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.output.files import atomic_savez, content_hash
+from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, SolverConfig
 from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_MODEL_BYTES, check_npz, read_bounded
 from hydroilqr.solver import stopping
-from hydroilqr.solver.ilqr import IterationInfo, Problem
+from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES, Solution
 
@@ -347,7 +349,6 @@ def fingerprint(cfg, solver: SolverConfig | None = None, legacy: bool = False) -
 
 def numeric_environment() -> dict:
     """What decides a run's last bits: code, package versions, BLAS kernels, vector units."""
-    from hydroilqr.output.report import environment
 
     env = environment()
     keys = ("code", "drake", "numpy", "scipy", "blas_core", "cpu_features")

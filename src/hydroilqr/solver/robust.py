@@ -36,9 +36,8 @@ import numpy as np
 
 from hydroilqr.model.ensemble import EnsembleCost, EnsembleDynamics, EnsembleLinearizer
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.task import Task
+from hydroilqr.model.task import Problem, Task
 from hydroilqr.solver import stopping
-from hydroilqr.solver.ilqr import Problem
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution
 

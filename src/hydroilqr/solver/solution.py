@@ -9,33 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hydroilqr.output.files import atomic_savez
+from hydroilqr.io.files import atomic_savez
+from hydroilqr.io.rundir import solution_file
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
 
 PHASES = ("rollout", "derivatives", "backward_pass", "line_search")
-
-
-def solution_file(path: str | Path) -> Path:
-    """A run directory's solution.npz; ``path`` itself if it is a file; else ``path`` with
-    ``.npz`` appended if that exists (what ``Solution.save(path)`` writes)."""
-    path = Path(path)
-    if path.is_dir():
-        from hydroilqr.output import rundir
-
-        # a commit a killed run left half done: completed first (as every command does), so
-        # the reader gets the new complete set, not a missing file
-        if (path / rundir.JOURNAL).exists():
-            rundir.recover(path)
-        return path / "solution.npz"
-    if not path.exists() and path.suffix != ".npz" and path.with_name(path.name + ".npz").exists():
-        return path.with_name(path.name + ".npz")
-    return path
 
 
 def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
     """The Solution of a solved run given as its directory or its solution.npz, and the file's
     path; ConfigError naming ``key`` (the option that pointed there) if it cannot be read."""
-    from hydroilqr.problem.config import ConfigError
-
     path = solution_file(path)
     try:
         return Solution.load(path), path
@@ -154,8 +138,6 @@ class Solution:
     def load(path: str | Path) -> Solution:
         """From a file written by ``save`` (the path given to it, with or without ``.npz``), or
         a run directory holding solution.npz."""
-        from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
-
         path = solution_file(path)
         check_npz(path, "solution file", MAX_ARRAY_FILE_BYTES)
         try:

@@ -23,6 +23,7 @@ derivative accuracy against AutoDiff, FD thread scaling, and the limit analysis 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import threading
@@ -32,11 +33,28 @@ from pathlib import Path
 
 import numpy as np
 
+from hydroilqr.io.environment import environment
+from hydroilqr.io.figures import pyplot, savefig
+from hydroilqr.io.files import atomic_write
+from hydroilqr.metrics import validate_task
 from hydroilqr.model import workers
-from hydroilqr.model.plant import hydroelastic_kind
-from hydroilqr.output.files import atomic_write
-from hydroilqr.problem.config import ConfigError, DerivativeMethod
+from hydroilqr.model.derivatives import (
+    _finite_differences,
+    _force_differences,
+    autodiff_serial,
+    keypoints,
+    linearize,
+    num_threads,
+)
+from hydroilqr.model.plant import SimulationError, hydroelastic_kind
+from hydroilqr.model.task import Task
+from hydroilqr.output.report import output_dir
+from hydroilqr.problem.config import ConfigError, DerivativeMethod, load_task
+from hydroilqr.solver.ilqr import backward_pass
+from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES
+
+plt = pyplot()
 
 PAPER = [
     "plant.contact_approximation=tamsi",
@@ -114,7 +132,6 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
     nominal controls U: [N, nu] that iteration started from (U0, then (b)'s iterates) and the μ
     it started with, outside (b)'s timed iterations (``same_iterates``): one call per
     iteration (b) ran, also when (b) stops early."""
-    from hydroilqr.solver.ilqr import solve
 
     baton = _Baton(len(tasks))
     results: list = [None] * len(tasks)
@@ -168,22 +185,17 @@ class SameIterates:
     without its initial rollout (in a normal run the nominal comes from the line search)."""
 
     def __init__(self, task):
-        import copy
-
         self.task = task
-        self.settings = copy.deepcopy(task.config.solver)
+        self.solver = task.config.solver
         self.seconds: list[float] = []
         self.phases: dict[str, list[float]] = {p: [] for p in PHASES}
         self.polygons: list[int] = []
         self.errors: list[str] = []
 
     def __call__(self, U: np.ndarray, mu: float) -> None:
-        from hydroilqr.model.plant import SimulationError
-        from hydroilqr.solver.ilqr import solve
-
-        self.settings.regularization_init = float(mu)
+        settings = dataclasses.replace(self.solver, regularization_init=float(mu))
         try:
-            sol = solve(self.task.problem(), U, self.settings, max_iterations=1, final_gains=False)
+            sol = solve(self.task.problem(), U, settings, max_iterations=1, final_gains=False)
         except (SimulationError, ValueError, ConfigError) as e:
             self._failed(str(e).strip().splitlines()[0])
             return
@@ -276,7 +288,6 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
     """Relative error of forward/central/interval-k derivatives against AutoDiff along (X, U),
     max and median over the steps of each contact class (error at step k:
     max|J − J_AD| / max|J_AD|, J = [A B])."""
-    from hydroilqr.model.derivatives import linearize
 
     dyn = task.dynamics
     s = task.config.solver
@@ -328,7 +339,6 @@ def derivative_accuracy(task, X, U, threads: int, intervals=(2, 4)) -> dict:
 def thread_scaling(task, X, U, threads: int, repeats: int = 3) -> dict:
     """Seconds of the batched FD derivative phase with 1 and ``threads`` threads (alternated,
     median of ``repeats``)."""
-    from hydroilqr.model.derivatives import linearize, num_threads
 
     dyn = task.dynamics
     s = task.config.solver
@@ -354,7 +364,6 @@ def probe_derivatives(task, U0, threads: int, steps: int = 12, repeats: int = 3)
     """Times AutoDiff and batched forward differences on ``steps`` states spread evenly over
     the initial rollout (so contact and free steps both count; alternating, best of
     ``repeats``). Returns seconds per step and the faster method."""
-    from hydroilqr.model.derivatives import linearize
 
     dyn = task.dynamics
     X = dyn.rollout(task.x0, U0)
@@ -394,13 +403,6 @@ def limit_analysis(task, sol, row: dict | None = None, threads: int = 0, repeats
     counted as perfectly split over the cores), plus the backward pass, plus a line search
     that accepts its first trial (one rollout). ``row`` (bench_task's result so far) adds the
     measured medians of (b) and (a') and how close (b) comes (``limit_s / fast_median_s``)."""
-    from hydroilqr.model.derivatives import (
-        _finite_differences,
-        _force_differences,
-        autodiff_serial,
-        keypoints,
-    )
-    from hydroilqr.solver.ilqr import backward_pass
 
     dyn, s = task.dynamics, task.config.solver
     X, U = np.asarray(sol.X, float), np.asarray(sol.U, float)
@@ -501,7 +503,6 @@ def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict,
     the validated Tasks of one benchmark in the order (a), (b), (a'); ConfigError if ``fast``
     changes the problem being timed (its length or time step: the runs share one initial guess
     and are compared per iteration). (a') takes (b)'s contact approximation."""
-    from hydroilqr.problem.task import Task
 
     sets = list(sets or [])
     th = [f"solver.threads={threads}"]
@@ -511,7 +512,7 @@ def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict,
     cfgs["paper_same_solver"] = PAPER_SAME_SOLVER + [f"plant.contact_approximation={approx}"] + th
     tasks.append(Task.load(name, sets + cfgs["paper_same_solver"], smoke=smoke))
     for t in tasks:
-        t.validate()
+        validate_task(t)
     a, b = tasks[:2]
     if b.config.ensemble:
         raise ConfigError(
@@ -549,8 +550,8 @@ def bench_task(
     probe = None
     if not any(f.startswith("solver.derivatives=") for f in fast):
         probe = probe_derivatives(tasks[1], U0, threads)
-        tasks[1].config.solver.derivatives = probe["choice"]
         cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
+        tasks[1] = tasks[1].with_overrides(cfgs["fast"][-1])
     name = tasks[0].name  # the task's own name, also when given as a file
     (on_message or _ignore)(
         f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
@@ -617,13 +618,6 @@ def bench_task(
 
 
 def plot(rows: list[dict], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hydroilqr.output.plots import savefig
-
     rows = [
         r
         for r in rows
@@ -691,8 +685,6 @@ def run_bench(
     """Benchmarks each task of ``names`` into ``out`` (bench.json rewritten after each);
     returns bench.json's dict, whose ``"tasks"`` are the rows in order. ``command``: the
     command line, recorded as ``environment.command``; ``on_message``: see ``bench_task``."""
-    from hydroilqr.output.report import output_dir
-    from hydroilqr.problem.config import load_task
 
     seen: dict[str, str] = {}
     for name in names:
@@ -729,11 +721,8 @@ def _ignore(text: str) -> None:
 
 
 def _write(out: Path, rows, iterations, threads, command: str | None = None) -> dict:
-    from hydroilqr.model.derivatives import num_threads
-    from hydroilqr.output.report import environment
-
     doc = {
-        "task": BENCH_MARK,  # marks the directory as a bench's (report.RESULT_MARKERS)
+        "task": BENCH_MARK,  # marks the directory as a bench's (io.rundir.RESULT_MARKERS)
         "iterations": iterations,
         "threads": num_threads(threads),
         "cpu_count": os.cpu_count(),

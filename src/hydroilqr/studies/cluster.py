@@ -9,10 +9,16 @@ address (a silent listener, one that closes, or one speaking another protocol in
 from __future__ import annotations
 
 import logging
+import os
 import signal
+import socket
 import threading
 import time
 
+import psutil
+from distributed import Client, LocalCluster
+
+from hydroilqr.io.environment import cores
 from hydroilqr.problem.config import ConfigError
 
 CONNECT_SECONDS = 15.0  # connecting to a --scheduler: at most this long
@@ -22,7 +28,6 @@ def _probe_scheduler(address: str, seconds: float = CONNECT_SECONDS) -> None:
     """ConfigError naming ``address`` unless a TCP scheduler there greets within ``seconds``
     (a Dask scheduler sends its handshake first; a silent or HTTP listener is refused here,
     before Dask waits on it). Other schemes (tls://, ...) are left to ``_client_within``."""
-    import socket
 
     scheme, _, rest = address.rpartition("://")
     if scheme not in ("", "tcp"):
@@ -75,14 +80,12 @@ def _client_within(Client, address: str, seconds: float = CONNECT_SECONDS):
 
 def open_client(scheduler: str | None, workers: int | None = None):
     """(client, cluster): cluster is None when connected to an existing scheduler."""
-    from distributed import Client, LocalCluster
 
     if scheduler:
         # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         _probe_scheduler(scheduler)
         return _client_within(Client, scheduler), None
-    from hydroilqr.model.workers import cores
 
     n = workers or cores()
     # Ctrl+C in a terminal reaches the whole process group. The workers ignore it, so only
@@ -126,7 +129,6 @@ SPAWN_SECONDS = 30.0  # at most this long with SIGINT ignored while workers are 
 def _spawn_workers(cluster, n: int) -> None:
     """Asks ``cluster`` for ``n`` workers and returns once their processes exist, with SIGINT
     ignored meanwhile (from the main thread) so that they inherit an ignored one."""
-    import psutil
 
     if threading.current_thread() is not threading.main_thread():
         cluster.scale(n)
@@ -145,7 +147,6 @@ def _spawn_workers(cluster, n: int) -> None:
 
 def _spawned(me, before: set[int]) -> int:
     """Worker processes (multiprocessing spawns) started since ``before``."""
-    import psutil
 
     n = 0
     for child in me.children():
@@ -162,8 +163,6 @@ def kill_workers(cluster) -> None:
     """Ends an embedded cluster's worker processes at once (after Ctrl+C: their unfinished
     jobs are abandoned anyway; closing them politely waits for a busy worker and lets it
     log the scheduler's going away)."""
-    import os
-    import signal
 
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(nanny, "pid", None)

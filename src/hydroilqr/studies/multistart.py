@@ -16,6 +16,7 @@ else 1. The best start is the one that meets the task's goal, then has the lowes
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 import warnings
@@ -23,12 +24,24 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from distributed import as_completed
+
+from hydroilqr import metrics as metrics_mod
+from hydroilqr.metrics.goals import evaluate
+from hydroilqr.model.task import Task
+from hydroilqr.solver.api import solve
+from hydroilqr.studies.cluster import kill_workers, open_client
 
 KNOTS = 5
 
 
 def perturbation(U0: np.ndarray, effort_limits: np.ndarray, noise: float, seed: int, k: int):
-    """The perturbed guess of start ``k`` (start 0: ``U0`` itself). U0: [N, nu]."""
+    """The perturbed guess of start ``k`` (start 0: ``U0`` itself). U0: [N, nu].
+
+    Smooth seeded noise (``KNOTS`` normal samples per input, interpolated over the horizon)
+    times ``noise`` times each input's scale: its RMS over the guess; for an input the guess
+    leaves at zero, its effort limit (1 without a finite limit), so that starts from a still
+    (zero) guess differ by a tenth of what the actuator can do at the default noise 0.1."""
     U0 = np.asarray(U0, float)
     if k == 0 or noise == 0.0 or U0.size == 0:
         return U0.copy()
@@ -36,7 +49,7 @@ def perturbation(U0: np.ndarray, effort_limits: np.ndarray, noise: float, seed: 
     rng = np.random.default_rng([int(seed), int(k)])
     rms = np.sqrt(np.mean(U0**2, axis=0))
     lim = np.asarray(effort_limits, float)
-    fallback = np.where(np.isfinite(lim) & (lim > 0), 0.1 * lim, 1.0)
+    fallback = np.where(np.isfinite(lim) & (lim > 0), lim, 1.0)
     scale = np.where(rms > 1e-12, rms, fallback)
     knots = rng.standard_normal((KNOTS, nu))
     s = np.stack(
@@ -80,10 +93,6 @@ class StartResult:
 def solve_start(task_ref: dict, k: int, seed: int, noise: float) -> StartResult:
     """Runs on a worker: loads the task (Drake objects do not travel), solves from the
     perturbed guess, computes metrics and the goal. Never raises: a failure is recorded."""
-    from hydroilqr import metrics as metrics_mod
-    from hydroilqr.metrics.goals import evaluate
-    from hydroilqr.problem.task import Task
-    from hydroilqr.solver.api import solve
 
     t0 = time.perf_counter()
     res = StartResult(index=k)
@@ -141,9 +150,6 @@ def run_multistart(
     """Solves ``starts`` starts as Dask jobs; returns all results (by index) and the best
     index. ``task_ref``: {name, overrides, config, smoke}, as the task was loaded.
     ``on_start(result)`` is called as each start finishes (progress display)."""
-    from distributed import as_completed
-
-    from hydroilqr.studies.cluster import kill_workers, open_client
 
     client, cluster = open_client(scheduler, workers)
     results: list[StartResult] = []
@@ -178,7 +184,6 @@ class Interrupted(KeyboardInterrupt):
 
 def _close(client, cluster) -> None:
     """Closes the client and an embedded cluster (stopping unfinished starts), quietly."""
-    import logging
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
     try:

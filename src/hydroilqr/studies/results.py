@@ -20,8 +20,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hydroilqr.output.files import atomic_write
-from hydroilqr.output.report import environment, json_safe
+from hydroilqr import Task, metrics, solve
+from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+from hydroilqr.io.environment import environment
+from hydroilqr.io.files import atomic_write
+from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.goals import evaluate
+from hydroilqr.output.report import json_safe
+from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.studies.robustness import table
 
 DEFAULT_TASKS = (
     "cartpole-wall",
@@ -75,41 +82,6 @@ class Context:
 # ------------------------------------------------------------------------------ the columns
 
 
-def _num(m: dict, key: str, fmt: str, scale: float = 1.0) -> str | None:
-    v = m.get(key)
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None
-    return format(v * scale if scale != 1.0 else v, fmt)
-
-
-def headline(m: dict) -> str:
-    """The task-specific numbers that say whether a solve did its job, short: whichever of
-    the cart-pole, Kinova and cheetah metrics the task computes."""
-    parts: list[str] = []
-
-    def add(label: str, key: str, fmt: str, scale: float = 1.0) -> None:
-        s = _num(m, key, fmt, scale)
-        if s is not None:
-            parts.append(f"{label} {s}")
-
-    add("angle err rad", "final_angle_error_rad", ".3f")
-    add("wall steps", "wall_contact_steps", "d")
-    add("ball err cm", "target_error_m", ".1f", 100.0)
-    add("lift cm", "max_ball_height_gain_m", ".1f", 100.0)
-    add("v m/s", "mean_forward_velocity_mps", ".2f")
-    add("body contact steps", "body_ground_contact_steps", "d")
-    for term, err in (m.get("term_error") or {}).items():  # task-space terms, in their units
-        if isinstance(err, (int, float)) and not isinstance(err, bool):
-            parts.append(f"term {term} err {err:.3g}")
-    diag, lat = (
-        _num(m, "diagonal_pair_overlap", ".3f"),
-        _num(m, "lateral_pair_overlap", ".3f"),
-    )
-    if diag is not None and lat is not None:
-        parts.append(f"diag/lat overlap {diag}/{lat}")
-    return ", ".join(parts)
-
-
 COLUMNS: list[Column] = [
     Column("task", lambda r: f"`{r.name}`"),
     Column("iterations", lambda r: str(r.sol.iterations)),
@@ -120,13 +92,12 @@ COLUMNS: list[Column] = [
     ),
     Column("goal", lambda r: _goal_cell(r.task, r.metrics)),
     Column("solve s", lambda r: f"{r.solve_seconds:.1f}"),
-    Column("headline metrics", lambda r: headline(r.metrics)),
+    Column("headline metrics", lambda r: metrics.headline(r.task.config.metrics, r.metrics)),
 ]
 
 
 def _goal_cell(task, metrics: dict) -> str:
     """PASS / FAIL with the failed checks ('' for a task without a goal)."""
-    from hydroilqr.metrics.goals import evaluate
 
     g = evaluate(task.config.goal, metrics)
     if g["met"] is None:
@@ -169,8 +140,6 @@ def solve_table(results: Sequence[TaskResult], context: Context) -> Section:
 
 
 def _goal_json(task, metrics: dict) -> dict:
-    from hydroilqr.metrics.goals import evaluate
-
     return evaluate(task.config.goal, metrics)
 
 
@@ -179,14 +148,13 @@ TRANSFER_PLAYBACK = {"speed": 0.5}
 
 
 def _moves_an_object(task) -> bool:
-    return any(m in ("object", "kinova") for m in task.config.metrics)
+    return metrics.moves_object(task.config.metrics)
 
 
 def transfer_table(results: Sequence[TaskResult], context: Context) -> Section | None:
     """Open-loop playback (``hydroilqr playback RUN --speed 0.5``) of every task that moves an
     object: where the object comes to rest against where the plan puts it to rest, the gap at
     the plan's end, and the task's goal judged on the executed motion."""
-    from hydroilqr.control.playback import PlaybackSettings
 
     rows, data = [], []
     for r in results:
@@ -234,8 +202,6 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
     """Playback of every task that names model errors (its ``mismatch:`` cases) with the plan's
     own feedback at full speed (``hydroilqr playback RUN --policy ilqr --mismatch NAME``):
     the resting gap on each mismatched "real" system and the goal judged there."""
-    from hydroilqr.control.playback import PlaybackSettings
-    from hydroilqr.problem.config import mismatch_overrides
 
     rows, data = [], []
     for r in results:
@@ -277,7 +243,6 @@ def mismatch_table(results: Sequence[TaskResult], context: Context) -> Section |
 def _play(r: TaskResult, settings) -> tuple[dict, dict, str]:
     """Plays ``r``'s plan back: the playback metrics, the task's goal judged on the executed
     motion, and its verdict (PASS, FAIL, or '' when not judged)."""
-    from hydroilqr.control.playback import executed_goal, playback
 
     pb = playback(r.task, r.sol, settings)
     g = executed_goal(r.task, r.sol, pb)["goal"]
@@ -342,7 +307,6 @@ def robustness_table(results: Sequence[TaskResult], context: Context) -> Section
     """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART]`` runs (each with
     its own command and environment), if any were run into the results directory: per task,
     how many of its perturbed solves met the goal and each of its checks."""
-    from hydroilqr.studies.robustness import table
 
     root = Path(context.out) / "robustness"
     paths = sorted(root.glob("robustness.json")) + sorted(root.glob("*/robustness.json"))
@@ -382,8 +346,43 @@ def _ratio(v) -> str:
     return "-" if v is None else f"{v:.1f}x"
 
 
-SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | None]] = [
+def metric_reports(results: Sequence[TaskResult], context: Context) -> list[Section]:
+    """A table per metric that declares a report (``Metric.report``), one row per task that
+    computes it; the report's figures are written beside the page (``OUT/results/TASK/``) and
+    linked from the row."""
+    sections = []
+    for name, rep in metrics.reports():
+        rows, data = [], []
+        for r in results:
+            if name not in r.task.config.metrics:
+                continue
+            cells = [f"`{r.name}`", *(fn(r.metrics) for _, fn in rep.columns)]
+            links = _report_figures(r, rep.figures, context)
+            rows.append("| " + " | ".join(_cell(c) for c in [*cells, links]) + " |")
+            data.append({"task": r.name, **{h: c for (h, _), c in zip(rep.columns, cells[1:])}})
+        if not rows:
+            continue
+        headers = ["task", *(h for h, _ in rep.columns), "figures"]
+        md = "\n".join(
+            [rep.intro, "", "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers), *rows]
+        )
+        sections.append(Section(f"report_{name}", rep.title, md, data))
+    return sections
+
+
+def _report_figures(r: TaskResult, figures: Sequence[str], context: Context) -> str:
+    """Writes the task's metric plots into OUT/results/TASK/ and links those named."""
+    if not figures:
+        return ""
+    where = Path(context.out) / "results" / r.name
+    where.mkdir(parents=True, exist_ok=True)
+    metrics.plot(r.task, r.sol, where)
+    return ", ".join(f"[{f}](results/{r.name}/{f})" for f in figures if (where / f).exists())
+
+
+SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | list[Section] | None]] = [
     solve_table,
+    metric_reports,
     transfer_table,
     mismatch_table,
     robustness_table,
@@ -414,12 +413,11 @@ def solve_tasks(
     progress: Callable[[str], None] | None = None,
 ) -> list[TaskResult]:
     """Loads, solves and measures each task through the public API."""
-    from hydroilqr import Task, metrics, solve
 
     results = []
     for name in tasks:
         task = Task.load(name, list(overrides), smoke=smoke)
-        task.validate()
+        validate_task(task)
         if progress:
             progress(f"solving {name}{' (smoke)' if smoke else ''}")
         t0 = time.perf_counter()
@@ -440,7 +438,10 @@ def render(
     sections: Sequence[Callable] | None = None,
 ) -> tuple[str, dict]:
     """The page as Markdown and as a JSON-able dict."""
-    made = [s for s in (f(results, context) for f in (sections or SECTIONS)) if s is not None]
+    made: list[Section] = []
+    for f in sections or SECTIONS:
+        s = f(results, context)
+        made += s if isinstance(s, list) else [s] if s is not None else []
     env_line = ", ".join(
         f"{k} {v}"
         for k, v in env.items()

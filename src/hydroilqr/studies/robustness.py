@@ -22,8 +22,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from distributed import as_completed
 
-from hydroilqr.output.report import environment, json_safe
+from hydroilqr.io.environment import environment
+from hydroilqr.output.report import json_safe
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.multistart import solve_start
 
@@ -117,7 +119,6 @@ def run_robustness(
     Dask jobs) and returns the report: ``{"noise", "seed", "runs", "tasks": [summary per
     task], "environment"}``. A ``task_ref``: {label, name, overrides, config, smoke}.
     ``on_run(result)`` is called as each run finishes (progress display)."""
-    from distributed import as_completed
 
     env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)

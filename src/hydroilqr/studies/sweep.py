@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import io
+import itertools
 import json
 import math
 import os
@@ -36,11 +37,29 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
+from distributed import as_completed, get_worker
 
-from hydroilqr.output.files import atomic_savez, atomic_write, content_hash
-from hydroilqr.problem.config import TASKS_DIR, ConfigError, cwd_path, parse_override, task_file
-from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr import metrics as metrics_mod
+from hydroilqr.io.environment import code_version, environment
+from hydroilqr.io.figures import pyplot, savefig
+from hydroilqr.io.files import atomic_savez, atomic_write, content_hash
+from hydroilqr.metrics import validate_task
+from hydroilqr.model.task import Task
+from hydroilqr.output.report import json_safe, output_dir
+from hydroilqr.problem.config import (
+    TASKS_DIR,
+    ConfigError,
+    cwd_path,
+    load_task,
+    parse_override,
+    task_file,
+)
+from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_JSON_BYTES, check_npz, read_bounded
+from hydroilqr.solver import api
 from hydroilqr.studies.cluster import open_client
+
+plt = pyplot()
 
 # Columns of every point; a task's metrics add theirs (metrics.sweep_columns) after final_cost,
 # and their extra columns before "worker".
@@ -68,8 +87,6 @@ EVENT_TOPIC = "hydroilqr-sweep"
 
 
 def _number(text: str, what: str) -> float | int:
-    import yaml
-
     t = text.strip()
     try:
         v = int(t)
@@ -144,7 +161,6 @@ def check_numeric_params(
     """ConfigError if a swept key sets anything but numbers in the task (``name`` or
     ``description`` take a number as text: the sweep would solve one task over and over).
     What a key sets: the leaves in which the task differs between two of its values."""
-    from hydroilqr.problem.config import load_task
 
     for key, vals in params:
         a, b = vals[0], vals[-1] if len(vals) > 1 else vals[0] + 1
@@ -191,7 +207,6 @@ def point_id(values: dict[str, Any], spelled: dict[str, str] | None = None) -> s
 
 def _older_ids(values: dict[str, Any]) -> list[str]:
     """The ids an older sweep gave these values (each number hashed as typed: int or float)."""
-    import itertools
 
     forms = []
     for v in values.values():
@@ -249,14 +264,10 @@ def solve_point(
     t0 = time.perf_counter()
     row: dict[str, Any] = {"id": pid, **{f"param:{k}": v for k, v in values.items()}}
     try:
-        from hydroilqr.output.report import code_version
-
         row["code"] = code_version()  # the worker's: a remote one may run other code
     except Exception:  # noqa: BLE001 - recorded by the client then
         pass
     try:
-        from distributed import get_worker
-
         worker = get_worker()
         row["worker"] = worker.name
         worker.log_event(EVENT_TOPIC, {"id": pid, "state": "running"})
@@ -264,12 +275,8 @@ def solve_point(
         row["worker"] = f"pid{os.getpid()}"
     arrays: dict[str, np.ndarray] = {}
     try:
-        from hydroilqr import metrics as metrics_mod
-        from hydroilqr.problem.task import Task
-        from hydroilqr.solver import api
-
         task = Task.load(task_name, {**overrides, **values}, config_file, smoke)
-        task.validate(mismatch=False)  # the cases are checked once, before the jobs
+        validate_task(task, mismatch=False)  # the cases are checked once, before the jobs
         ts = time.perf_counter()
         with warnings.catch_warnings():
             # Overflow in rejected line-search trials is expected; keep worker logs quiet.
@@ -300,7 +307,6 @@ def solve_point(
             raise
         row.update(status="failed", error=_error_text(e))
     row["wall_seconds"] = time.perf_counter() - t0
-    from hydroilqr.output.report import json_safe
 
     return {"row": json_safe(row), "arrays": arrays}
 
@@ -328,7 +334,6 @@ def point_intact(points_dir: Path, row: dict) -> bool:
     """False for a finished point whose arrays are missing, unreadable, not finite, or
     changed since written (their hash, which covers the row too; points saved before hashes
     have none: checked for readability and finite values only). Failed points have none."""
-    from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, check_npz
 
     path = points_dir / f"{row.get('id')}.npz"
     if not path.exists():
@@ -397,8 +402,6 @@ def write_tables(
     pending: int,
     metric_columns: tuple[list, list] = ([], []),
 ) -> None:
-    from hydroilqr.output.report import json_safe
-
     # Sorted by the swept values (points of earlier runs and of an extended grid interleave).
     trs = sorted(
         table_rows(param_keys, rows),
@@ -439,23 +442,21 @@ def _log_axis(vals: list) -> bool:
 
 
 def plot_sweep(
-    path: Path, task_name: str, param_keys: list[str], rows: list[dict], grid_values: list[list]
+    path: Path,
+    task_name: str,
+    param_keys: list[str],
+    rows: list[dict],
+    grid_values: list[list],
+    metric_panels: list[tuple[str, str]] = (),
 ) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from hydroilqr.output.plots import savefig
-
+    """sweep.png: each of ``metric_panels`` ((key, axis label), from the task's metrics) that
+    some point reports, and the final cost, against the first parameter (a series per value
+    of the second)."""
     key = param_keys[0]
     other = param_keys[1] if len(param_keys) > 1 else None
-    has_overlap = any(r.get("max_overlap_m") is not None for r in rows)
-    panels = (["max_overlap_m"] if has_overlap else []) + ["final_cost"]
-    labels = {
-        "max_overlap_m": "max overlap [m]",
-        "final_cost": "final cost",  # circles: in the legend as "not converged"
-    }
+    shown = [(k, lab) for k, lab in metric_panels if any(r.get(k) is not None for r in rows)]
+    panels = [k for k, _ in shown] + ["final_cost"]
+    labels = {**dict(shown), "final_cost": "final cost"}  # circles: "not converged" in legend
     fig, axes = plt.subplots(
         len(panels), 1, figsize=(6.2, 2.7 * len(panels) + 0.4), sharex=True, squeeze=False
     )
@@ -522,94 +523,6 @@ def plot_sweep(
     ax.set_xlabel(key + (" [Pa]" if key.endswith("hydroelastic_modulus") else ""))
     axes[0, 0].set_title(f"{task_name}: sweep of {key}")
     savefig(fig, path)
-
-
-def _representative(rows: list[dict], key: str, n: int = 4) -> list[dict]:
-    ok = sorted((r for r in rows if r.get("status") == "ok"), key=lambda r: r[f"param:{key}"])
-    if len(ok) <= n:
-        return ok
-    idx = sorted({int(round(i)) for i in np.linspace(0, len(ok) - 1, n)})
-    return [ok[i] for i in idx]
-
-
-def plot_snapshots(
-    path: Path, points_dir: Path, task_cfg, param_keys: list[str], rows: list[dict]
-) -> bool:
-    """Pole + wall in the x-z plane at the step of maximum overlap, a few points side by side."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Rectangle
-
-    from hydroilqr.output.plots import savefig
-
-    key = param_keys[0]
-    chosen = []
-    for r in _representative(rows, key):
-        try:
-            with np.load(points_dir / f"{r['id']}.npz") as d:
-                if "tip_xyz" not in d or "pin_xyz" not in d:
-                    continue
-                chosen.append((r, {k: d[k] for k in d.files}))
-        except (OSError, ValueError):
-            continue
-    if not chosen:
-        return False
-    walls = [o for o in task_cfg.scene if o.shape == "box"]
-    # Common limits: every tip path and cart, plus a margin.
-    xs = np.concatenate([np.r_[d["tip_xyz"][:, 0], d["cart_xyz"][:, 0]] for _, d in chosen])
-    zs = np.concatenate([np.r_[d["tip_xyz"][:, 2], d["cart_xyz"][:, 2]] for _, d in chosen])
-    xlim = (float(xs.min()) - 0.2, float(xs.max()) + 0.2)
-    ylim = (float(zs.min()) - 0.15, float(zs.max()) + 0.15)
-    # equal-aspect panels ~2.6 in wide; the height follows (plus titles), no empty band
-    aspect = (ylim[1] - ylim[0]) / (xlim[1] - xlim[0])
-    fig, axes = plt.subplots(
-        1, len(chosen), figsize=(3.1 * len(chosen), 2.6 * aspect + 1.4), squeeze=False
-    )
-    unit = " Pa" if key.endswith("hydroelastic_modulus") else ""
-    for ax, (r, d) in zip(axes[0], chosen):
-        k = int(np.argmin(d["signed_distance"])) if "signed_distance" in d else 0
-        tip, pin, cart = d["tip_xyz"], d["pin_xyz"], d["cart_xyz"]
-        rad = float(d["tip_radius"])
-        for o in walls:
-            color = o.color[:3] if len(o.color) >= 3 else (0.5, 0.5, 0.5)
-            ax.add_patch(
-                Rectangle(
-                    (o.xyz[0] - o.size[0] / 2, o.xyz[2] - o.size[2] / 2),
-                    o.size[0],
-                    o.size[2],
-                    color=color,
-                    alpha=0.7,
-                    lw=0,
-                )
-            )
-        ax.plot(tip[:, 0], tip[:, 2], "-", color="0.6", lw=0.8, label="tip path")
-        ax.add_patch(
-            Rectangle((cart[k, 0] - 0.12, cart[k, 2] - 0.06), 0.24, 0.12, color=(0.2, 0.3, 0.8))
-        )
-        ax.plot([pin[k, 0], tip[k, 0]], [pin[k, 2], tip[k, 2]], "-", color="0.3", lw=3)
-        ax.add_patch(Circle((tip[k, 0], tip[k, 2]), rad, color=(0.9, 0.4, 0.1), alpha=0.9))
-        ax.set_aspect("equal")
-        ax.set_xlim(*xlim)
-        ax.set_ylim(*ylim)
-        ov = r.get("max_overlap_m") or 0.0
-        tun = " TUNNELLED" if r.get("tunnelled") else ""
-        ax.set_title(
-            f"{key.split('.')[-1]} = {r[f'param:{key}']:.3g}{unit}\n"
-            f"overlap {ov * 1000:.1f} mm at t = {d['t'][k]:.2f} s{tun}",
-            fontsize=8,
-        )
-        ax.tick_params(labelsize=7)
-        ax.set_xlabel("x [m]", fontsize=8)
-    axes[0, 0].set_ylabel("z [m]", fontsize=8)
-    axes[0, 0].legend(fontsize=7, loc="upper right")
-    fig.suptitle(
-        f"{task_cfg.name}: configuration of maximum overlap (grey: tip path over the horizon)",
-        fontsize=9,
-    )
-    savefig(fig, path)
-    return True
 
 
 # ------------------------------------------------------------------------------------------
@@ -710,13 +623,11 @@ def run_sweep(
     overrides, user_set = _sweep_overrides(sets)
     points = _sweep_points(params)
     task_cfg = _first_and_last(task_arg, overrides, cfg_arg, smoke, points)
-    from hydroilqr import metrics as metrics_mod
 
     metric_cols = metrics_mod.sweep_columns(task_cfg.metrics)
     check_numeric_params(task_arg, overrides, cfg_arg, smoke, params)
 
     out = Path(out)
-    from hydroilqr.output.report import environment, output_dir
 
     output_dir(out, task_cfg.name)
     (out / "points").mkdir(parents=True, exist_ok=True)
@@ -744,7 +655,6 @@ def run_sweep(
     )
     computed = 0
     lost = 0  # points whose futures the scheduler cancelled or lost
-    from hydroilqr.output.report import code_version
 
     code = code_version()
     if todo:
@@ -803,11 +713,10 @@ def _sweep_points(params: list[tuple[str, list]]) -> list[dict]:
 def _first_and_last(task_arg: str, overrides: dict, cfg_arg, smoke: bool, points: list):
     """Fails fast on a bad key/value: builds the first and last point here; the last's
     TaskConfig."""
-    from hydroilqr.problem.task import Task
 
     for p in (points[0], points[-1]):
         t = Task.load(task_arg, {**overrides, **p}, cfg_arg, smoke)
-        t.validate()
+        validate_task(t)
     return t.config
 
 
@@ -884,8 +793,6 @@ def _compute(sw: _Sweep, todo: list[int], scheduler, workers, monitor, n_failed0
         nthreads = sum(client.nthreads().values())
         where = scheduler or f"local cluster, {len(client.nthreads())} worker processes"
         monitor.message(f"dask: {where}, {nthreads} threads")
-        from distributed import as_completed
-
         monitor.begin(len(sw.points), len(sw.rows), n_failed0)
         try:
             _subscribe(client, monitor)
@@ -973,18 +880,19 @@ def _record(sw: _Sweep, fut, i: int, monitor: SweepMonitor, code: str) -> bool:
 
 
 def _plot(sw: _Sweep, params: list[tuple[str, list]], all_rows: list[dict], task_cfg) -> list:
-    """sweep.png (and snapshots.png for the cartpole_wall metric); the names written."""
+    """sweep.png and the sweep plots of the task's metrics (e.g. the cart-pole's
+    snapshots.png); the names written."""
     keys = sw.keys
     grid_values = [
         sorted({r[f"param:{k}"] for r in all_rows}, key=float) if sw.earlier_rows else v
         for k, v in params
     ]
-    plot_sweep(sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values)
+    panels = metrics_mod.sweep_panels(task_cfg.metrics)
+    plot_sweep(sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values, panels)
     wrote = ["sweep.png"]
-    if "cartpole_wall" in task_cfg.metrics and plot_snapshots(
-        sw.out / "snapshots.png", sw.points_dir, task_cfg, keys, all_rows
-    ):
-        wrote.append("snapshots.png")
+    for name, plot in metrics_mod.sweep_plots(task_cfg.metrics):
+        if plot(sw.out / name, sw.points_dir, task_cfg, keys, all_rows):
+            wrote.append(name)
     return wrote
 
 

@@ -23,10 +23,15 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 from contextlib import contextmanager
 from pathlib import Path
 
-from hydroilqr.output.files import atomic_write
+import numpy as np
+
+from hydroilqr.io.files import atomic_write
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_JSON_BYTES, check_npz, read_bounded
 
 STAGE = ".partial"
 PREVIOUS = ".previous"
@@ -37,8 +42,6 @@ KILL_ENV = "HYDROILQR_KILL_AT"  # fault injection for tests: a step name below
 def _fault(step: str) -> None:
     """Test hook: SIGKILL this process at ``step`` when HYDROILQR_KILL_AT names it."""
     if os.environ.get(KILL_ENV) == step:
-        import signal
-
         os.kill(os.getpid(), signal.SIGKILL)
 
 
@@ -112,8 +115,6 @@ def _read_journal(out: Path) -> dict:
     a link), JSON {retire: [names], install: [names]} of entries directly in ``out``, with a
     stage and a previous set that are directories of ``out`` itself (not links), so a journal
     or directory placed there by anything else moves or deletes nothing outside ``out``."""
-    from hydroilqr.problem.inputs import read_bounded
-
     path = out / JOURNAL
     if path.is_symlink():
         raise ValueError(f"{path}: a symbolic link, not a journal")
@@ -196,3 +197,52 @@ def result_set(out: Path, retire: list[str], keep_stage_on_error: bool = False):
         if not _exists(Path(out) / JOURNAL) and not keep_stage_on_error:
             discard(out)
         raise
+
+
+def solution_file(path: str | Path) -> Path:
+    """A run directory's solution.npz; ``path`` itself if it is a file; else ``path`` with
+    ``.npz`` appended if that exists (what ``Solution.save(path)`` writes)."""
+    path = Path(path)
+    if path.is_dir():
+        # a commit a killed run left half done: completed first (as every command does), so
+        # the reader gets the new complete set, not a missing file
+        if (path / JOURNAL).exists():
+            recover(path)
+        return path / "solution.npz"
+    if not path.exists() and path.suffix != ".npz" and path.with_name(path.name + ".npz").exists():
+        return path.with_name(path.name + ".npz")
+    return path
+
+
+def read_run_arrays(path: str | Path, names: tuple[str, ...], key: str) -> tuple[dict, Path]:
+    """Arrays ``names`` of a solved run's solution.npz (``path``: the run directory or the
+    file), and the file's path; ConfigError naming ``key`` (the option that pointed there) if
+    they cannot be read."""
+    path = solution_file(path)
+    try:
+        check_npz(path, key, MAX_ARRAY_FILE_BYTES)
+        with np.load(path, allow_pickle=False) as d:
+            return {n: np.asarray(d[n]) for n in names}, path
+    except ConfigError:
+        raise
+    except Exception as e:  # noqa: BLE001 - missing, torn or foreign file
+        raise ConfigError(f"{key}: cannot read {path} ({type(e).__name__})") from None
+
+
+# Files that mark a directory as holding some task's results (each has a "task" field).
+RESULT_MARKERS = ("summary.json", "mpc.json", "playback.json", "sweep_spec.json", "bench.json")
+
+
+def previous_task(out: Path) -> str | None:
+    """Name of the task whose results ``out`` holds (None: no results there)."""
+    for marker in RESULT_MARKERS:
+        path = Path(out) / marker
+        if not path.exists():
+            continue
+        try:
+            task = json.loads(read_bounded(path, "results file", MAX_JSON_BYTES)).get("task")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if task:
+            return str(task)
+    return None

@@ -24,7 +24,21 @@ import time
 
 import numpy as np
 
-from hydroilqr.model.plant import SimulationError, hydroelastic_kind
+from hydroilqr import metrics
+from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.terms import terms_on_guess
+from hydroilqr.model.contacts import (
+    NO_CONTACT_REMEDY,
+    fixed_bodies,
+    no_contact_remedy,
+    touched_pairs,
+    touches_moving,
+    tracked_bodies,
+    tracked_objects,
+)
+from hydroilqr.model.guess import describe as describe_guess
+from hydroilqr.model.guess import rollout_report
+from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
@@ -157,7 +171,6 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     dyn = task.dynamics
     x0 = task.x0
     _ = task.cost  # validates the cost's names and sizes
-    from hydroilqr import metrics
 
     metrics.validate(task)  # metric names and metric_params
     out: dict = {"warnings": []}
@@ -177,7 +190,7 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("model")
 
     if cfg.continuation or cfg.ensemble or cfg.mismatch:
-        task.validate()  # builds every stage, member and mismatch case: bad keys named here
+        validate_task(task)  # builds every stage, member and mismatch case: bad keys named here
     if cfg.mismatch:
         out["mismatch"] = {name: dict(case) for name, case in cfg.mismatch.items()}
     if cfg.continuation:
@@ -223,8 +236,6 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
 
     _simulation(task, pairs, rollout_steps, out)
     if cfg.cost.terms:  # the task-space cost terms on the guess's rollout over the horizon
-        from hydroilqr.metrics.terms import terms_on_guess
-
         out["terms"] = terms_on_guess(task)
     done("simulation")
     _rollout_warnings(pairs, out, warn)
@@ -290,8 +301,7 @@ def _untracked_contact_warning(
     tracks (``tracked_objects``; the same test as solve's ``no_progress`` sentence): gradients
     reach an object only through contact with what moves (resting on the ground gives none),
     so the solve could not start moving it. ``remedy``: what to do
-    (``metrics.contacts.no_contact_remedy``, the words solve's no-progress sentence uses)."""
-    from hydroilqr.metrics.contacts import NO_CONTACT_REMEDY, touches_moving
+    (``model.contacts.no_contact_remedy``, the words solve's no-progress sentence uses)."""
 
     if not tracked or touches_moving(touched, tracked, fixed):
         return ""
@@ -311,8 +321,6 @@ def _untracked_contact_warning(
 def _ensemble(task, rollout_steps: int) -> list[dict]:
     """Per ensemble member: its overrides and weight, and whether the initial guess's
     rollout (its first ``rollout_steps`` steps) runs on it (a warning if not)."""
-    from hydroilqr.model.plant import SimulationError
-
     U = task.initial_guess(task.steps)[: min(task.steps, rollout_steps)]
     out = []
     for i, member in enumerate(task.members()):
@@ -355,15 +363,8 @@ def _model(task) -> dict:
         "contact_model": cfg.plant.contact_model,
         "contact_surface_representation": cfg.plant.contact_surface_representation,
         "derivatives": cfg.solver.derivatives,
-        "initial_guess": guess_name(cfg.initial_guess),
+        "initial_guess": describe_guess(cfg.initial_guess),
     }
-
-
-def guess_name(guess) -> str:
-    """The initial guess in a line: its keyword or file, or a position guess described."""
-    from hydroilqr.model.guess import describe
-
-    return describe(guess)
 
 
 def _fd(dyn, fd_forces: bool) -> dict:
@@ -396,7 +397,6 @@ def _actuators(dyn) -> list[dict]:
 
 def _geometry_overrides(dyn, geometry: dict) -> dict[str, list[str]]:
     """Each ``geometry:`` key of the task -> the BODY/GEOMETRY names it applies to."""
-    from hydroilqr.model.plant import geometry_hits
 
     names = dyn.geometry_names()
     return {
@@ -455,20 +455,11 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     except SimulationError as e:
         hint = f" ({overlap})" if overlap else ""
         raise SimulationError(
-            f"rollout of the initial guess ({guess_name(task.config.initial_guess)}): {e}{hint}"
+            f"rollout of the initial guess ({describe_guess(task.config.initial_guess)}): {e}{hint}"
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
-    from hydroilqr.model.guess import rollout_report
-
     out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
-    from hydroilqr.metrics.contacts import (
-        fixed_bodies,
-        no_contact_remedy,  # (the words solve's no-progress sentence uses)
-        touched_pairs,
-        tracked_bodies,
-        tracked_objects,
-    )
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X

@@ -11,13 +11,17 @@ task.initial_guess(N)  # [N, nu]
 from __future__ import annotations
 
 import functools
+import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from hydroilqr.model.cost import QuadraticCost
+from hydroilqr.model.guess import position_guess
 from hydroilqr.model.plant import Dynamics, SimulationError
+from hydroilqr.problem import inputs
 from hydroilqr.problem.config import (
     ConfigError,
     TaskConfig,
@@ -26,7 +30,27 @@ from hydroilqr.problem.config import (
     mismatch_overrides,
     with_overrides,
 )
-from hydroilqr.solver.ilqr import Problem, check_finite
+from hydroilqr.problem.inputs import check_memory
+
+
+@dataclass
+class Problem:
+    """An optimal control problem (4): dynamics, cost, x0, horizon start time t0."""
+
+    dynamics: Dynamics
+    cost: QuadraticCost
+    x0: np.ndarray
+    t0: float = 0.0
+
+
+def check_finite(name: str, a: np.ndarray) -> None:
+    """ValueError naming the first NaN or infinite entry of the array ``name``, if any."""
+    if not np.isfinite(a).all():
+        where = np.argwhere(~np.isfinite(a))[0].tolist()
+        raise ValueError(
+            f"{name} must be finite (no NaN or infinite entries): "
+            f"{name}{where} is {a[tuple(where)]}"
+        )
 
 
 class Task:
@@ -156,9 +180,9 @@ class Task:
         return rh.window_steps if rh is not None else self.config.steps
 
     def validate(self, mismatch: bool = True) -> None:
-        """Builds everything that can fail on bad input, before any solve starts;
-        ``mismatch=False`` skips building a plant per mismatch case (a sweep's jobs: checked
-        once before them)."""
+        """Builds everything of the model that can fail on bad input, before any solve starts
+        (``metrics.validate_task`` adds the metrics and the goal); ``mismatch=False`` skips
+        building a plant per mismatch case (a sweep's jobs: checked once before them)."""
         _ = self.dynamics, self.cost, self.x0
         self.check_memory()
         self.initial_guess(self.steps)
@@ -166,12 +190,6 @@ class Task:
         self._check_variants("ensemble", self.members())
         if mismatch:
             self._check_mismatch()
-        from hydroilqr import metrics as metrics_mod
-
-        metrics_mod.validate(self)  # metric names and metric_params
-        from hydroilqr.metrics.goals import check_names
-
-        check_names(self)  # a goal names metrics the task reports
 
     def _check_mismatch(self) -> None:
         """Each mismatch case builds: its keys and files exist (the plant it changes)."""
@@ -202,7 +220,6 @@ class Task:
         """ConfigError if a solve over ``steps`` (default: this task's window or horizon, and
         a receding run's whole trajectory besides) would not fit in the memory this process
         may use (problem.inputs.available_memory)."""
-        from hydroilqr.problem.inputs import check_memory
 
         dyn, rh = self.dynamics, self.config.receding_horizon
         if steps is not None:
@@ -231,8 +248,6 @@ class Task:
         x = self.x0 if x is None else x
         kind = self.config.initial_guess
         if not isinstance(kind, str):  # a path of configurations (PositionGuess)
-            from hydroilqr.model.guess import position_guess
-
             return position_guess(self, N, x, start).U.copy()
         if kind == "zeros":
             return np.zeros((N, dyn.nu))
@@ -262,7 +277,6 @@ class Task:
                 f"initial_guess: expected zeros, gravity_compensation, hold or a file; "
                 f"no such file {path}"
             )
-        from hydroilqr.problem import inputs
 
         # rows: at most the whole trajectory (a file may hold more: a generous floor)
         rh = self.config.receding_horizon
@@ -312,7 +326,6 @@ class Task:
 def _unquoted(e: Exception, npz: bool) -> str:
     """What went wrong reading a guess file, without the file's content (numpy's messages
     quote the text it could not read): where it happened, if the message says."""
-    import re
 
     if npz:
         return "not a NumPy .npz file holding an array U (docs/task-format.md)"

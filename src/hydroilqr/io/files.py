@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +52,6 @@ def file_name(name: str, suffix: str = ".png") -> str:
     """A file name for a plot named after something in the task (a body, from a model file or
     the task): one name in the output directory, whatever ``name`` holds (``../x``, ``a/b``,
     a leading dot: ``escape_ball.png``, ``a_b.png``)."""
-    import re
 
     plain = re.sub(r"[^A-Za-z0-9_.+@-]+", "_", str(name))
     plain = re.sub(r"\.{2,}", "_", plain).strip("._") or "object"
