@@ -221,6 +221,23 @@ def _contacts(r: dict) -> None:
         )
 
 
+def _position_guess(p: dict) -> None:
+    """The tracking rollout of a position guess: how closely it follows the path, where the
+    rest of the state went, how hard it pushes."""
+    tracked = ", ".join(
+        f"{k} {v['max_error']:.3g} (at {v['at_s']:g} s)" for k, v in p["tracked"].items()
+    )
+    console.print(f"  position guess: tracking rollout, largest |q - q_ref|: {tracked}")
+    if p["others"]:
+        console.print(
+            "  the rest of the configuration (first -> last state): "
+            + ", ".join(f"{k} {a:.3g} -> {b:.3g}" for k, (a, b) in p["others"].items())
+        )
+    effort = [f"{k} {v:.2f}" for k, v in p["effort_to_limit"].items() if v is not None]
+    if effort:
+        console.print(f"  largest control / effort limit: {', '.join(effort)}")
+
+
 def _simulation(r: dict) -> None:
     n, steps, guess = r["rollout_steps"], r["task_steps"], r["model"]["initial_guess"]
     rollout = (
@@ -233,6 +250,8 @@ def _simulation(r: dict) -> None:
         f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {rollout} ok, "
         f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
     )
+    if r.get("position_guess"):
+        _position_guess(r["position_guess"])
     touched = r.get("touched_pairs") or []
     along = f"along the rollout of the initial guess ({r['contact_rollout_steps']} steps)"
     if touched:

@@ -73,7 +73,8 @@ def load_task_from_args(args, extra_overrides: list[str] | None = None):
         raise ConfigError("no task given (try `hydroilqr tasks`)")
     overrides = list(args.set or []) + list(extra_overrides or [])
     cfg = load_task(name, overrides, args.config, args.smoke)
-    if cfg.initial_guess not in GUESS_KEYWORDS and cfg.resolve_path(cfg.initial_guess).exists():
+    guess = cfg.initial_guess
+    if isinstance(guess, str) and guess not in GUESS_KEYWORDS and cfg.resolve_path(guess).exists():
         # (the cap that fits the task's size is applied when the guess is read)
         guess = cfg.resolve_path(cfg.initial_guess)
         inputs.check_file(guess, "initial_guess:", inputs.MAX_ARRAY_FILE_BYTES)

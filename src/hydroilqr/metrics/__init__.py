@@ -8,7 +8,8 @@ names it writes, the sweep table columns it adds, arrays a sweep point stores, a
 The families register themselves when this package is imported: ``common`` (default,
 contacts), ``cartpole`` (cartpole_wall), ``objects`` (object), ``kinova`` (kinova, an alias of
 object plus the arm's name for the contact-polygon count), ``cheetah``, ``terms`` (terms: the
-task-space cost terms' final errors). Contact metrics query
+task-space cost terms' final errors), ``flight`` (flight: a legged robot's flight phases and
+its base's travel). Contact metrics query
 the geometry of every stored state (touching pairs and their contact polygons,
 ``Dynamics.contact_query``; signed distances): no contact solve, the states themselves; the
 contact timeline and the cheetah's foot loads also use the contact solve of each step.
@@ -17,7 +18,7 @@ contact timeline and the cheetah's foot loads also use the contact solve of each
 from __future__ import annotations
 
 # The families register their metrics in the registry when imported.
-from hydroilqr.metrics import cartpole, cheetah, kinova, objects, terms  # noqa: F401
+from hydroilqr.metrics import cartpole, cheetah, flight, kinova, objects, terms  # noqa: F401
 from hydroilqr.metrics.common import (  # noqa: F401
     beyond_limits,
     command_limit_ratio,

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.cost import QuadraticCost
+from hydroilqr.model.guess import position_guess
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.problem import inputs
 from hydroilqr.problem.config import (
@@ -233,7 +234,9 @@ class Task:
             check_memory(rh.window_steps, dyn.nx, dyn.nu, "receding_horizon.window_steps", extra)
 
     def initial_guess(self, N: int, x: np.ndarray | None = None, start: int = 0) -> np.ndarray:
-        """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file.
+        """U: [N, nu] from ``initial_guess``: zeros | gravity_compensation | hold | file |
+        a path of configurations (the controls of its tracking rollout, model/guess.py, from
+        x at the time of step ``start``).
 
         x: [nx] the state the computed kinds hold (default x0). A file (``.npz`` with ``U``, or
         CSV) holds one row per time step, of which rows ``start .. start+N-1`` are used (past
@@ -244,6 +247,8 @@ class Task:
         dyn = self.dynamics
         x = self.x0 if x is None else x
         kind = self.config.initial_guess
+        if not isinstance(kind, str):  # a path of configurations (PositionGuess)
+            return position_guess(self, N, x, start).U.copy()
         if kind == "zeros":
             return np.zeros((N, dyn.nu))
         if kind == "gravity_compensation":

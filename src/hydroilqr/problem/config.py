@@ -27,7 +27,9 @@ such a file in ``hydroilqr/tasks``. Layout of a task file (all keys optional unl
     blocks: {pole_angle: [PolePin]}   # named groups of state coordinates (see state.py)
     initial_state: {pole_angle: 3.64}
     initial_guess: zeros          # zeros | gravity_compensation | hold | U.npz | U.csv
-                                  # (a file: >= N rows, or 1 row = a constant control)
+                                  # (a file: >= N rows, or 1 row = a constant control), or
+                                  # positions tracked by a rollout (PositionGuess):
+                                  # {waypoints: [{t: 0.3, knee: -1.6}, ...], period: 0.5}
     cost:
       Q: {pole_angle: 1.0}
       R: 0.001                    # scalar, list per actuator, or {actuator_name: w}
@@ -177,6 +179,21 @@ NOMINAL_TIMES = ("step", "horizon_end")
 # Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
 TERM_TYPES = ("position", "orientation", "velocity", "height", "distance")
 AXES = ("x", "y", "z")
+
+
+@dataclass
+class PositionGuess:
+    """``initial_guess`` as a path of configurations (model/guess.py): the controls come from a
+    tracking rollout on the task's own plant that follows it. Either ``waypoints`` (each
+    ``{t: SECONDS, BLOCK: value, ...}``, in increasing time; a waypoint that does not name a
+    block keeps the previous one's value) or ``target`` (one configuration, reached at the
+    task's end). The path starts from the initial state at t = 0 and holds after its last
+    point; with ``period`` > 0 (s, after the last waypoint) it returns to the initial state's
+    values at t = period and repeats."""
+
+    waypoints: list[dict[str, Any]] = field(default_factory=list)
+    target: dict[str, Any] = field(default_factory=dict)
+    period: float = 0.0
 
 
 @dataclass
@@ -447,7 +464,8 @@ class TaskConfig:
     num_steps: int = 0  # if > 0, overrides horizon
     blocks: dict[str, list[str]] = field(default_factory=dict)
     initial_state: dict[str, Any] = field(default_factory=dict)
-    initial_guess: str = "zeros"
+    # zeros | gravity_compensation | hold | a file, or a path of configurations (PositionGuess)
+    initial_guess: str | PositionGuess = "zeros"
     cost: CostConfig = field(default_factory=CostConfig)
     solver: SolverConfig = field(default_factory=SolverConfig)
     receding_horizon: RecedingHorizonConfig | None = None
@@ -1371,6 +1389,35 @@ def validate(cfg: TaskConfig) -> None:
         _check_scene_object(o, f"scene[{i}]")
     _validate_cost(cfg.cost)
     _validate_receding_horizon(cfg.receding_horizon)
+    if isinstance(cfg.initial_guess, PositionGuess):
+        _validate_position_guess(cfg.initial_guess)
+
+
+def _validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> None:
+    """One of waypoints / target; times positive, increasing and inside the period; block
+    names are checked when the plant is built (model/guess.py)."""
+    if bool(g.waypoints) == bool(g.target):
+        raise ConfigError(f"{key}: give waypoints (a list of {{t: s, BLOCK: value}}) or target")
+    if g.period < 0 or not math.isfinite(g.period):
+        raise ConfigError(f"{key}.period: must be >= 0 (0: no repetition), got {g.period}")
+    if g.target and g.period:
+        raise ConfigError(f"{key}.period: only with waypoints")
+    if g.target and "t" in g.target:
+        raise ConfigError(f"{key}.target: has no time (it is reached at the task's end)")
+    last = 0.0
+    for i, wp in enumerate(g.waypoints):
+        t = wp.get("t")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+            raise ConfigError(f"{key}.waypoints[{i}].t: expected a time in seconds, got {t!r}")
+        if t <= last:
+            raise ConfigError(
+                f"{key}.waypoints[{i}].t: {t:g} s must be after the previous point ({last:g} s)"
+            )
+        if g.period and t >= g.period:
+            raise ConfigError(f"{key}.waypoints[{i}].t: {t:g} s must be before period {g.period:g}")
+        if len(wp) < 2:
+            raise ConfigError(f"{key}.waypoints[{i}]: names no block")
+        last = float(t)
 
 
 # Keys a continuation stage or an ensemble member cannot override (the time grid and start).

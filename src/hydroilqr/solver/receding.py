@@ -372,7 +372,7 @@ def files_fingerprint(cfg) -> str:
     file): a run resumed after one of them changed would mix two models."""
     h = hashlib.sha256()
     paths = [m.file for m in cfg.models if not m.file.startswith("package://")]
-    if cfg.initial_guess not in GUESS_KEYWORDS:
+    if isinstance(cfg.initial_guess, str) and cfg.initial_guess not in GUESS_KEYWORDS:
         paths.append(cfg.initial_guess)
     for p in paths:
         f = cfg.resolve_path(p)

@@ -36,6 +36,8 @@ from hydroilqr.model.contacts import (
     tracked_bodies,
     tracked_objects,
 )
+from hydroilqr.model.guess import describe as describe_guess
+from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
 
@@ -361,7 +363,7 @@ def _model(task) -> dict:
         "contact_model": cfg.plant.contact_model,
         "contact_surface_representation": cfg.plant.contact_surface_representation,
         "derivatives": cfg.solver.derivatives,
-        "initial_guess": cfg.initial_guess,
+        "initial_guess": describe_guess(cfg.initial_guess),
     }
 
 
@@ -453,9 +455,10 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     except SimulationError as e:
         hint = f" ({overlap})" if overlap else ""
         raise SimulationError(
-            f"rollout of the initial guess ({task.config.initial_guess}): {e}{hint}"
+            f"rollout of the initial guess ({describe_guess(task.config.initial_guess)}): {e}{hint}"
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
+    out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
 
     tracked = tracked_objects(task)
