@@ -281,3 +281,8 @@ def test_the_command_limit_ratio_is_named_as_one_and_old_summaries_still_read():
     for m in (new, old):
         note = [line for line in summary_lines(m) if line.startswith("note:")]
         assert note and "up to 1.7 times the limit, joint_6" in note[0]
+
+
+def test_headline_names_a_number_once_when_two_metrics_share_it():
+    m = {"target_error_m": 0.003, "max_ball_height_gain_m": 0.002}
+    assert metrics.headline(["default", "object", "kinova"], m) == "ball err cm 0.3, lift cm 0.2"

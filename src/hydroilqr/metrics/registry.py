@@ -160,16 +160,18 @@ def _number(m: dict, key: str, fmt: str, scale: float) -> str | None:
 
 
 def headline(names, m: dict) -> str:
-    """The headline numbers of metrics ``names`` found in the metrics dict ``m``, short."""
+    """The headline numbers of metrics ``names`` found in the metrics dict ``m``, short; each
+    once where two metrics share a key (``kinova`` extends ``object``)."""
     parts: list[str] = []
     for name in names:
         entry = get(name)
-        for label, key, fmt, scale in entry.headline:
-            s = _number(m, key, fmt, scale)
-            if s is not None:
-                parts.append(f"{label} {s}")
-        if entry.headline_more is not None:
-            parts += entry.headline_more(m)
+        found = [
+            f"{label} {s}"
+            for label, key, fmt, scale in entry.headline
+            if (s := _number(m, key, fmt, scale)) is not None
+        ]
+        more = entry.headline_more(m) if entry.headline_more is not None else []
+        parts += [p for p in found + more if p not in parts]
     return ", ".join(parts)
 
 
