@@ -413,7 +413,9 @@ def test_cli_resume_from_nan_checkpoint_is_one_line(tmp_path):
 
 
 def test_sweep_point_hash_and_recompute(tmp_path):
-    from hydroilqr.studies.sweep import POINT_HASH, point_intact, save_point
+    from hydroilqr.output.results import POINT_HASH
+    from hydroilqr.output.results import write_sweep_point as save_point
+    from hydroilqr.studies.sweep import point_intact
 
     row = {"id": "p1", "status": "ok", "final_cost": 1.5}
     save_point(tmp_path, {"row": row, "arrays": {"X": np.ones((3, 2)), "U": np.zeros((2, 1))}})

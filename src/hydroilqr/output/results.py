@@ -2,10 +2,12 @@
 loop (``write_mpc``) and a playback (``write_playback``) each write their files beside the
 earlier set and swap them in whole (``io.rundir.result_set``) with Ctrl+C deferred until the
 set is complete; a reader or a killed run sees the earlier set or the new one, never a mix.
+A sweep point (``write_sweep_point``) is two atomic files, its arrays before its row.
 Controllers and playback return data; only this module writes their files."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,7 +18,7 @@ from hydroilqr.control.mpc import MPCResult
 from hydroilqr.control.playback import PlaybackResult, executed_goal
 from hydroilqr.io import rundir
 from hydroilqr.io.environment import environment
-from hydroilqr.io.files import atomic_savez
+from hydroilqr.io.files import atomic_savez, atomic_write, content_hash
 from hydroilqr.metrics.goals import judge, judge_loop
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.output.plots import (
@@ -31,6 +33,7 @@ from hydroilqr.output.report import PLAYBACK_FILES, deferred_interrupt, solve_ou
 from hydroilqr.solver.receding import CHECKPOINT
 
 MPC_FILES = ("mpc.json", "mpc.npz", "mpc.png", "mpc.html")
+POINT_HASH = "_sha256"  # in a sweep point's .npz: its arrays' and its row's content hash
 
 
 def write_set(out: str | Path, retire: list[str], write: Callable[[Path], dict]) -> dict:
@@ -187,3 +190,15 @@ def write_playback(
         return data
 
     return write_set(out, list(PLAYBACK_FILES), write)
+
+
+def write_sweep_point(points_dir: Path, result: dict) -> None:
+    """A sweep point's ``{"row", "arrays"}``: ``ID.npz`` (the arrays and their content hash)
+    first, then ``ID.json`` (the row), whose presence marks the point done."""
+    row = result["row"]
+    pid = row["id"]
+    if result.get("arrays"):
+        arrays = {k: np.asarray(v) for k, v in result["arrays"].items()}
+        digest = content_hash(arrays, json.dumps(row, sort_keys=True))
+        atomic_savez(points_dir / f"{pid}.npz", **arrays, **{POINT_HASH: np.array(digest)})
+    atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))

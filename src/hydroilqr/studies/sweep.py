@@ -43,10 +43,11 @@ from distributed import as_completed, get_worker
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.io.environment import code_version, environment
 from hydroilqr.io.figures import pyplot, savefig
-from hydroilqr.io.files import atomic_savez, atomic_write, content_hash
+from hydroilqr.io.files import atomic_write, content_hash
 from hydroilqr.metrics import validate_task
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe, output_dir
+from hydroilqr.output.results import POINT_HASH, write_sweep_point
 from hydroilqr.problem.config import (
     TASKS_DIR,
     ConfigError,
@@ -314,20 +315,6 @@ def solve_point(
 # ------------------------------------------------------------------------------------------
 # Files
 # ------------------------------------------------------------------------------------------
-
-
-def save_point(points_dir: Path, result: dict) -> None:
-    """npz first, then the json (the json's presence marks the point done)."""
-    row = result["row"]
-    pid = row["id"]
-    if result.get("arrays"):
-        arrays = {k: np.asarray(v) for k, v in result["arrays"].items()}
-        digest = content_hash(arrays, json.dumps(row, sort_keys=True))
-        atomic_savez(points_dir / f"{pid}.npz", **arrays, **{POINT_HASH: np.array(digest)})
-    atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))
-
-
-POINT_HASH = "_sha256"  # in a point's .npz: its arrays' and its row's content hash
 
 
 def point_intact(points_dir: Path, row: dict) -> bool:
@@ -869,7 +856,7 @@ def _record(sw: _Sweep, fut, i: int, monitor: SweepMonitor, code: str) -> bool:
             "arrays": {},
         }
     result["row"].setdefault("code", code)
-    save_point(sw.points_dir, result)
+    write_sweep_point(sw.points_dir, result)
     row = result["row"]
     sw.rows[sw.ids[i]] = row
     with open(sw.out / "computed.log", "a") as fh:
