@@ -204,11 +204,12 @@ def _track_step(dynamics, x, u, rows, v_des, w):
 def position_guess(task, N: int, x=None, start: int = 0) -> TrackingRollout:
     """The tracking rollout of the task's position guess over N steps from x (default: the
     initial state) at the time of step ``start``; the path starts from the initial state's
-    values at t = 0 (a receding-horizon window follows the same path). Kept on the task
-    (the last few), as a rollout costs a few plant steps per time step."""
+    values at t = 0 (a receding-horizon window follows the same path). The last few are
+    kept in the task's ``position_guesses``, as a rollout costs many plant steps per time
+    step."""
     cfg = task.config
     x = task.x0 if x is None else np.asarray(x, float)
-    cache = task.__dict__.setdefault("_position_guesses", {})
+    cache = task.position_guesses
     key = (int(N), int(start), x.tobytes())
     if key not in cache:
         rh = cfg.receding_horizon

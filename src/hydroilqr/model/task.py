@@ -56,6 +56,8 @@ def check_finite(name: str, a: np.ndarray) -> None:
 class Task:
     def __init__(self, config: TaskConfig):
         self.config = config
+        # Tracking rollouts of a position guess, by (N, start, x): a few kept (model/guess.py)
+        self.position_guesses: dict = {}
 
     def __repr__(self) -> str:  # no plant is built for it
         rh = self.config.receding_horizon
