@@ -38,6 +38,7 @@ TERMS = [
      "target": 0.0, "weight": 7.0},
     {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
      "max": 0.01, "weight": 2.0, "until": 0.015},
+    {"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0},
 ]  # fmt: skip
 
 N = 3
@@ -72,7 +73,7 @@ def _fd(f, X, h=1e-6):
 
 def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
     """J = ∂r/∂x of each term (position, orientation, velocity incl. its q-dependence,
-    height, distance),
+    height, distance, joint limits),
     where its weight is positive, against central differences (h = 1e-6) of its residual over
     every coordinate, quaternion ones included: within 1e-8 (measured: 1e-10)."""
     task, X, _ = kinova
@@ -227,11 +228,69 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
          "cost.terms.t.until: 0.5 s is before after"),
         ({"name": "t", "type": "distance", "geometry_a": "a", "max": 0.1},
          "cost.terms.t: a distance term needs geometry_a and geometry_b"),
+        ({"name": "t", "type": "joint_limits", "margin": -0.1},
+         "cost.terms.t.margin: must be >= 0"),
+        ({"name": "t", "type": "joint_limits", "body": "b"},
+         "cost.terms.t.body: a joint_limits term has no body"),
+        ({"name": "t", "type": "height", "body": "b", "min": 0, "margin": 0.1},
+         "cost.terms.t.margin: a height term has no margin"),
     ],
 )  # fmt: skip
 def test_bad_terms_are_config_errors_before_the_plant_is_built(tmp_path, term, message):
     with pytest.raises(ConfigError, match=re.escape(message)):
         Task.load(str(write_case(tmp_path, edit(cost__terms=[term]))))
+
+
+def test_joint_limits_term_reads_the_model_limits_with_a_margin(kinova):
+    """The Gen3 model file limits joints 2, 4 and 6 (±2.41, ±2.66, ±2.23 rad); the term costs
+    only the part of each beyond its limit less the margin, one residual per joint."""
+    task, X, _ = kinova
+    terms = task.cost.task_terms
+    t = next(t for t in terms.terms if t.name == "limits")
+    lay = task.dynamics.layout
+    assert [int(i) for i in t.coords] == [lay.block(f"joint_{j}").coords[0] for j in (2, 4, 6)]
+    np.testing.assert_allclose(t.upper, np.array([2.41, 2.66, 2.23]) - 1.0)
+    x = X[0].copy()
+    x[t.coords] = [0.0, -2.0, 1.5]  # inside, 0.34 below -1.66, 0.27 above 1.23
+    terms._set(x)
+    r, J, _ = terms._residual(t, x, 0.0, True)
+    np.testing.assert_allclose(r, [0.0, -0.34, 0.27], atol=1e-12)
+    assert J[0].sum() == 0 and J[1, t.coords[1]] == 1 and J[2, t.coords[2]] == 1
+
+
+def test_plant_joint_limits_false_removes_drakes_but_the_term_still_reads_them(tmp_path):
+    """``plant.joint_limits: false``: the plant has no position limits (a joint may pass
+    them); ``Scene.position_limits`` and a joint_limits term keep the model file's."""
+    term = {"name": "lim", "type": "joint_limits", "joints": ["joint_4"], "weight": 1.0}
+    free = Task.load(
+        "kinova-forward",
+        smoke=True,
+        overrides={"plant.joint_limits": False, "cost.terms": [term]},
+    )
+    plant = free.dynamics.plant
+    assert np.all(np.isinf(plant.GetPositionUpperLimits()))
+    i = free.dynamics.layout.block("joint_4").coords[0]
+    assert free.dynamics.scene.position_limits[1][i] == pytest.approx(2.66)
+    t = free.cost.task_terms.terms[0]
+    assert list(t.coords) == [i] and t.upper[0] == pytest.approx(2.66)
+    held = Task.load("kinova-forward", smoke=True)
+    assert held.dynamics.plant.GetPositionUpperLimits()[i] == pytest.approx(2.66)
+
+
+@pytest.mark.parametrize(
+    ("term", "message"),
+    [
+        ({"joints": ["joint_1"]}, "cost.terms.t.joints: joint_1 has no position limits"),
+        ({"joints": ["ball.orientation"]}, "ball.orientation is not a block of joint positions"),
+        ({"joints": ["joint_9"]}, "unknown state block 'joint_9'"),
+        ({"margin": 3.0}, "cost.terms.t.margin: 3.0 is more than half of a joint's range"),
+    ],
+)
+def test_joint_limits_term_errors_name_the_joint(term, message):
+    spec = {"name": "t", "type": "joint_limits", **term}
+    task = Task.load("kinova-forward", smoke=True, overrides={"cost.terms": [spec]})
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _ = task.cost
 
 
 def test_two_terms_with_one_name_are_refused(tmp_path):

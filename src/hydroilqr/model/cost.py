@@ -118,8 +118,6 @@ class QuadraticCost:
         if cfg.terms:
             if dynamics is None:
                 raise ConfigError("cost.terms: task-space terms need the task's plant")
-            # (late: model/terms.py loads pydrake, which a cost without terms never needs)
-
             x0 = dynamics.initial_state() if x0 is None else x0
             cost.task_terms = TaskSpaceTerms(
                 dynamics, cfg.terms, dt, cfg.running_cost_dt, x0, end_time

@@ -87,6 +87,9 @@ class Scene:
     force_port: int = -1  # diagram input port index of the plant's applied generalized force
     meshcat: object | None = None
     visualizers: tuple = ()
+    # The model files' joint position limits [nq] each (±inf where none), also where
+    # ``plant.joint_limits: false`` removed them from the plant.
+    position_limits: tuple = ()
 
 
 class AutoDiffPlant(NamedTuple):
@@ -502,7 +505,14 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     apply_actuators(task, plant)
     check_inertias(plant)
+    limits = _model_position_limits(plant, keep=task.plant.joint_limits)
     plant.Finalize()
+    lower = np.full(plant.num_positions(), -np.inf)
+    upper = np.full(plant.num_positions(), np.inf)
+    for j, (lo, hi) in limits.items():
+        joint = plant.get_joint(j)
+        lower[joint.position_start() : joint.position_start() + joint.num_positions()] = lo
+        upper[joint.position_start() : joint.position_start() + joint.num_positions()] = hi
     _exclude_scene_contacts(task, plant, scene_graph, scene_ids)
     check_contact_pairs(task, plant, scene_graph)
     if plant.num_actuated_dofs() == 0:
@@ -515,7 +525,32 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
 
     visualizers = _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer)
     diagram = builder.Build()
-    return Scene(diagram, plant, scene_graph, int(port), int(force_port), meshcat, visualizers)
+    return Scene(
+        diagram,
+        plant,
+        scene_graph,
+        int(port),
+        int(force_port),
+        meshcat,
+        visualizers,
+        (lower, upper),
+    )
+
+
+def _model_position_limits(plant, keep: bool) -> dict:
+    """JointIndex -> (lower, upper) position limits of every joint the model files limit, read
+    from the unfinalized plant; without ``keep`` they are removed from it (±inf)."""
+    out = {}
+    for j in plant.GetJointIndices():
+        joint = plant.get_joint(j)
+        lo, hi = joint.position_lower_limits(), joint.position_upper_limits()
+        if np.all(np.isinf(lo)) and np.all(np.isinf(hi)):
+            continue
+        out[j] = (np.array(lo, float), np.array(hi, float))
+        if not keep:
+            n = joint.num_positions()
+            joint.set_position_limits(np.full(n, -np.inf), np.full(n, np.inf))
+    return out
 
 
 def check_inertias(plant) -> None:

@@ -21,6 +21,9 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
 * ``distance``: ``s`` = the signed distance between two named geometries (the closest pair of
   the sets they name; SceneGraph's ``ComputeSignedDistancePairClosestPoints``), against a
   target or bounds as for height: an approach term that has a gradient before any contact.
+* ``joint_limits``: ``r_i = min(0, q_i − (lo_i + margin)) + max(0, q_i − (hi_i − margin))`` for
+  each joint coordinate with finite position limits in the model files (``Scene.
+  position_limits``, also where ``plant.joint_limits: false`` removed them from the plant).
 
 Derivatives are Gauss-Newton, ``l_x = 2 f Jᵀ W r`` and ``l_xx = 2 f Jᵀ W J`` with
 ``J = ∂r/∂x`` in the state's coordinates x = [q; v], from MultibodyPlant kinematics: position
@@ -67,6 +70,9 @@ class _Term:
     q_moving: np.ndarray | None = None  # velocity: coordinates of q that move P or A
     normal: np.ndarray | None = None  # height
     pairs: list | None = None  # distance: (GeometryId a, GeometryId b)
+    coords: np.ndarray | None = None  # joint_limits: indices into q
+    lower: np.ndarray | None = None  # joint_limits: where the cost starts, margin included
+    upper: np.ndarray | None = None
 
     @property
     def name(self) -> str:
@@ -160,6 +166,8 @@ class TaskSpaceTerms:
         w = np.asarray(c.weight, float).reshape(-1)
         weights = np.full(len(sel), w[0]) if w.size == 1 else w
         t = _Term(c, weights, sel)
+        if c.type == "joint_limits":
+            return self._resolve_limits(t, key)
         if c.type == "distance":
             geoms = self.dynamics.geometry_names()
             a = named_geometries(c.geometry_a, geoms, f"{key}.geometry_a")
@@ -185,6 +193,36 @@ class TaskSpaceTerms:
             t.q_moving = self._moving_coordinates([t.frame, t.frame_a])
         if c.type == "height":
             t.normal = np.asarray(c.normal, float) / np.linalg.norm(c.normal)
+        return t
+
+    def _resolve_limits(self, t: _Term, key: str) -> _Term:
+        """A joint_limits term's coordinates and bounds (the margin inside the model's limits)."""
+        c = t.cfg
+        lower, upper = self.dynamics.scene.position_limits
+        limited = np.isfinite(lower) | np.isfinite(upper)
+        if c.joints:
+            coords = []
+            for name in c.joints:
+                b = self.dynamics.layout.block(name, f"{key}.joints")
+                if b.kind == "quaternion" or max(b.coords) >= self.nq:
+                    raise ConfigError(f"{key}.joints: {name} is not a block of joint positions")
+                if not limited[list(b.coords)].any():
+                    raise ConfigError(
+                        f"{key}.joints: {name} has no position limits in the model files"
+                    )
+                coords += [i for i in b.coords if limited[i] and i not in coords]
+        else:
+            coords = list(np.flatnonzero(limited))
+            if not coords:
+                raise ConfigError(f"{key}: the model files limit no joint's position")
+        t.coords = np.array(coords, dtype=int)
+        t.lower = lower[t.coords] + c.margin
+        t.upper = upper[t.coords] - c.margin
+        if np.any(t.lower > t.upper):
+            raise ConfigError(
+                f"{key}.margin: {c.margin} is more than half of a joint's range of motion"
+            )
+        t.weights = np.full(len(coords), t.weights[0])
         return t
 
     def _geometry_frames(self, ids) -> None:
@@ -285,6 +323,13 @@ class TaskSpaceTerms:
                 J[:, nq:] = Jv[t.sel]
                 J[:, t.q_moving] = self._dvdq(t, x)[t.sel]
             return r, J, v
+        if kind == "joint_limits":
+            q = x[t.coords]
+            r = np.minimum(0.0, q - t.lower) + np.maximum(0.0, q - t.upper)
+            if jac:
+                rows = np.flatnonzero(r)
+                J[rows, t.coords[rows]] = 1.0
+            return r, J, q
         if kind == "height":
             p = self.plant.CalcPointsPositions(
                 self._pc, t.frame, t.point, self.plant.world_frame()

@@ -163,6 +163,10 @@ class PlantConfig:
     contact_model: str = "hydroelastic_with_fallback"
     contact_surface_representation: str = "polygon"  # polygon | triangle
     gravity: list[float] = field(default_factory=lambda: [0.0, 0.0, -9.81])
+    # The model files' joint position limits as Drake's own constraints of the time step (sap,
+    # similar, lagged; tamsi ignores them). false: removed when the plant is built (a
+    # ``joint_limits`` cost term still reads them).
+    joint_limits: bool = True
 
 
 @dataclass
@@ -177,7 +181,7 @@ class ActuatorConfig:
 NOMINAL_TIMES = ("step", "horizon_end")
 
 # Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
-TERM_TYPES = ("position", "orientation", "velocity", "height", "distance")
+TERM_TYPES = ("position", "orientation", "velocity", "height", "distance", "joint_limits")
 AXES = ("x", "y", "z")
 
 
@@ -234,6 +238,11 @@ class TermConfig:
     # BODY/GEOMETRY; the closest pair counts).
     geometry_a: str = ""
     geometry_b: str = ""
+    # joint_limits: the joints (state blocks of joint coordinates; default every coordinate
+    # with finite limits in the model files) and how far inside each limit the cost starts
+    # (rad or m).
+    joints: list[str] = field(default_factory=list)
+    margin: float = 0.0
     # The time window of a running term (s, inclusive; default the whole trajectory), or the
     # last state only.
     after: float | None = None
@@ -1650,6 +1659,7 @@ _TERM_KEYS = {
     "velocity": {"body", "point", "relative_to", "axes", "target"},
     "height": {"body", "point", "target", "min", "max", "normal"},
     "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
+    "joint_limits": {"joints", "margin"},
 }  # fmt: skip
 
 
@@ -1665,13 +1675,14 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     if term.type not in TERM_TYPES:
         raise ConfigError(f"{key}.type: {unknown_key(term.type, list(TERM_TYPES), 'term type')}")
     default = TermConfig()
-    for f in sorted(_TERM_KEYS["position"] | _TERM_KEYS["distance"] | {"normal", "min", "max"}):
+    every = set().union(*_TERM_KEYS.values())
+    for f in sorted(every):
         if f not in _TERM_KEYS[term.type] and getattr(term, f) != getattr(default, f):
             article = "an" if term.type[0] in "aeiou" else "a"
             raise ConfigError(f"{key}.{f}: {article} {term.type} term has no {f}")
     vector = term.type in ("position", "orientation", "velocity")
     _validate_term_weight(term, key, vector)
-    if term.type != "distance" and not term.body:
+    if term.type not in ("distance", "joint_limits") and not term.body:
         raise ConfigError(f"{key}.body: required (the body or frame the point is fixed on)")
     if term.type == "distance" and not (term.geometry_a and term.geometry_b):
         raise ConfigError(f"{key}: a distance term needs geometry_a and geometry_b")
@@ -1680,7 +1691,19 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     _check_length(term.normal, 3, f"{key}.normal")
     if math.hypot(*term.normal) < 1e-9:
         raise ConfigError(f"{key}.normal: must be non-zero")
-    _validate_term_target(term, key, vector)
+    if term.type == "joint_limits":
+        _check_weight(term.margin, term.margin, f"{key}.margin", False)
+        if term.margin < 0:
+            raise ConfigError(f"{key}.margin: must be >= 0 (rad or m inside each limit)")
+        if any(not isinstance(j, str) or not j for j in term.joints):
+            raise ConfigError(f"{key}.joints: expected joint names, got {term.joints!r}")
+    else:
+        _validate_term_target(term, key, vector)
+    _validate_term_window(term, key)
+
+
+def _validate_term_window(term: TermConfig, key: str) -> None:
+    """terminal, or a window after <= until with a ramp of two non-negative factors."""
     if term.terminal and (term.after is not None or term.until is not None or term.ramp):
         raise ConfigError(f"{key}.terminal: a terminal term has no after, until or ramp")
     if term.after is not None and term.after < 0:
