@@ -1,5 +1,6 @@
 """Closed-loop MPC at smoke size, lock-step."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.cli import main
 from hydroilqr.cli.common import GOAL_NOT_MET
-from hydroilqr.control.mpc import Push, check_settings, mpc_config, run_mpc
+from hydroilqr.control.mpc import Controller, Push, check_settings, mpc_config, prepare, run_mpc
 from hydroilqr.problem.config import ConfigError, MPCConfig
 
 
@@ -456,3 +457,50 @@ def test_plan_overrides_change_the_controllers_task_only():
 
 
 APPROACH_ON = "cost.terms.approach.weight=1.0e+5"
+
+
+def test_updates_between_plan_steps_replan_on_a_grid_starting_then():
+    """Issue 38: a control rate above the plan's grid (250 Hz on 10 ms plan steps, the robot
+    simulated at 2 ms): one update every 4 ms, each plan starting at its update's time; after
+    the bounce off the wall the pole is where the 100 Hz loop has it, within 0.03 rad (plans on
+    other grid phases time the contact differently, so the two differ in between)."""
+    task = Task.load("cartpole-wall")
+    st = MPCConfig(duration=0.6, rate=250.0, horizon=0.2, plant_time_step=0.002)
+    loop = prepare(task, st)
+    starts = []
+    real_update = loop.ctrl.update
+
+    def spy(x, t, *a, **kw):
+        starts.append(t)
+        return real_update(x, t, *a, **kw)
+
+    loop.ctrl.update = spy
+    res = loop.run()
+    assert len(res.update_times) == 149  # 150 updates in 0.6 s, the first before the clock
+    np.testing.assert_allclose(np.diff(starts[1:]), 0.004, atol=1e-12)
+    assert np.all(np.isfinite(res.X))
+    base = run_mpc(task, dataclasses.replace(st, rate=100.0))
+    i = task.dynamics.layout.block("pole_angle").coords[0]
+    assert abs(res.X[-1, i] - base.X[-1, i]) < 0.03
+    # Past the simulated robot's step: refused, naming the way to more.
+    with pytest.raises(ConfigError, match="--plant-time-step for more"):
+        check_settings(MPCConfig(duration=0.2, rate=200.0), task)
+    with pytest.raises(ConfigError, match="at most one update per time step of the simulated"):
+        check_settings(MPCConfig(duration=0.2, rate=1000.0, plant_time_step=0.002), task)
+
+
+def test_a_plan_moved_between_its_steps_averages_its_controls():
+    """Controller._resample: a plan re-gridded 0.25 steps later holds, at each new step, the
+    time average of the old controls it spans; measured where the old plan was (its states
+    interpolated), the feedback warm start is that open-loop motion (no correction)."""
+    task = Task.load("cartpole-wall")
+    N = 20
+    ctrl = Controller(task, N, MPCConfig(horizon=0.2, warm_start_tail="last"))
+    ctrl.update(task.x0, 0.0, 2, full=True)
+    U_old, X_old = ctrl.U.copy(), ctrl.plan.X
+    x = 0.75 * X_old[0] + 0.25 * X_old[1]
+    X0 = ctrl._resample(x, 0.0025, 0.25)
+    np.testing.assert_allclose(ctrl.U[:-1], 0.75 * U_old[:-1] + 0.25 * U_old[1:])
+    np.testing.assert_allclose(ctrl.U[-1], U_old[-1])  # the tail repeats the last control
+    assert X0 is not None and X0.shape == (N + 1, task.dynamics.nx)
+    np.testing.assert_allclose(X0, task.dynamics.rollout(x, ctrl.U))

@@ -22,7 +22,11 @@ def setup(p) -> None:
     p.add_argument(
         "--duration", type=float, help="simulated seconds (default: the task's mpc.duration)"
     )
-    p.add_argument("--rate", type=float, help="control updates per second (default: mpc.rate)")
+    p.add_argument(
+        "--rate",
+        type=float,
+        help="control updates per second, at most one per simulation step (default: mpc.rate)",
+    )
     p.add_argument(
         "--horizon", type=float, help="planning horizon in seconds (default: mpc.horizon)"
     )

@@ -91,7 +91,9 @@ def check_settings(settings: MPCConfig, task) -> np.ndarray | None:
 
 
 def _check_timing(settings: MPCConfig, dt: float) -> None:
-    """Rate, horizon and duration: positive, within MAX_STEPS, whole time steps of ``dt``."""
+    """Rate, horizon and duration: positive, within MAX_STEPS; the update period whole steps
+    of the simulated robot (``simulation_step``; of the plan, ``dt``, with a shrinking
+    horizon, whose plan ends on the task's grid)."""
     if not all(
         math.isfinite(v) and v > 0 for v in (settings.rate, settings.horizon, settings.duration)
     ):
@@ -103,18 +105,21 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
             raise ConfigError(
                 f"mpc {what} {seconds:g} s: more than {MAX_STEPS} time steps of {dt:g} s"
             )
-    if settings.rate > 1.0 / dt * (1 + 1e-9):
+    h = dt if settings.shrinking_horizon else simulation_step(settings, dt)[0]
+    which = "plan (shrinking horizon)" if settings.shrinking_horizon else "simulated robot"
+    if settings.rate > 1.0 / h * (1 + 1e-9):
+        more = "" if h < dt or settings.shrinking_horizon else "; --plant-time-step for more"
         raise ConfigError(
-            f"mpc rate {settings.rate:g} Hz: at most one update per time step "
-            f"({1.0 / dt:g} Hz with plant.time_step {dt:g} s)"
+            f"mpc rate {settings.rate:g} Hz: at most one update per time step of the {which} "
+            f"({1.0 / h:g} Hz with its step {h:g} s{more})"
         )
-    steps = 1.0 / (settings.rate * dt)
+    steps = 1.0 / (settings.rate * h)
     if abs(steps - round(steps)) > 1e-4 * steps:
         n = math.floor(steps)
-        near = " or ".join(f"{1.0 / (m * dt):g} Hz" for m in (n, n + 1) if m >= 1)
+        near = " or ".join(f"{1.0 / (m * h):g} Hz" for m in (n, n + 1) if m >= 1)
         raise ConfigError(
-            f"mpc rate {settings.rate:g} Hz: an update period of {steps:g} time steps "
-            f"(plant.time_step {dt:g} s); the period must be whole steps, e.g. {near}"
+            f"mpc rate {settings.rate:g} Hz: an update period of {steps:g} time steps of the "
+            f"{which} ({h:g} s); the period must be whole steps, e.g. {near}"
         )
     if not settings.shrinking_horizon and settings.horizon < 2 * dt * (1 - 1e-9):
         raise ConfigError(
@@ -451,10 +456,14 @@ class Controller:
         """Shifts the controls (and the partials) by the time since the last plan and returns
         the initial rollout: the previous plan's prediction if the plant went exactly there,
         else its policy from x (``warm_start_feedback``), else None; and whether it was the
-        prediction."""
+        prediction. A time between plan steps (a control rate above the plan's) resamples
+        the plan instead (``_resample``)."""
         dt = self.dyn.dt
+        s = (t - self.t_plan) / dt
+        if not self.shrinking and abs(s - round(s)) > 1e-6 and s > 0:
+            return self._resample(x, t, s), False
         X0 = None  # initial rollout: the previous plan's prediction, or its policy from x
-        shift = int(round((t - self.t_plan) / dt))
+        shift = int(round(s))
         shift = min(max(shift, 0), self.U.shape[0])
         pad = None
         if self.shrinking:  # drop what has passed, append nothing
@@ -477,6 +486,44 @@ class Controller:
         elif self.warm_feedback:
             X0 = self._policy_rollout(x, Xp, self.plan.K[shift:])
         return X0, on_prediction
+
+    def _resample(self, x: np.ndarray, t: float, s: float):
+        """The previous plan moved to a grid that starts ``s`` (not whole) plan steps after
+        it: new step k spans the old plan's time [k + s, k + 1 + s), so its control is the
+        time average of the old controls there, its reference state the model's motion under
+        those controls from the old plan's state at the new start (interpolated, quaternions
+        renormalized) and its gains the old step's that holds most of it. The partials shift by whole steps (``derivative_reuse_tolerance`` decides
+        whether the moved ones still fit). Returns the policy rollout from x (or None)."""
+        dt = self.dyn.dt
+        N, M = self.U.shape[0], self.plan.U.shape[0]
+        i0 = int(math.floor(s))
+        f = s - i0
+        need = N + i0 + 2  # old-plan steps the new grid touches
+        U = self.U
+        if need > U.shape[0]:
+            k_new = int(round(self.t_plan / dt)) + U.shape[0]
+            U = np.vstack([U, self._new_controls(k_new, need - U.shape[0], x)])
+        k = np.arange(N) + i0
+        self.U = (1.0 - f) * U[k] + f * U[k + 1]
+        # The reference of the feedback: the model's own motion under the resampled controls
+        # from the old plan's state at the new start (interpolated). The old states
+        # interpolated are not a motion of the model on the new grid, and feedback against
+        # them fights that offset at every step.
+        lo = min(i0, M - 1)
+        a = min(s, M) - lo
+        x_start = self.dyn.layout.normalize((1.0 - a) * self.plan.X[lo] + a * self.plan.X[lo + 1])
+        try:
+            X = self.dyn.rollout(x_start, self.U)
+        except SimulationError:
+            return None
+        held = np.arange(N) + i0 + (1 if f >= 0.5 else 0)  # the old step holding most of it
+        K = np.where(
+            (held < M)[:, None, None], self.plan.K[np.minimum(held, M - 1)], 0.0
+        )
+        self.linearizer.shift(min(int(round(s)), N))
+        if not self.warm_feedback:
+            return None
+        return self._policy_rollout(x, X, K)
 
     def _solve(
         self, x, t, X0, iterations: int, full: bool, deadline: float | None
@@ -676,8 +723,9 @@ class ClosedLoop:
         # The simulation's step, and its steps per plan step (1: it steps as the plan does).
         self.dt, self.substeps = simulation_step(settings, task.dynamics.dt)
         self.total = int(round(settings.duration / self.dt))
-        plan_period = max(1, int(round(1.0 / (settings.rate * task.dynamics.dt))))
-        self.period_steps = plan_period * self.substeps
+        # Updates every period_steps simulation steps: the rate may exceed the plan's grid
+        # (each update re-plans from the measured state on a grid starting then).
+        self.period_steps = max(1, int(round(1.0 / (settings.rate * self.dt))))
         self.x = task.x0.copy()
         self.X, self.U = [self.x], []
         self.upd_t, self.solve_s, self.iters = [], [], []
