@@ -492,8 +492,9 @@ class Controller:
         it: new step k spans the old plan's time [k + s, k + 1 + s), so its control is the
         time average of the old controls there, its reference state the model's motion under
         those controls from the old plan's state at the new start (interpolated, quaternions
-        renormalized) and its gains the old step's that holds most of it. The partials shift by whole steps (``derivative_reuse_tolerance`` decides
-        whether the moved ones still fit). Returns the policy rollout from x (or None)."""
+        renormalized) and its gains the old step's that holds most of it. The partials shift
+        by whole steps (``derivative_reuse_tolerance`` decides whether the moved ones still
+        fit). Returns the policy rollout from x (or None)."""
         dt = self.dyn.dt
         N, M = self.U.shape[0], self.plan.U.shape[0]
         i0 = int(math.floor(s))
