@@ -518,9 +518,7 @@ class Controller:
         except SimulationError:
             return None
         held = np.arange(N) + i0 + (1 if f >= 0.5 else 0)  # the old step holding most of it
-        K = np.where(
-            (held < M)[:, None, None], self.plan.K[np.minimum(held, M - 1)], 0.0
-        )
+        K = np.where((held < M)[:, None, None], self.plan.K[np.minimum(held, M - 1)], 0.0)
         self.linearizer.shift(min(int(round(s)), N))
         if not self.warm_feedback:
             return None
