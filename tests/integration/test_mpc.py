@@ -504,3 +504,33 @@ def test_a_plan_moved_between_its_steps_averages_its_controls():
     np.testing.assert_allclose(ctrl.U[-1], U_old[-1])  # the tail repeats the last control
     assert X0 is not None and X0.shape == (N + 1, task.dynamics.nx)
     np.testing.assert_allclose(X0, task.dynamics.rollout(x, ctrl.U))
+
+
+def test_a_candidate_restart_replaces_a_poor_warm_start():
+    """mpc.candidates: an update whose warm start is worse (by the task's cost from the
+    measured state) than the first plan's controls or policy starts from the cheapest of
+    them, and counts a restart; an unknown candidate is a one-line error."""
+    task = Task.load("cartpole-wall")
+    N = 20
+    ctrl = Controller(task, N, MPCConfig(horizon=0.2, candidates=["first_plan", "guess"]))
+    first = ctrl.update(task.x0, 0.0, 5, full=True).plan
+    assert ctrl.first is first and ctrl.restarts == 0
+    ctrl.U = np.zeros_like(ctrl.U)  # a warm start that lets the pole fall
+    X, restarted = ctrl._cheapest_start(task.x0, 0.0, None)
+    assert restarted and ctrl.restarts == 0  # counted by update(), not here
+    J_zero = task.cost.total(task.dynamics.rollout(task.x0, np.zeros((N, 1))), np.zeros((N, 1)))
+    assert task.cost.total(X, ctrl.U, 0.0) < J_zero
+    np.testing.assert_allclose(X, task.dynamics.rollout(task.x0, ctrl.U))
+    with pytest.raises(ConfigError, match="mpc.candidates: 'best': unknown candidate"):
+        check_settings(MPCConfig(duration=0.2, candidates=["best"]), task)
+
+
+def test_finger_spin_example_runs_its_loop_with_restarts(tmp_path):
+    """examples/finger-spin.yaml under --smoke: the loop runs (10 updates), mpc.json reports
+    the candidates and the closed-loop tracking error its mpc.goal reads."""
+    out = tmp_path / "spin"
+    code = main(["mpc", "examples/finger-spin.yaml", "--smoke", "--out", str(out)])
+    assert code in (0, GOAL_NOT_MET)
+    data = json.loads((out / "mpc.json").read_text())
+    assert data["candidates"] == ["first_plan"] and data["updates"] >= 9
+    assert "wheel_axle" in data["metrics"]["tracking_error_rms"]

@@ -277,6 +277,7 @@ class MPCResult:
     interrupted: bool = False  # stopped by Ctrl+C before the end
     past_deadline: int = 0  # updates whose line search mpc.deadline cut short
     saturated_fraction: float = 0.0  # commands clipped at an effort limit (of all commands)
+    restarts: int = 0  # updates that started from an mpc.candidates entry
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -316,6 +317,8 @@ class MPCResult:
             "solver_failures": self.failures,
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
+            "candidates": list(self.settings.candidates),
+            "updates_from_a_candidate": self.restarts,
             # Mean seconds per update in each solver phase (rollout, derivatives, ...).
             "phase_seconds_mean": {  # over the updates whose solve did not fail
                 p: float(np.mean([ph.get(p, 0.0) for ph in solved])) for p in PHASES
@@ -390,6 +393,9 @@ class Controller:
         self.warm_feedback = settings.warm_start_feedback
         self.feedback_scale = settings.feedback_scale
         self.U_ref = U_ref  # controls by time step, or None
+        self.candidates = list(settings.candidates)
+        self.first: Solution | None = None  # the first (full) plan
+        self.restarts = 0  # updates that started from a candidate instead of the warm start
         self.U = self._new_controls(0, horizon_steps, task.x0)
         self.t_plan = 0.0
         self.plan: Solution | None = None
@@ -436,6 +442,10 @@ class Controller:
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
         X0, on_prediction = self._warm_start(x, t) if self.plan is not None else (None, False)
+        if self.candidates and self.plan is not None:
+            X0, restarted = self._cheapest_start(x, t, X0)
+            self.restarts += restarted
+            on_prediction = on_prediction and not restarted
         self.reused_prediction.append(on_prediction)
         pre_rollout = time.perf_counter() - t_pre
         sol = self._solve(x, t, X0, iterations, full, deadline)
@@ -450,7 +460,57 @@ class Controller:
         self.U = sol.U.copy()
         self.t_plan = t
         self.plan = sol
+        if full and self.first is None:
+            self.first = sol
         return UpdateResult(sol, True)
+
+    def _cheapest_start(self, x: np.ndarray, t: float, X0):
+        """The warm start (self.U, its rollout X0 or None) against each of ``candidates``
+        rolled out from x: sets self.U to the cheapest by the task's cost from t and returns
+        (its states, whether a candidate won). ``first_plan`` gives two: the first plan's
+        controls open loop, and its policy (u = ū − K(x − x̄), which steers back towards its
+        motion). A candidate that fails to roll out is skipped."""
+        options = []
+        try:
+            X = X0 if X0 is not None else self.dyn.rollout(x, self.U)
+            options.append((self.cost.total(X, self.U, t), X, self.U, False))
+        except SimulationError:
+            pass
+        for U, Xbar, K in self._candidate_plans(x, t):
+            try:
+                if K is None:
+                    X = self.dyn.rollout(x, U)
+                else:
+                    X, U = self.dyn.closed_loop_rollout(x, U, Xbar, K, np.zeros_like(U), 0.0)
+            except SimulationError:
+                continue
+            options.append((self.cost.total(X, U, t), X, U, True))
+        options = [o for o in options if np.isfinite(o[0])]
+        if not options:
+            return X0, False
+        _, X, U, restarted = min(options, key=lambda o: o[0])
+        self.U = np.array(U, float)
+        if restarted:
+            self.linearizer.clear()  # the partials were taken along another trajectory
+        return X, restarted
+
+    def _candidate_plans(self, x: np.ndarray, t: float):
+        """(U [N, nu], X̄ [N+1, nx] or None, K [N, nu, nx] or None) of each candidate."""
+        N = self.U.shape[0]
+        for name in self.candidates:
+            if name == "guess":
+                yield self.task.initial_guess(N, x, start=int(round(t / self.dyn.dt))), None, None
+                continue
+            if self.first is None:
+                continue
+            U, X, K = self.first.U[:N], self.first.X[: N + 1], self.first.K[:N]
+            if U.shape[0] < N:  # a first plan shorter than the horizon: the guess after it
+                m = N - U.shape[0]
+                U = np.vstack([U, self.task.initial_guess(m, x, start=U.shape[0])])
+                X = np.vstack([X, np.repeat(X[-1:], m, axis=0)])
+                K = np.concatenate([K, np.zeros((m,) + K.shape[1:])])
+            yield U, None, None
+            yield U, X, K
 
     def _warm_start(self, x: np.ndarray, t: float):
         """Shifts the controls (and the partials) by the time since the last plan and returns
@@ -863,4 +923,5 @@ class ClosedLoop:
             self.interrupted,
             ctrl.past_deadline,
             self.truth.saturated / max(1, self.truth.commands),
+            ctrl.restarts,
         )

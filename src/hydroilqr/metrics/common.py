@@ -76,20 +76,25 @@ def body_order(task) -> list[str]:
 
 
 def default_metrics(task, sol) -> dict:
-    """Final cost terms, the final tangent error of every Qf block, and contact polygons."""
+    """Final cost terms, the final tangent error of every Qf block and its RMS over the
+    trajectory (``tracking_error_rms``), and contact polygons."""
     cost = task.cost
     N = sol.U.shape[0]
     t0 = float(sol.t[0])
     terms = cost.breakdown(sol.X, sol.U, t0)
     xn = cost.nominal(np.array([sol.t[-1]]))[0]
     err = cost.layout.diff(sol.X[-1], xn)
-    final_err = {}
+    final_err, tracking = {}, {}
+    # every state against the nominal at its own time (a closed loop's too, on its own grid)
+    E = cost.layout.diff(sol.X, cost.nominal(np.asarray(sol.t, float)))
     for name in task.config.cost.Qf:
         b = cost.layout.block(name)
         final_err[name] = float(np.linalg.norm(err[list(b.tangent)]))
+        tracking[name] = float(np.sqrt(np.mean(np.sum(E[:, list(b.tangent)] ** 2, axis=1))))
     return {
         "cost_terms": terms,
         "final_error": final_err,
+        "tracking_error_rms": tracking,
         "steps": int(N),
         "max_contact_faces": max_contact_faces(task, sol),
         **beyond_limits(task.dynamics, sol.U),

@@ -383,6 +383,11 @@ class MPCConfig:
     # plan's feedback policy u = ū − K(x − x̄) rolled out from the measured state (true), or
     # from its shifted controls open loop (false).
     warm_start_feedback: bool = True
+    # Restarts: besides its warm start, each update rolls out these candidates from the
+    # measured state and starts from the cheapest: "first_plan" (the first plan's controls,
+    # from their first step: the motion that made contact from a standstill, tried again),
+    # "guess" (the task's initial guess for the horizon). Empty: the warm start only.
+    candidates: list[str] = field(default_factory=list)
     # A solved run (its directory or solution.npz): its controls, by time step, seed the first
     # plan and the steps each shifted plan appends (past its end, warm_start_tail applies).
     warm_start_plan: str = ""
@@ -1259,6 +1264,7 @@ PLAYBACK_FEEDFORWARDS = ("scaled", "plan")
 CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
 DERIVATIVES = tuple(m.value for m in DerivativeMethod)  # the YAML/CLI spellings
 WARM_START_TAILS = ("last", "guess")  # mpc.warm_start_tail
+MPC_CANDIDATES = ("first_plan", "guess")  # mpc.candidates
 
 
 def _check_contact(p: ContactProperties, key: str) -> None:
@@ -1292,6 +1298,11 @@ def validate_mpc(m: Any) -> None:
         )
     if m.warm_start_tail not in WARM_START_TAILS:
         raise ConfigError("mpc.warm_start_tail: expected last or guess")
+    for c in m.candidates:
+        if c not in MPC_CANDIDATES:
+            raise ConfigError(
+                f"mpc.candidates: {c!r}: {unknown_key(str(c), list(MPC_CANDIDATES), 'candidate')}"
+            )
     if m.derivatives and m.derivatives not in DERIVATIVES:
         raise ConfigError(
             f"mpc.derivatives: expected one of {', '.join(DERIVATIVES)} (or empty: the "
