@@ -177,7 +177,7 @@ class ActuatorConfig:
 NOMINAL_TIMES = ("step", "horizon_end")
 
 # Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
-TERM_TYPES = ("position", "orientation", "velocity", "height", "distance")
+TERM_TYPES = ("position", "orientation", "velocity", "height", "distance", "slip")
 AXES = ("x", "y", "z")
 
 
@@ -203,7 +203,7 @@ class TermConfig:
     its window (running) or at the last state (``terminal``)."""
 
     name: str = ""
-    type: str = ""  # position | orientation | velocity | height | distance
+    type: str = ""  # position | orientation | velocity | height | distance | slip
     # A number, or one per axis of ``axes`` (position, orientation, velocity).
     weight: Any = 1.0
     # position, velocity, height: the point, fixed on ``body`` (a body or frame name) at
@@ -234,6 +234,11 @@ class TermConfig:
     # BODY/GEOMETRY; the closest pair counts).
     geometry_a: str = ""
     geometry_b: str = ""
+    # slip: the horizontal (world x, y) velocity of the lowest point of a sphere of ``radius``
+    # (m) centred at ``point``, times max(0, 1 - h / clearance), h that point's height (m)
+    # above z = 0: a foot may move freely only once it is ``clearance`` above the ground.
+    radius: float = 0.0
+    clearance: float | None = None
     # The time window of a running term (s, inclusive; default the whole trajectory), or the
     # last state only.
     after: float | None = None
@@ -1650,6 +1655,7 @@ _TERM_KEYS = {
     "velocity": {"body", "point", "relative_to", "axes", "target"},
     "height": {"body", "point", "target", "min", "max", "normal"},
     "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
+    "slip": {"body", "point", "radius", "clearance"},
 }  # fmt: skip
 
 
@@ -1665,7 +1671,8 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     if term.type not in TERM_TYPES:
         raise ConfigError(f"{key}.type: {unknown_key(term.type, list(TERM_TYPES), 'term type')}")
     default = TermConfig()
-    for f in sorted(_TERM_KEYS["position"] | _TERM_KEYS["distance"] | {"normal", "min", "max"}):
+    every = set().union(*_TERM_KEYS.values())
+    for f in sorted(every):
         if f not in _TERM_KEYS[term.type] and getattr(term, f) != getattr(default, f):
             article = "an" if term.type[0] in "aeiou" else "a"
             raise ConfigError(f"{key}.{f}: {article} {term.type} term has no {f}")
@@ -1680,7 +1687,10 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     _check_length(term.normal, 3, f"{key}.normal")
     if math.hypot(*term.normal) < 1e-9:
         raise ConfigError(f"{key}.normal: must be non-zero")
-    _validate_term_target(term, key, vector)
+    if term.type == "slip":
+        _validate_slip(term, key)
+    else:
+        _validate_term_target(term, key, vector)
     if term.terminal and (term.after is not None or term.until is not None or term.ramp):
         raise ConfigError(f"{key}.terminal: a terminal term has no after, until or ramp")
     if term.after is not None and term.after < 0:
@@ -1705,6 +1715,16 @@ def _validate_term_weight(term: TermConfig, key: str, vector: bool) -> None:
         _check_weight(x, w, f"{key}.weight", True)
     if len(ws) not in (1, n):
         raise ConfigError(f"{key}.weight: expected a number or {n} values (one per axis)")
+
+
+def _validate_slip(term: TermConfig, key: str) -> None:
+    """A slip term's clearance (> 0 m, required) and sphere radius (>= 0 m)."""
+    c = term.clearance
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
+        raise ConfigError(f"{key}.clearance: required, a height > 0 (m), got {c!r}")
+    r = term.radius
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
+        raise ConfigError(f"{key}.radius: expected a length >= 0 (m), got {r!r}")
 
 
 def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
