@@ -161,6 +161,19 @@ class TaskSpaceTerms:
                 idx += range(joint.position_start(), joint.position_start() + joint.num_positions())
         return np.array(sorted(idx), dtype=int)
 
+    def _root_translations(self) -> np.ndarray:
+        """Indices of q that translate a floating base jointed to the world: a velocity
+        expressed in the world does not change with them."""
+        p = self.plant
+        idx: list[int] = []
+        for j in p.GetJointIndices():
+            joint = p.get_joint(j)
+            floating = joint.type_name() in ("quaternion_floating", "rpy_floating")
+            if floating and joint.parent_body().index() == p.world_body().index():
+                end = joint.position_start() + joint.num_positions()
+                idx += range(end - 3, end)
+        return np.array(idx, dtype=int)
+
     def _resolve(self, c: TermConfig) -> _Term:
         key = f"cost.terms.{c.name}"
         vector = c.type in ("position", "orientation", "velocity")
@@ -196,7 +209,9 @@ class TaskSpaceTerms:
         if c.type == "height":
             t.normal = np.asarray(c.normal, float) / np.linalg.norm(c.normal)
         if c.type == "slip":
-            t.q_moving = self._moving_coordinates([t.frame])
+            t.q_moving = np.setdiff1d(
+                self._moving_coordinates([t.frame]), self._root_translations()
+            )
         return t
 
     def _geometry_frames(self, ids) -> None:
@@ -345,7 +360,8 @@ class TaskSpaceTerms:
         J = np.zeros((2, self.nx)) if jac else None
         if jac and g > 0.0:
             J[:, nq:] = g * Js
-            # g'(h) ∂h/∂q (h = p_z − radius), then g ∂(v_WC)_xy/∂q on the coordinates moving P
+            # g'(h) ∂h/∂q (h = p_z − radius), then g ∂(v_WC)_xy/∂q on the coordinates that
+            # move P other than a floating base's translation
             J[:, :nq] = np.outer(vc, -self._jq(t.frame, t.point)[2] / c.clearance)
             J[:, t.q_moving] += g * self._dq(t, x, lambda: self._slip_jacobian(t) @ v, 2)
         return g * vc, J, np.array([float(np.hypot(*vc)), h])
