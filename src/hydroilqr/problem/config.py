@@ -429,6 +429,8 @@ class GoalCheck:
     max: float | None = None
     above: str | None = None  # the name of another metric that this one must exceed
     below: str | None = None  # the name of another metric that this one must stay under
+    # by how much (above: value > other + margin; below: value < other - margin)
+    margin: float = 0.0
 
     def describe(self) -> str:
         parts = []
@@ -436,10 +438,11 @@ class GoalCheck:
             parts.append(f">= {self.min:g}")
         if self.max is not None:
             parts.append(f"<= {self.max:g}")
+        extra = f" + {self.margin:g}" if self.margin else ""
         if self.above is not None:
-            parts.append(f"> {self.above}")
+            parts.append(f"> {self.above}{extra}")
         if self.below is not None:
-            parts.append(f"< {self.below}")
+            parts.append(f"< {self.below}{extra.replace('+', '-')}")
         return " and ".join(parts)
 
 
@@ -453,6 +456,11 @@ def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
             raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
         if check.min is not None and check.max is not None and check.min > check.max:
             raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
+        if check.margin:
+            if check.above is None and check.below is None:
+                raise ConfigError(f"{key}.margin: a margin needs above or below")
+            if not math.isfinite(check.margin) or check.margin < 0:
+                raise ConfigError(f"{key}.margin: expected a number >= 0, got {check.margin:g}")
 
 
 @dataclass
