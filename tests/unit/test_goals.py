@@ -34,6 +34,22 @@ def test_comparison_with_another_metric_and_nested_names():
     assert not evaluate(goal, {"diagonal": 0.5, "lateral": 0.5, "duty": {"FL": 0.3}})["met"]
 
 
+def test_comparison_by_a_margin():
+    goal = {
+        "diagonal": GoalCheck(above="lateral", margin=0.2),
+        "low": GoalCheck(below="high", margin=0.1),
+    }
+    ok = evaluate(goal, {"diagonal": 0.71, "lateral": 0.5, "low": 0.3, "high": 0.41})
+    assert ok["met"] is True
+    res = evaluate(goal, {"diagonal": 0.69, "lateral": 0.5, "low": 0.35, "high": 0.41})
+    assert [c["passed"] for c in res["checks"]] == [False, False]
+    assert "0.69 <= lateral 0.5 + 0.2" in res["checks"][0]["why"]
+    assert "0.35 >= high 0.41 - 0.1" in res["checks"][1]["why"]
+    assert res["checks"][0]["require"] == "> lateral + 0.2"
+    t = Task.load("cheetah-trot-1.0", ["goal.diagonal_pair_overlap.margin=0.2"], smoke=True)
+    assert t.config.goal["diagonal_pair_overlap"].margin == 0.2
+
+
 def test_missing_or_nonfinite_metric_fails_its_check():
     goal = {"target_error_m": GoalCheck(max=0.03)}
     res = evaluate(goal, {})
@@ -60,6 +76,8 @@ def test_dotted_lookup_prefers_whole_keys():
         ("goal.x={min: 2, max: 1}", "min 2 is above max 1"),
         ("goal.x={maximum: 1}", "unknown key"),
         ("goal.x={max: abc}", "expected a number"),
+        ("goal.x={max: 1, margin: 0.1}", "goal.x.margin: a margin needs above or below"),
+        ("goal.x={above: y, margin: -0.1}", "goal.x.margin: expected a number >= 0"),
     ],
 )
 def test_bad_goals_are_refused_on_load(override, message):

@@ -14,7 +14,8 @@ from tests.conftest import edit, write_case
 
 # Every term type on the Kinova arm and its ball (a quaternion floating body), with the
 # options that change the residual: per-axis weights, a moving target, a relative frame,
-# relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window.
+# relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window, a slip's
+# sphere radius (its contact point moves with the body's rotation) and its clearance.
 TERMS = [
     {"name": "reach", "type": "position", "body": "end_effector_link", "point": [0, 0, 0.12],
      "target": [0.5, 0.1, 0.3], "target_velocity": [0.1, 0, 0], "weight": [1.0, 2.0, 3.0]},
@@ -39,6 +40,10 @@ TERMS = [
     {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
      "max": 0.01, "weight": 2.0, "until": 0.015},
     {"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0},
+    {"name": "ballslip", "type": "slip", "body": "ball", "radius": 0.05, "clearance": 0.5,
+     "weight": 3.0},
+    {"name": "linkslip", "type": "slip", "body": "bracelet_link", "point": [0.01, 0.02, 0.03],
+     "radius": 0.02, "clearance": 1.0, "weight": 0.4, "after": 0.01},
 ]  # fmt: skip
 
 N = 3
@@ -73,7 +78,7 @@ def _fd(f, X, h=1e-6):
 
 def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
     """J = ∂r/∂x of each term (position, orientation, velocity incl. its q-dependence,
-    height, distance, joint limits),
+    height, distance, joint limits, slip incl. its height weight),
     where its weight is positive, against central differences (h = 1e-6) of its residual over
     every coordinate, quaternion ones included: within 1e-8 (measured: 1e-10)."""
     task, X, _ = kinova
@@ -234,6 +239,15 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
          "cost.terms.t.body: a joint_limits term has no body"),
         ({"name": "t", "type": "height", "body": "b", "min": 0, "margin": 0.1},
          "cost.terms.t.margin: a height term has no margin"),
+        ({"name": "t", "type": "slip", "body": "b"}, "cost.terms.t.clearance: required"),
+        ({"name": "t", "type": "slip", "body": "b", "clearance": 0.0},
+         "cost.terms.t.clearance: required, a height > 0 (m), got 0.0"),
+        ({"name": "t", "type": "slip", "body": "b", "clearance": 0.1, "radius": -1},
+         "cost.terms.t.radius: expected a length >= 0 (m)"),
+        ({"name": "t", "type": "slip", "body": "b", "clearance": 0.1, "axes": ["x"]},
+         "cost.terms.t.axes: a slip term has no axes"),
+        ({"name": "t", "type": "height", "body": "b", "min": 0, "clearance": 0.1},
+         "cost.terms.t.clearance: a height term has no clearance"),
     ],
 )  # fmt: skip
 def test_bad_terms_are_config_errors_before_the_plant_is_built(tmp_path, term, message):
@@ -316,3 +330,31 @@ def test_orientation_error_is_two_sin_half_the_angle_from_the_target(kinova):
     # relative to the start, no extra rotation: no error at the initial state
     start = task.with_overrides(["cost.terms.roll.target=null"]).cost.task_terms
     assert start.report(np.tile(task.x0, (N + 1, 1)))["roll"]["error"] < 1e-12
+
+
+def test_slip_counts_the_contact_points_horizontal_velocity_while_low(kinova):
+    """A slip term's residual: g(h) (v_WC)_xy with C the sphere's lowest point as a point of
+    the body (so a sphere spinning about a horizontal axis in place slips at its bottom) and
+    g = 1 − h/clearance; 0 once the point is a clearance above the ground."""
+    task, _, _ = kinova
+    terms = task.cost.task_terms
+    lay = task.dynamics.layout
+    x = task.x0.copy()
+    x[list(lay.primitives["ball.angular_velocity"].coords)] = [0.0, 2.0, 0.0]  # about +y
+    x[list(lay.primitives["ball.velocity"].coords)] = [0.3, 0.0, 0.0]
+    X = np.tile(x, (N + 1, 1))
+    ball = next(i for i, t in enumerate(terms.terms) if t.name == "ballslip")
+    _, _, R, _, meas = terms._evaluate(X, 0.0, False)
+    plant = task.dynamics.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositionsAndVelocities(ctx, x)
+    z = plant.CalcPointsPositions(ctx, plant.GetFrameByName("ball"), np.zeros(3),
+                                  plant.world_frame())[2, 0]  # fmt: skip
+    h = z - 0.05
+    # the bottom point: v_ball + ω × (−r ẑ) = v_ball + r (−ω_y, ω_x, 0)
+    expect = (1.0 - h / 0.5) * np.array([0.3 - 0.05 * 2.0, 0.0])
+    np.testing.assert_allclose(R[ball][0], expect, atol=1e-12)
+    assert meas[ball][0][1] == pytest.approx(h)
+    high = task.with_overrides(["cost.terms.ballslip.clearance=0.01"]).cost.task_terms
+    _, _, R_high, Js, _ = high._evaluate(X, 0.0, True)
+    assert not R_high[ball].any() and not Js[ball].any()

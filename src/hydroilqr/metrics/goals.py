@@ -10,9 +10,11 @@ its run reports (``summary.json``'s ``metrics``, ``mpc.json``, ``playback.json``
       duty_factor.FL: {min: 0.2}               # a dotted name reaches into a nested metric
 
 Each check holds when every bound it gives holds: ``min`` (value ≥ min), ``max`` (value ≤ max),
-``above`` (value > the named metric), ``below`` (value < the named metric). A metric the run
-did not report, or that is not a finite number, fails its check (with the reason). The goal
-is met when every check holds; a task without checks has no goal (``met`` is ``None``).
+``above`` (value > the named metric), ``below`` (value < the named metric), either by a
+``margin`` (default 0; ``{above: lateral_pair_overlap, margin: 0.2}``: value > other + 0.2).
+A metric the run did not report, or that is not a finite number, fails its check (with the
+reason). The goal is met when every check holds; a task without checks has no goal (``met``
+is ``None``).
 """
 
 from __future__ import annotations
@@ -73,8 +75,11 @@ def evaluate_check(name: str, check: GoalCheck, metrics: dict) -> dict:
             failures.append(f"{other} not reported")
             continue
         record[other] = ref
-        if not sign * (value - ref) > 0.0:
-            failures.append(f"{value:.4g} {'<=' if sign > 0 else '>='} {other} {ref:.4g}")
+        if not sign * (value - ref) > check.margin:
+            bound = f"{ref:.4g}"
+            if check.margin:
+                bound += f" {'+' if sign > 0 else '-'} {check.margin:g}"
+            failures.append(f"{value:.4g} {'<=' if sign > 0 else '>='} {other} {bound}")
     record["passed"] = not failures
     if failures:
         record["why"] = "; ".join(failures)

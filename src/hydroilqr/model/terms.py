@@ -24,6 +24,12 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
 * ``joint_limits``: ``r_i = min(0, q_i − (lo_i + margin)) + max(0, q_i − (hi_i − margin))`` for
   each joint coordinate with finite position limits in the model files (``Scene.
   position_limits``, also where ``plant.joint_limits: false`` removed them from the plant).
+* ``slip``: ``r = g(h) (v_WC)_xy``, the horizontal velocity of C, the lowest point of a sphere
+  of ``radius`` about P (a foot), as a material point of P's body (``v_WC = v_WP + ω_WB ×
+  (−radius ẑ)``), with ``g(h) = max(0, 1 − h/clearance)``, h = C's height above z = 0: a foot
+  that slides while it is down, or moves horizontally while it is low, costs; one that is
+  ``clearance`` above the ground moves freely. No clock and no reference: it asks stance feet
+  to stay put and swing feet to lift before they travel.
 
 Derivatives are Gauss-Newton, ``l_x = 2 f Jᵀ W r`` and ``l_xx = 2 f Jᵀ W J`` with
 ``J = ∂r/∂x`` in the state's coordinates x = [q; v], from MultibodyPlant kinematics: position
@@ -32,8 +38,10 @@ for quaternion coordinates, which Drake normalizes), for an orientation the angu
 Jacobian mapped through ∂e/∂ω (q̇_AB = ½ [0; ω] ⊗ q_AB), the witness points' Jacobians projected
 on the distance's gradient direction ``nhat_BA_W`` for a distance, and for a velocity the
 Jacobian with respect to v, its change with q by central differences of that Jacobian over
-the coordinates that move the point. One plant context (of its own diagram context, for the
-geometry queries) is reused for every step; a state is set once per step for all terms.
+the coordinates that move the point (a slip's: of the point's translational and its body's
+angular velocity Jacobians; its weight g(h) through P's position Jacobian). One plant
+context (of its own diagram context, for the geometry queries) is reused for every step; a
+state is set once per step for all terms.
 Times are the task's (``t_k = t0 + k·dt``), so windows and moving targets hold across
 receding-horizon windows.
 """
@@ -159,10 +167,25 @@ class TaskSpaceTerms:
                 idx += range(joint.position_start(), joint.position_start() + joint.num_positions())
         return np.array(sorted(idx), dtype=int)
 
+    def _root_translations(self) -> np.ndarray:
+        """Indices of q that translate a floating base jointed to the world: a velocity
+        expressed in the world does not change with them."""
+        p = self.plant
+        idx: list[int] = []
+        for j in p.GetJointIndices():
+            joint = p.get_joint(j)
+            floating = joint.type_name() in ("quaternion_floating", "rpy_floating")
+            if floating and joint.parent_body().index() == p.world_body().index():
+                end = joint.position_start() + joint.num_positions()
+                idx += range(end - 3, end)
+        return np.array(idx, dtype=int)
+
     def _resolve(self, c: TermConfig) -> _Term:
         key = f"cost.terms.{c.name}"
         vector = c.type in ("position", "orientation", "velocity")
         sel = [AXES.index(a) for a in c.axes] if vector else [0]
+        if c.type == "slip":
+            sel = [0, 1]  # the world's horizontal axes
         w = np.asarray(c.weight, float).reshape(-1)
         weights = np.full(len(sel), w[0]) if w.size == 1 else w
         t = _Term(c, weights, sel)
@@ -193,6 +216,10 @@ class TaskSpaceTerms:
             t.q_moving = self._moving_coordinates([t.frame, t.frame_a])
         if c.type == "height":
             t.normal = np.asarray(c.normal, float) / np.linalg.norm(c.normal)
+        if c.type == "slip":
+            t.q_moving = np.setdiff1d(
+                self._moving_coordinates([t.frame]), self._root_translations()
+            )
         return t
 
     def _resolve_limits(self, t: _Term, key: str) -> _Term:
@@ -330,6 +357,8 @@ class TaskSpaceTerms:
                 rows = np.flatnonzero(r)
                 J[rows, t.coords[rows]] = 1.0
             return r, J, q
+        if kind == "slip":
+            return self._slip(t, x, jac)
         if kind == "height":
             p = self.plant.CalcPointsPositions(
                 self._pc, t.frame, t.point, self.plant.world_frame()
@@ -350,11 +379,44 @@ class TaskSpaceTerms:
             J[0, :nq] = d * (np.asarray(sd.nhat_BA_W).ravel() @ (Ja - Jb))
         return np.array([r]), J, s
 
-    def _dvdq(self, t: _Term, x: np.ndarray) -> np.ndarray:
-        """∂(J_v(q) v)/∂q on the coordinates that move the point: [3, len(q_moving)], by
-        central differences of Drake's Jacobian (the context is left at x)."""
-        v, h = x[self.nq :], VELOCITY_FD_STEP
-        out = np.empty((3, len(t.q_moving)))
+    def _slip_jacobian(self, t: _Term) -> np.ndarray:
+        """∂(v_WC)_xy/∂v [2, nv] at the context's positions, C = P − radius ẑ a point of P's
+        body: v_WC = v_WP + ω_WB × (−radius ẑ) = v_WP + radius (−ω_y, ω_x, 0)."""
+        world = self.plant.world_frame()
+        Jv = self.plant.CalcJacobianTranslationalVelocity(
+            self._pc, JacobianWrtVariable.kV, t.frame, t.point, world, world
+        )
+        Jw = self.plant.CalcJacobianAngularVelocity(
+            self._pc, JacobianWrtVariable.kV, t.frame, world, world
+        )
+        rad = t.cfg.radius
+        return np.array([Jv[0] - rad * Jw[1], Jv[1] + rad * Jw[0]])
+
+    def _slip(self, t: _Term, x: np.ndarray, jac: bool):
+        """(r [2], J [2, nx] or None, [C's horizontal speed, its height]) of a slip term."""
+        nq, v = self.nq, x[self.nq :]
+        c = t.cfg
+        world = self.plant.world_frame()
+        h = float(self.plant.CalcPointsPositions(self._pc, t.frame, t.point, world)[2, 0])
+        h -= c.radius
+        g = max(0.0, 1.0 - h / c.clearance)
+        Js = self._slip_jacobian(t)
+        vc = Js @ v
+        J = np.zeros((2, self.nx)) if jac else None
+        if jac and g > 0.0:
+            J[:, nq:] = g * Js
+            # g'(h) ∂h/∂q (h = p_z − radius), then g ∂(v_WC)_xy/∂q on the coordinates that
+            # move P other than a floating base's translation
+            J[:, :nq] = np.outer(vc, -self._jq(t.frame, t.point)[2] / c.clearance)
+            J[:, t.q_moving] += g * self._dq(t, x, lambda: self._slip_jacobian(t) @ v, 2)
+        return g * vc, J, np.array([float(np.hypot(*vc)), h])
+
+    def _dq(self, t: _Term, x: np.ndarray, f, m: int) -> np.ndarray:
+        """∂f/∂q on the coordinates that move the point ([m, len(q_moving)]), f() -> [m]
+        evaluated at the context's positions, by central differences (the context is left
+        at x)."""
+        h = VELOCITY_FD_STEP
+        out = np.empty((m, len(t.q_moving)))
         q = x[: self.nq].copy()
         for col, i in enumerate(t.q_moving):
             vals = []
@@ -362,10 +424,16 @@ class TaskSpaceTerms:
                 qi = q.copy()
                 qi[i] += s
                 self.plant.SetPositions(self._pc, qi)
-                vals.append(self._jv(t) @ v)
+                vals.append(f())
             out[:, col] = (vals[0] - vals[1]) / (2 * h)
         self.plant.SetPositions(self._pc, q)
         return out
+
+    def _dvdq(self, t: _Term, x: np.ndarray) -> np.ndarray:
+        """∂(J_v(q) v)/∂q on the coordinates that move the point: [3, len(q_moving)], by
+        central differences of Drake's Jacobian (the context is left at x)."""
+        v = x[self.nq :]
+        return self._dq(t, x, lambda: self._jv(t) @ v, 3)
 
     # ------------------------------------------------------------------ over a trajectory
     def windows(self, N: int, t0: float, times=None) -> tuple[np.ndarray, np.ndarray]:

@@ -181,7 +181,15 @@ class ActuatorConfig:
 NOMINAL_TIMES = ("step", "horizon_end")
 
 # Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
-TERM_TYPES = ("position", "orientation", "velocity", "height", "distance", "joint_limits")
+TERM_TYPES = (
+    "position",
+    "orientation",
+    "velocity",
+    "height",
+    "distance",
+    "slip",
+    "joint_limits",
+)
 AXES = ("x", "y", "z")
 
 
@@ -207,7 +215,7 @@ class TermConfig:
     its window (running) or at the last state (``terminal``)."""
 
     name: str = ""
-    type: str = ""  # position | orientation | velocity | height | distance
+    type: str = ""  # position | orientation | velocity | height | distance | slip
     # A number, or one per axis of ``axes`` (position, orientation, velocity).
     weight: Any = 1.0
     # position, velocity, height: the point, fixed on ``body`` (a body or frame name) at
@@ -243,6 +251,11 @@ class TermConfig:
     # (rad or m).
     joints: list[str] = field(default_factory=list)
     margin: float = 0.0
+    # slip: the horizontal (world x, y) velocity of the lowest point of a sphere of ``radius``
+    # (m) centred at ``point``, times max(0, 1 - h / clearance), h that point's height (m)
+    # above z = 0: a foot may move freely only once it is ``clearance`` above the ground.
+    radius: float = 0.0
+    clearance: float | None = None
     # The time window of a running term (s, inclusive; default the whole trajectory), or the
     # last state only.
     after: float | None = None
@@ -438,6 +451,8 @@ class GoalCheck:
     max: float | None = None
     above: str | None = None  # the name of another metric that this one must exceed
     below: str | None = None  # the name of another metric that this one must stay under
+    # by how much (above: value > other + margin; below: value < other - margin)
+    margin: float = 0.0
 
     def describe(self) -> str:
         parts = []
@@ -445,10 +460,11 @@ class GoalCheck:
             parts.append(f">= {self.min:g}")
         if self.max is not None:
             parts.append(f"<= {self.max:g}")
+        extra = f" + {self.margin:g}" if self.margin else ""
         if self.above is not None:
-            parts.append(f"> {self.above}")
+            parts.append(f"> {self.above}{extra}")
         if self.below is not None:
-            parts.append(f"< {self.below}")
+            parts.append(f"< {self.below}{extra.replace('+', '-')}")
         return " and ".join(parts)
 
 
@@ -462,6 +478,11 @@ def validate_goal(goal: dict[str, GoalCheck], where: str = "goal") -> None:
             raise ConfigError(f"{key}: give at least one of {', '.join(BOUNDS)}")
         if check.min is not None and check.max is not None and check.min > check.max:
             raise ConfigError(f"{key}: min {check.min:g} is above max {check.max:g}")
+        if check.margin:
+            if check.above is None and check.below is None:
+                raise ConfigError(f"{key}.margin: a margin needs above or below")
+            if not math.isfinite(check.margin) or check.margin < 0:
+                raise ConfigError(f"{key}.margin: expected a number >= 0, got {check.margin:g}")
 
 
 @dataclass
@@ -1671,6 +1692,7 @@ _TERM_KEYS = {
     "height": {"body", "point", "target", "min", "max", "normal"},
     "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
     "joint_limits": {"joints", "margin"},
+    "slip": {"body", "point", "radius", "clearance"},
 }  # fmt: skip
 
 
@@ -1708,6 +1730,8 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
             raise ConfigError(f"{key}.margin: must be >= 0 (rad or m inside each limit)")
         if any(not isinstance(j, str) or not j for j in term.joints):
             raise ConfigError(f"{key}.joints: expected joint names, got {term.joints!r}")
+    elif term.type == "slip":
+        _validate_slip(term, key)
     else:
         _validate_term_target(term, key, vector)
     _validate_term_window(term, key)
@@ -1739,6 +1763,16 @@ def _validate_term_weight(term: TermConfig, key: str, vector: bool) -> None:
         _check_weight(x, w, f"{key}.weight", True)
     if len(ws) not in (1, n):
         raise ConfigError(f"{key}.weight: expected a number or {n} values (one per axis)")
+
+
+def _validate_slip(term: TermConfig, key: str) -> None:
+    """A slip term's clearance (> 0 m, required) and sphere radius (>= 0 m)."""
+    c = term.clearance
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
+        raise ConfigError(f"{key}.clearance: required, a height > 0 (m), got {c!r}")
+    r = term.radius
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
+        raise ConfigError(f"{key}.radius: expected a length >= 0 (m), got {r!r}")
 
 
 def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
