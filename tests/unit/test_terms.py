@@ -358,3 +358,12 @@ def test_slip_counts_the_contact_points_horizontal_velocity_while_low(kinova):
     high = task.with_overrides(["cost.terms.ballslip.clearance=0.01"]).cost.task_terms
     _, _, R_high, Js, _ = high._evaluate(X, 0.0, True)
     assert not R_high[ball].any() and not Js[ball].any()
+
+
+def test_cheetah_walk_example_prices_slip_on_its_four_feet():
+    """examples/cheetah-walk.yaml loads, with a slip term per foot and issue 37's goal."""
+    task = Task.load("examples/cheetah-walk.yaml", smoke=True)
+    terms = task.cost.task_terms.terms
+    assert sorted(t.name for t in terms) == ["FL_slip", "FR_slip", "HL_slip", "HR_slip"]
+    assert all(t.cfg.type == "slip" for t in terms)
+    assert task.config.goal["diagonal_pair_overlap"].margin == 0.2
