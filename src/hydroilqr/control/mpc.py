@@ -572,6 +572,9 @@ class Controller:
         # them fights that offset at every step.
         lo = min(i0, M - 1)
         a = min(s, M) - lo
+        self.linearizer.shift(min(int(round(s)), N))
+        if not self.warm_feedback:
+            return None
         x_start = self.dyn.layout.normalize((1.0 - a) * self.plan.X[lo] + a * self.plan.X[lo + 1])
         try:
             X = self.dyn.rollout(x_start, self.U)
@@ -579,9 +582,6 @@ class Controller:
             return None
         held = np.arange(N) + i0 + (1 if f >= 0.5 else 0)  # the old step holding most of it
         K = np.where((held < M)[:, None, None], self.plan.K[np.minimum(held, M - 1)], 0.0)
-        self.linearizer.shift(min(int(round(s)), N))
-        if not self.warm_feedback:
-            return None
         return self._policy_rollout(x, X, K)
 
     def _solve(
