@@ -263,6 +263,7 @@ def test_a_worker_dying_during_autodiff_costs_time_not_the_solve(monkeypatch):
     dyn = Task.load("cartpole-wall", overrides="num_steps=8").dynamics
     X = dyn.rollout(dyn.initial_state(), np.zeros((8, 1)))
     U = np.zeros((8, 1))
+    workers.warm_up(dyn, 2)
     monkeypatch.setattr(workers, "_submit", lambda *args: Dead())
     A, B = workers.autodiff(dyn, X[:-1], U, 2)
     A0, B0 = autodiff_serial(dyn, X[:-1], U)

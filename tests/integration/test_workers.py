@@ -66,6 +66,7 @@ def test_a_trial_that_blows_up_in_a_worker_keeps_the_pool():
     N = 10
     U, X = np.zeros((N, dyn.nu)), dyn.rollout(task.x0, np.zeros((N, dyn.nu)))
     K, kappa = np.zeros((N, dyn.nu, dyn.nx)), np.full((N, dyn.nu), -1e12)
+    workers.warm_up(dyn, 2)
     out = workers.closed_loop_rollouts(dyn, task.x0, U, X, K, kappa, [0.0, 1.0])
     np.testing.assert_array_equal(out[0][0], X)  # ε = 0: the nominal itself, from a worker
     assert isinstance(out[1], SimulationError)
@@ -120,8 +121,15 @@ def test_autodiff_in_worker_processes_equals_serial():
     dyn = task.dynamics
     U = np.linspace(-3, 3, 12)[:, None]
     X = dyn.rollout(np.array([-0.05, 3.5, 0.0, 0.0]), U)
-    A_par, B_par = linearize(dyn, X, U, "autodiff", autodiff_workers=2)
-    assert workers.pool_size(dyn) == 2  # the processes were used
+    workers.warm_up(dyn, 2)
+    sent = []
+    real_submit = workers._submit
+    workers._submit = lambda *a: sent.append(a[1]) or real_submit(*a)
+    try:
+        A_par, B_par = linearize(dyn, X, U, "autodiff", autodiff_workers=2)
+    finally:
+        workers._submit = real_submit
+    assert sent == [workers._autodiff]  # half the steps went to the other process
     A_ser, B_ser = linearize(dyn, X, U, "autodiff")
     np.testing.assert_array_equal(A_par, A_ser)
     np.testing.assert_array_equal(B_par, B_ser)
@@ -165,6 +173,7 @@ def test_line_search_in_worker_processes_equals_serial():
         )
         dyn = task.dynamics
         assert workers.line_search_width(dyn, w) == w
+        workers.warm_up(dyn, w)  # (else the first rounds run here while the processes start)
         problem = Problem(dyn, task.cost, task.x0)
         sols.append(ilqr_solve(problem, task.initial_guess(task.steps), task.config.solver))
     par, ser = sols
@@ -173,3 +182,31 @@ def test_line_search_in_worker_processes_equals_serial():
     assert par.eps == ser.eps
     np.testing.assert_array_equal(par.X, ser.X)
     np.testing.assert_array_equal(par.K, ser.K)
+
+
+def test_work_is_computed_here_until_the_worker_processes_have_started(monkeypatch):
+    """A new pool's processes take about a second to import Drake and build their plants: the
+    first partials and trials are computed in this process meanwhile (the same numbers), and
+    go to the processes once they are up."""
+    from hydroilqr.model import workers
+
+    task = Task.load("cartpole-wall")
+    dyn = task.dynamics
+    U = np.linspace(-3, 3, 12)[:, None]
+    X = dyn.rollout(np.array([-0.05, 3.5, 0.0, 0.0]), U)
+    A_ser, B_ser = linearize(dyn, X, U, "autodiff")
+    workers.pool(dyn, 2)
+    assert not workers.started(dyn)  # the process is importing Drake
+    sent = []
+    real_submit = workers._submit
+    monkeypatch.setattr(workers, "_submit", lambda *a: sent.append(a[1]) or real_submit(*a))
+    A, B = workers.autodiff(dyn, X, U, 2)
+    assert sent == []  # all computed here
+    np.testing.assert_array_equal(A, A_ser)
+    np.testing.assert_array_equal(B, B_ser)
+    workers.warm_up(dyn, 2)
+    assert workers.started(dyn)
+    A, B = workers.autodiff(dyn, X, U, 2)
+    assert sent == [workers._autodiff]
+    np.testing.assert_array_equal(A, A_ser)
+    np.testing.assert_array_equal(B, B_ser)

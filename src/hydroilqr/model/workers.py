@@ -17,6 +17,8 @@ Two kinds of work are sent to it:
 
 The worker counts are arguments (0 = one per core). The pool is created by its first user with
 that user's size (``pool(dyn, size)``: size − 1 processes); a later, larger request shares it.
+The processes start when the pool is created; until they have built their plants
+(``started``), the work is computed in this process, so a solve does not wait for them.
 Where child processes are not allowed (inside a daemonic process, e.g. a sweep worker) the
 pool is marked unavailable and everything runs serially here.
 """
@@ -74,7 +76,21 @@ def pool(dyn: Dynamics, size: int) -> ProcessPoolExecutor | None:
         # Shut down with its Dynamics (or at exit): many Tasks must not pile up processes.
         weakref.finalize(dyn, p.shutdown, wait=False, cancel_futures=True)
         dyn._worker_pool, dyn._worker_pool_size = p, size
+        # Start the processes now: each imports Drake and builds its plant (about a second),
+        # meanwhile the work is computed here (``started``).
+        try:
+            dyn._worker_starts = [p.submit(_ready) for _ in range(size - 1)]
+        except Exception:  # noqa: BLE001 - no child processes allowed here
+            mark_unavailable(dyn)
+            return None
     return p
+
+
+def started(dyn: Dynamics) -> bool:
+    """The pool's processes have built their plants (or one failed trying: then the work
+    sent finds out). Until then work is computed in this process: the same numbers, without
+    waiting a second for the processes to start."""
+    return all(f.done() for f in getattr(dyn, "_worker_starts", ()))
 
 
 class _SpawnProcess(multiprocessing.context.SpawnProcess):
@@ -126,6 +142,8 @@ def warm_up(dyn: Dynamics, size: int) -> None:
     p = pool(dyn, size)
     if p is not None:
         for f in [p.submit(_ready) for _ in range(pool_size(dyn) - 1)]:
+            f.result()
+        for f in getattr(dyn, "_worker_starts", ()):
             f.result()
 
 
@@ -187,6 +205,8 @@ def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     call took 76-148 ms instead of 67-133 ms, measured 2026-11-24.) Raises Unavailable."""
 
     pool(dyn, workers)
+    if not started(dyn):
+        return autodiff_serial(dyn, X, U)
     N = U.shape[0]
     chunks = [np.arange(i, N, workers) for i in range(workers)]
     futures = [_submit(dyn, _autodiff, X[c], U[c]) for c in chunks[1:]]
@@ -220,6 +240,8 @@ def closed_loop_rollouts(dyn: Dynamics, x0, Ubar, Xbar, K, kappa, eps_list):
     worker processes. Returns a list of (X: [N+1, nx], U: [N, nu]) or SimulationError (a
     rejected trial) per ε. Raises Unavailable only before anything was computed."""
     pool(dyn, len(eps_list))
+    if not started(dyn):
+        raise Unavailable("the worker processes are still starting")
     futures = [_submit(dyn, _rollout, x0, Ubar, Xbar, K, kappa, e) for e in eps_list[1:]]
     try:
         out = [dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps_list[0])]
