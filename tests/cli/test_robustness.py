@@ -38,6 +38,47 @@ def test_summary_counts_the_goal_and_each_check():
     assert "| `t` | 1 of 3 | a 2/3, b 1/3 |" in table({"tasks": [s]})
 
 
+def test_transfer_summary_counts_the_played_back_goal_and_the_resting_gaps():
+    runs = [_run(k, True, [("a", True)]) for k in (1, 2, 3)]
+    runs[0].transfer = {"goal_met": True, "failed_checks": [], "resting_gap": 0.01}
+    runs[1].transfer = {"goal_met": False, "failed_checks": ["a"], "resting_gap": 0.3}
+    runs[2].transfer = {"error": "SimulationError: diverged"}
+    s = summarize("t", runs)
+    assert s["transfer"] == {
+        "played": 3,
+        "goal_met": 1,
+        "failed": 1,
+        "median_resting_gap": 0.155,
+        "max_resting_gap": 0.3,
+    }
+    assert s["results"][1]["transfer"]["failed_checks"] == ["a"]
+    assert "| `t` | 3 of 3 | 1 of 3 | 15.5 / 30.0 |" in table({"tasks": [s], "transfer": True})
+    assert "transfer" not in summarize("t", [_run(1, True, [("a", True)])])
+
+
+def test_a_perturbed_plan_is_played_back_as_the_transfer_section_plays_it():
+    from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
+    from hydroilqr.studies.robustness import solve_run
+
+    ref = {
+        "label": "kinova-left",
+        "name": "kinova-left",
+        "overrides": [],
+        "config": None,
+        "smoke": True,
+    }
+    r = solve_run(ref, 1, 0, 1e-9, transfer=True)
+    task = Task.load("kinova-left", smoke=True)
+    U0 = perturbation(
+        task.initial_guess(task.config.steps), task.dynamics.effort_limits, 1e-9, 0, 1
+    )
+    sol = solve(task, U0=U0)
+    pb = playback(task, sol, PlaybackSettings(**HALF_SPEED))
+    gap = pb.metrics["object"]["resting_gap"]
+    assert r.transfer["resting_gap"] == gap  # the same plan, played back the same way
+    assert r.transfer["goal_met"] == executed_goal(task, sol, pb)["goal"]["met"]
+
+
 def test_perturbation_is_relative_reproducible_and_differs_per_run():
     U = np.array([[1.0, -2.0]] * 20)
     a, b = (perturbation(U, np.full(2, np.inf), 1e-9, 0, k) for k in (1, 2))
@@ -76,6 +117,16 @@ def test_robustness_command_writes_pass_rates_and_the_results_section(tmp_path, 
     page = results.generate(["cartpole-wall"], out=out, smoke=True)
     md = page["md"].read_text()
     assert "## Robustness to last-bit differences" in md and "equally valid local minima" in md
+    assert "played back" not in md
+    argv[argv.index("2")] = "1"
+    assert cli.main([*argv, "--transfer", "--out", str(out / "robustness" / "played")]) == 0
+    assert "cartpole-wall run 1:" in capsys.readouterr().out
+    doc = json.loads((out / "robustness" / "played" / "robustness.json").read_text())
+    (t,) = doc["tasks"]
+    assert doc["transfer"] and t["transfer"]["played"] == 1
+    assert set(t["results"][0]["transfer"]) >= {"goal_met", "resting_gap"}
+    md = results.generate(["cartpole-wall"], out=out, smoke=True)["md"].read_text()
+    assert "goal met (played back)" in md and "each plan also played back" in md
 
 
 def test_robustness_arguments_are_refused_before_work(tmp_path, capsys):

@@ -39,7 +39,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.metrics import compute
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.problem.config import mismatch_overrides
@@ -51,7 +51,7 @@ TASKS = ("kinova-forward", "kinova-left", "kinova-up")
 RUNS = (1, 2)  # perturbed solves per task
 MAX_RESTING_GAP_M = 0.2  # pushes: the length of kinova-forward's push
 PUSHES = ("kinova-forward", "kinova-left")
-HALF_SPEED_PD = PlaybackSettings(speed=0.5)  # the paper's hardware playback
+HALF_SPEED_PD = PlaybackSettings(**HALF_SPEED)  # the paper's hardware playback
 
 
 def _overrides() -> list[str]:

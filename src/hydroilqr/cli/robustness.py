@@ -27,6 +27,13 @@ def setup(p) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="the perturbations' seed (default 0)")
     p.add_argument(
+        "--transfer",
+        action="store_true",
+        help="also play each plan back as the results page's transfer section does (PD+, half "
+        "speed, finer simulation) and report the goal on the executed motion and the resting "
+        "gap",
+    )
+    p.add_argument(
         "--min-rate",
         type=float,
         default=0.9,
@@ -98,11 +105,18 @@ def run(args) -> int:
         detail = f" [{r.error}]" if r.error else ""
         console.print(
             f"  {r.task} run {r.index}: {rec['status']}, {rec['iterations']} iterations, "
-            f"{goal}{failed}, {r.seconds:.1f} s{detail}"
+            f"{goal}{failed}, {r.seconds:.1f} s{detail}{_played(r.transfer)}"
         )
 
     report = run_robustness(
-        refs, args.runs, args.noise, args.seed, args.scheduler, args.workers, done
+        refs,
+        args.runs,
+        args.noise,
+        args.seed,
+        args.scheduler,
+        args.workers,
+        done,
+        transfer=args.transfer,
     )
     report["command"] = command_line(args)
     report["smoke"] = bool(args.smoke)
@@ -119,3 +133,15 @@ def run(args) -> int:
         console.print(f"below the pass rate {args.min_rate:g}: {', '.join(low)}")
         return GOAL_NOT_MET
     return 0
+
+
+def _played(transfer: dict | None) -> str:
+    """A run's playback in its progress line ("" if not played back)."""
+    if not transfer:
+        return ""
+    if "error" in transfer:
+        return f"; playback failed [{transfer['error']}]"
+    goal = {True: "PASS", False: "FAIL", None: "not judged"}[transfer.get("goal_met")]
+    gap = transfer.get("resting_gap")
+    rest = "" if gap is None else f", resting gap {100 * gap:.1f} cm"
+    return f"; played back: goal {goal}{rest}"

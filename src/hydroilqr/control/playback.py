@@ -108,6 +108,11 @@ def plan_touches(task, X: np.ndarray) -> bool:
 # ------------------------------------------------------------------------------------------
 
 
+#: The paper's hardware playback (§IV-B): PD+ at the paper's gains, the plan at half speed,
+#: on the finer simulation with the other contact approximation (PlaybackSettings' keys).
+HALF_SPEED = {"speed": 0.5}
+
+
 @dataclass
 class PlaybackSettings:
     """How the plan is executed. Times in seconds of playback (wall) time unless noted."""

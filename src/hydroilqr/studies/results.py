@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hydroilqr import Task, metrics, solve
-from hydroilqr.control.playback import PlaybackSettings, executed_goal, playback
+from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
 from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
@@ -145,7 +145,7 @@ def _goal_json(task, metrics: dict) -> dict:
 
 
 #: How the transfer section plays each plan back: PD+ at the paper's gains, half speed.
-TRANSFER_PLAYBACK = {"speed": 0.5}
+TRANSFER_PLAYBACK = HALF_SPEED
 
 
 def _moves_an_object(task) -> bool:
@@ -323,7 +323,13 @@ def robustness_table(results: Sequence[TaskResult], context: Context) -> Section
             f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
             f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
             f"load {env.get('load_average', 'not recorded')}): {doc['runs']} solves per task, "
-            f"each from the initial guess perturbed by a relative {doc['noise']:g}.",
+            f"each from the initial guess perturbed by a relative {doc['noise']:g}"
+            + (
+                "; each plan also played back as in the transfer section (the goal judged on "
+                "the executed motion; the object's resting gap)."
+                if doc.get("transfer")
+                else "."
+            ),
             "",
         ]
         docs.append(doc)

@@ -11,7 +11,13 @@ last-bit difference after a few operations), drawn as in multi-start
 machine. For a receding-horizon task the first window's guess is perturbed.
 
 The report per task: each run's status, goal PASS/FAIL, which goal checks failed and the
-goal's metric values; the pass rate of the whole goal and of each check.
+goal's metric values; the pass rate of the whole goal and of each check. With ``transfer``,
+each run's plan is also played back as the results page's transfer section plays the default
+solve (``control.playback.HALF_SPEED``: PD+ at the paper's gains, half speed, on the finer
+simulation with the other contact approximation), and the report adds the task's goal judged
+on the executed motion and, for a task that moves an object, where the object comes to rest
+against where the plan puts it (``resting_gap``): whether a transfer holds in the basins other
+machines land in, not only in this machine's.
 """
 
 from __future__ import annotations
@@ -24,7 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from distributed import as_completed
 
+from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
+from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.multistart import solve_start
@@ -48,6 +56,9 @@ class RunResult:
     checks: list = field(default_factory=list)
     error: str = ""
     seconds: float = 0.0
+    # With transfer: {"goal_met", "failed_checks", "resting_gap"} of the plan's playback, or
+    # {"error"} if it could not be played back; None: not played back.
+    transfer: dict | None = None
 
     def record(self) -> dict:
         return {
@@ -61,13 +72,15 @@ class RunResult:
             "values": {c["metric"]: c.get("value") for c in self.checks},
             "seconds": round(self.seconds, 2),
             **({"error": self.error} if self.error else {}),
+            **({"transfer": self.transfer} if self.transfer is not None else {}),
         }
 
 
-def solve_run(task_ref: dict, k: int, seed: int, noise: float) -> RunResult:
+def solve_run(task_ref: dict, k: int, seed: int, noise: float, transfer: bool = False) -> RunResult:
     """Runs on a worker: multi-start's start ``k`` (the task loaded there, solved from its
-    guess perturbed by run ``k``'s draw, metrics and goal); a failure is recorded as a run that
-    did not meet the goal."""
+    guess perturbed by run ``k``'s draw, metrics and goal), and with ``transfer`` its plan
+    played back (``played_back``); a failure is recorded as a run that did not meet the
+    goal."""
     r = solve_start(task_ref, k, seed, noise)
     sol = r.solution
     res = RunResult(task=task_ref["label"], index=k, error=r.error, seconds=r.seconds)
@@ -78,7 +91,30 @@ def solve_run(task_ref: dict, k: int, seed: int, noise: float) -> RunResult:
     res.final_cost = r.cost if math.isfinite(r.cost) else None
     res.goal_met = False if r.error else r.goal.get("met")
     res.checks = r.goal.get("checks", [])
+    if transfer and not r.error:
+        res.transfer = played_back(task_ref, sol)
     return res
+
+
+def played_back(task_ref: dict, sol) -> dict:
+    """The plan ``sol`` of the task ``task_ref`` played back at half speed (``HALF_SPEED``):
+    {"goal_met": the task's goal on the executed motion, "failed_checks", "resting_gap": the
+    object's, or None}; {"error": ...} if the playback failed."""
+    try:
+        task = Task.load(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        pb = playback(task, sol, PlaybackSettings(**HALF_SPEED))
+        goal = executed_goal(task, sol, pb)["goal"]
+    except Exception as e:  # noqa: BLE001 - a failed playback is data; the runs go on
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        return {"error": f"{type(e).__name__}: {first}"[:300]}
+    gap = (pb.metrics.get("object") or {}).get("resting_gap")
+    return {
+        "goal_met": goal.get("met"),
+        "failed_checks": [c["metric"] for c in goal.get("checks", []) if not c.get("passed")],
+        "resting_gap": None if gap is None else float(gap),
+    }
 
 
 def summarize(label: str, runs: Sequence[RunResult]) -> dict:
@@ -102,7 +138,22 @@ def summarize(label: str, runs: Sequence[RunResult]) -> dict:
         "failed_runs": sum(bool(r.error) for r in runs),
         "statuses": {s: sum(r.status == s for r in runs) for s in sorted({r.status for r in runs})},
         "median_seconds": float(np.median([r.seconds for r in runs])) if runs else None,
+        **({"transfer": _transfer_summary(runs)} if any(r.transfer for r in runs) else {}),
         "results": [r.record() for r in sorted(runs, key=lambda r: r.index)],
+    }
+
+
+def _transfer_summary(runs: Sequence[RunResult]) -> dict:
+    """Over the runs played back: how many met the goal on the executed motion, and the
+    object's resting gaps (median, largest)."""
+    played = [r.transfer for r in runs if r.transfer]
+    gaps = [t["resting_gap"] for t in played if t.get("resting_gap") is not None]
+    return {
+        "played": len(played),
+        "goal_met": sum(t.get("goal_met") is True for t in played),
+        "failed": sum("error" in t for t in played),
+        "median_resting_gap": float(np.median(gaps)) if gaps else None,
+        "max_resting_gap": float(max(gaps)) if gaps else None,
     }
 
 
@@ -114,11 +165,13 @@ def run_robustness(
     scheduler: str | None = None,
     workers: int | None = None,
     on_run: Callable[[RunResult], None] | None = None,
+    transfer: bool = False,
 ) -> dict:
     """Solves every task of ``task_refs`` ``runs`` times (all runs of all tasks as one pool of
     Dask jobs) and returns the report: ``{"noise", "seed", "runs", "tasks": [summary per
-    task], "environment"}``. A ``task_ref``: {label, name, overrides, config, smoke}.
-    ``on_run(result)`` is called as each run finishes (progress display)."""
+    task], "environment", "transfer"}``. A ``task_ref``: {label, name, overrides, config,
+    smoke}. ``on_run(result)`` is called as each run finishes (progress display);
+    ``transfer``: each plan is also played back (``played_back``)."""
 
     env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)
@@ -126,7 +179,14 @@ def run_robustness(
     try:
         futures = [
             client.submit(
-                solve_run, ref, k, seed, noise, pure=False, key=f"robust-{ref['label']}-{k}"
+                solve_run,
+                ref,
+                k,
+                seed,
+                noise,
+                transfer,
+                pure=False,
+                key=f"robust-{ref['label']}-{k}",
             )
             for ref in task_refs
             for k in range(1, runs + 1)
@@ -148,11 +208,15 @@ def run_robustness(
         "runs": runs,
         "tasks": [summarize(label, rs) for label, rs in by_task.items()],
         "environment": env,
+        "transfer": transfer,
     }
 
 
 def table(report: dict) -> str:
-    """The report as a Markdown table: per task, the goal's pass rate and each check's."""
+    """The report as a Markdown table: per task, the goal's pass rate and each check's; with
+    transfer, the goal's pass rate on the executed motions and the resting gaps."""
+    if report.get("transfer"):
+        return _transfer_table(report)
     rows = ["| task | goal met | per check | statuses | median solve s |", "|---|---|---|---|---|"]
     for t in report["tasks"]:
         n = t["runs"]
@@ -163,5 +227,25 @@ def table(report: dict) -> str:
         rows.append(
             f"| `{t['task']}` | {goal} | {checks} | {statuses} | "
             f"{'' if med is None else f'{med:.1f}'} |"
+        )
+    return "\n".join(rows)
+
+
+def _transfer_table(report: dict) -> str:
+    rows = [
+        "| task | goal met (plan) | goal met (played back) | resting gap cm median / largest "
+        "| median solve s |",
+        "|---|---|---|---|---|",
+    ]
+    for t in report["tasks"]:
+        n, tr = t["runs"], t.get("transfer") or {}
+        goal = f"{t['goal_met']} of {n}" if t["goal_declared"] else "no goal"
+        played = f"{tr['goal_met']} of {tr['played']}" if tr.get("played") else "none played"
+        med, top = tr.get("median_resting_gap"), tr.get("max_resting_gap")
+        gaps = "" if med is None else f"{100 * med:.1f} / {100 * top:.1f}"
+        sec = t["median_seconds"]
+        rows.append(
+            f"| `{t['task']}` | {goal} | {played} | {gaps} | "
+            f"{'' if sec is None else f'{sec:.1f}'} |"
         )
     return "\n".join(rows)
