@@ -368,6 +368,12 @@ class RecedingHorizonConfig:
     # The controls a shifted window lacks at its end: "last" holds the previous window's last
     # control (the paper's code), "guess" takes the task's initial guess for those steps.
     warm_start_tail: str = "last"
+    # > 0: a window whose cost after max_iterations is above rescue_factor times the median of
+    # the previous (up to 5) windows' costs gets up to rescue_iterations more iterations from
+    # where it stopped (the better of the two is kept): a window where the motion starts to go
+    # wrong gets the effort to turn it around. 0 = off (every window max_iterations).
+    rescue_factor: float = 0.0
+    rescue_iterations: int = 10
 
 
 @dataclass
@@ -1847,6 +1853,12 @@ def _validate_receding_horizon(rh: RecedingHorizonConfig | None) -> None:
         )
     if rh.max_iterations < 1:
         raise ConfigError("receding_horizon.max_iterations: must be >= 1")
+    if not (rh.rescue_factor == 0 or rh.rescue_factor > 1):
+        raise ConfigError(
+            f"receding_horizon.rescue_factor: 0 (off) or above 1, got {rh.rescue_factor!r}"
+        )
+    if rh.rescue_iterations < 1:
+        raise ConfigError("receding_horizon.rescue_iterations: must be >= 1")
     if rh.warm_start_tail not in WARM_START_TAILS:
         raise ConfigError(
             f"receding_horizon.warm_start_tail: expected last or guess, got {rh.warm_start_tail!r}"

@@ -3,6 +3,11 @@ the start by S steps, warm-start the next window with the previous controls shif
 last control repeated at the end, or the task's initial guess there: ``warm_start_tail``),
 repeat R times. The result has R·S steps. A warm start that cannot be rolled out from the kept
 state is replaced by the task's initial guess (a cold start, recorded in the window's entry).
+With ``rescue_factor`` > 0, a window whose cost ends above that factor times the median of the
+previous (up to ``RESCUE_WINDOWS``) windows' costs is solved on from where it stopped, for up
+to ``rescue_iterations`` more iterations, and the better result is kept (``rescue`` in the
+window's entry): the few iterations a window gets refine a motion that goes well, not one that
+has started to go wrong.
 
 Each resolve is checkpointed (``checkpoint.npz`` in the run directory), so an interrupted run
 continues where it stopped and ends with the same trajectory as an uninterrupted one.
@@ -31,6 +36,8 @@ from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES, Solution
 
 CHECKPOINT = "checkpoint.npz"
+#: How many previous windows' costs the rescue test compares a window's cost with.
+RESCUE_WINDOWS = 5
 
 
 @dataclasses.dataclass
@@ -166,19 +173,51 @@ def _solve_window(task, solver: SolverConfig, st: Checkpoint, callbacks):
         t_roll = time.perf_counter() - t_roll  # the window's initial rollout(s)
         # final_gains: the kept steps' K, kappa are those of eq. (8) around the kept
         # trajectory (one more linearization per window), as playback --policy ilqr needs.
-        sol = solve(
-            # exactly the kept state (not re-normalized: the stitched X is a replay of U)
-            Problem(dyn, task.cost, x0, t0),
-            guess,
-            solver,
-            callbacks,
-            max_it,
-            final_gains=True,
-            X0=X0,
-        )
+        # exactly the kept state (not re-normalized: the stitched X is a replay of U)
+        problem = Problem(dyn, task.cost, x0, t0)
+        sol = solve(problem, guess, solver, callbacks, max_it, final_gains=True, X0=X0)
+        sol = _rescued(problem, sol, st, rh, solver, callbacks)
     except SimulationError as e:
         raise SimulationError(f"resolve {r}: {e}") from None
     return sol, cold, time.perf_counter() - t_start, t_roll
+
+
+def _rescued(problem: Problem, sol: Solution, st: Checkpoint, rh, solver, callbacks) -> Solution:
+    """``sol``, or with ``rh.rescue_factor`` > 0 and its cost above that factor times the
+    median of the previous windows' costs: the window solved on from ``sol`` for up to
+    ``rh.rescue_iterations`` more iterations, if that lowered the cost (its iterations
+    appended to ``sol``'s). ``sol.extra["rescue"]`` records a rescue either way."""
+    prev = [w["cost"] for w in st.resolves[-RESCUE_WINDOWS:] if w.get("cost") is not None]
+    if (
+        rh.rescue_factor <= 0
+        or not prev
+        or not sol.final_cost > rh.rescue_factor * float(np.median(prev))
+    ):
+        return sol
+    on = solve(problem, sol.U, solver, callbacks, rh.rescue_iterations, final_gains=True, X0=sol.X)
+    kept = on.final_cost < sol.final_cost
+    record = {
+        "cost_before": sol.final_cost,
+        "cost_after": on.final_cost,
+        "iterations": on.iterations,
+        "kept": bool(kept),
+    }
+    if not kept:  # (its time is in the window's wall time)
+        sol.extra["rescue"] = record
+        return sol
+    joined = dataclasses.replace(
+        on,
+        costs=np.concatenate([sol.costs, on.costs[1:]]),
+        iteration_seconds=list(sol.iteration_seconds) + list(on.iteration_seconds),
+        phase_seconds={p: list(sol.phase_seconds[p]) + list(on.phase_seconds[p]) for p in PHASES},
+        eps=list(sol.eps) + list(on.eps),
+        mu=list(sol.mu) + list(on.mu),
+        extra={**on.extra, "rescue": record},
+    )
+    # judged as one solve from the window's start (it improved on the warm start or not)
+    joined.status = stopping.status(joined.reason, joined.costs)
+    joined.converged = stopping.is_converged(joined.status)
+    return joined
 
 
 def _keep(task, st: Checkpoint, sol: Solution, cold: bool, wall: float, t_roll: float) -> None:
@@ -215,6 +254,7 @@ def _keep(task, st: Checkpoint, sol: Solution, cold: bool, wall: float, t_roll: 
             "reason": sol.reason,
             "status": status,
             **({"cold_start": True} if cold else {}),
+            **({"rescue": sol.extra["rescue"]} if "rescue" in sol.extra else {}),
         }
     )
     if r == 0:
@@ -338,6 +378,9 @@ def fingerprint(cfg, solver: SolverConfig | None = None, legacy: bool = False) -
     # Keys added after checkpoints existed leave a fingerprint unchanged at their defaults.
     if (d.get("receding_horizon") or {}).get("warm_start_tail") == "last":
         del d["receding_horizon"]["warm_start_tail"]
+    if (d.get("receding_horizon") or {}).get("rescue_factor") == 0:
+        del d["receding_horizon"]["rescue_factor"]
+        d["receding_horizon"].pop("rescue_iterations", None)
     if not (d.get("solver") or {}).get("fd_forces", True):
         del d["solver"]["fd_forces"]
     for o in d.get("scene", []):
