@@ -426,8 +426,8 @@ def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch
 
 
 def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
-    """Checkpoints written before receding_horizon.warm_start_tail, scene no_contact_with and
-    solver.fd_forces existed still resume: at their defaults those keys do not enter the
+    """Checkpoints written before receding_horizon.warm_start_tail and rescue_factor, scene
+    no_contact_with and solver.fd_forces existed still resume: at their defaults those keys do not enter the
     fingerprint."""
     import dataclasses
     import hashlib
@@ -442,6 +442,7 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
             d.get("solver", {}).pop(key, None)
         d.pop("mpc", None)
         del d["receding_horizon"]["warm_start_tail"]
+        del d["receding_horizon"]["rescue_factor"], d["receding_horizon"]["rescue_iterations"]
         del d["solver"]["fd_forces"]
         for o in d["scene"]:
             del o["no_contact_with"]
@@ -452,8 +453,10 @@ def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
         text = json.dumps(d, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
-    task = Task.load("cheetah-trot-1.0", smoke=True)
+    task = Task.load("cheetah-trot-1.0", ["receding_horizon.rescue_factor=0"], smoke=True)
     assert fingerprint(task.config, legacy=True) == before(task.config)
+    rescued = Task.load("cheetah-trot-1.0", smoke=True)  # (the built-in rescues windows)
+    assert fingerprint(rescued.config) != fingerprint(task.config)
     other = Task.load(
         "cheetah-trot-1.0", overrides=["receding_horizon.warm_start_tail=guess"], smoke=True
     )
@@ -479,3 +482,59 @@ def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):
     assert (
         "note: 1 window(s) started from the initial guess (resolves 1)" in capsys.readouterr().out
     )
+
+
+def _first_window(task):
+    """Window 0 of a smoke cheetah solved with its own settings: (problem, solution, solver)."""
+    from hydroilqr.model.task import Problem
+    from hydroilqr.solver import receding
+
+    rh, solver = task.config.receding_horizon, task.config.solver
+    problem = Problem(task.dynamics, task.cost, task.x0, 0.0)
+    guess = task.initial_guess(rh.window_steps)
+    sol = receding.solve(problem, guess, solver, None, rh.max_iterations, final_gains=True)
+    return problem, sol, solver
+
+
+def test_a_window_whose_cost_jumps_is_solved_on_and_the_better_kept():
+    """rescue_factor: a window whose cost is above the factor times the median of the previous
+    windows' gets rescue_iterations more iterations from where it stopped; the result is that
+    continuation, with the window's own iterations first, and it records the rescue."""
+    import dataclasses
+
+    from hydroilqr.solver import receding
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    problem, sol, solver = _first_window(task)
+    rh = dataclasses.replace(task.config.receding_horizon, rescue_factor=2.0, rescue_iterations=2)
+    st = receding.Checkpoint.start(task.x0, sol.U, task.dynamics.nx, task.dynamics.nu)
+    st.resolves = [{"cost": sol.final_cost}]  # no jump: kept as it is
+    assert receding._rescued(problem, sol, st, rh, solver, None) is sol
+    assert "rescue" not in sol.extra
+    st.resolves = [{"cost": sol.final_cost / 3}, {"cost": sol.final_cost / 2.5}]
+    out = receding._rescued(problem, sol, st, rh, solver, None)
+    on = receding.solve(problem, sol.U, solver, None, 2, final_gains=True, X0=sol.X)
+    rec = out.extra["rescue"]
+    assert rec["cost_before"] == sol.final_cost and rec["cost_after"] == on.final_cost
+    assert rec["kept"] == (on.final_cost < sol.final_cost)
+    if rec["kept"]:
+        np.testing.assert_array_equal(out.X, on.X)
+        np.testing.assert_array_equal(out.costs, np.concatenate([sol.costs, on.costs[1:]]))
+        assert out.iterations == sol.iterations + on.iterations
+        assert len(out.iteration_seconds) == out.iterations
+    else:
+        np.testing.assert_array_equal(out.X, sol.X)
+    off = dataclasses.replace(rh, rescue_factor=0.0)
+    assert receding._rescued(problem, sol, st, off, solver, None) is sol
+
+
+def test_a_rescue_is_recorded_in_the_windows_entry():
+    from hydroilqr.solver import receding
+
+    task = Task.load("cheetah-trot-1.0", smoke=True)
+    _, sol, _ = _first_window(task)
+    st = receding.Checkpoint.start(task.x0, sol.U, task.dynamics.nx, task.dynamics.nu)
+    rec = {"cost_before": 2.0, "cost_after": 1.0, "iterations": 2, "kept": True}
+    sol.extra["rescue"] = rec
+    receding._keep(task, st, sol, False, 1.0, 0.0)
+    assert st.resolves[0]["rescue"] == rec

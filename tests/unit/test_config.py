@@ -20,6 +20,10 @@ from tests.conftest import BASE, edit, write_case
         ("mpc.deadline=1.5", "mpc.deadline"),
         ("receding_horizon={window_steps: 4, shift_steps: 2, resolves: 2, max_iterations: 0}",
          "receding_horizon.max_iterations"),
+        ("receding_horizon={window_steps: 4, shift_steps: 2, resolves: 2, rescue_factor: 0.5}",
+         "receding_horizon.rescue_factor"),
+        ("receding_horizon={window_steps: 4, shift_steps: 2, resolves: 2, rescue_factor: 2,"
+         " rescue_iterations: 0}", "receding_horizon.rescue_iterations"),
         ("continuation=[{plant.time_step: 0.02}]", "cannot change between stages"),
     ],
 )  # fmt: skip
