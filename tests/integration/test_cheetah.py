@@ -427,8 +427,8 @@ def test_a_window_whose_warm_start_and_guess_both_blow_up_names_both(monkeypatch
 
 def test_new_keys_at_their_defaults_keep_old_checkpoints_fingerprints():
     """Checkpoints written before receding_horizon.warm_start_tail and rescue_factor, scene
-    no_contact_with and solver.fd_forces existed still resume: at their defaults those keys do not enter the
-    fingerprint."""
+    no_contact_with and solver.fd_forces existed still resume: at their defaults those keys do
+    not enter the fingerprint."""
     import dataclasses
     import hashlib
     import json
@@ -482,6 +482,24 @@ def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):
     assert (
         "note: 1 window(s) started from the initial guess (resolves 1)" in capsys.readouterr().out
     )
+
+
+def test_solve_says_how_many_windows_were_rescued(monkeypatch, tmp_path, capsys):
+    from hydroilqr import cli
+    from hydroilqr.solver import receding
+
+    def second_rescued(problem, sol, st, rh, solver, callbacks):
+        if st.done == 1:
+            sol.extra["rescue"] = {"cost_before": 2, "cost_after": 1, "iterations": 2, "kept": 1}
+        return sol
+
+    monkeypatch.setattr(receding, "_rescued", second_rescued)
+    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), "--no-replay"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "note: 1 window(s) ended above 2x the recent windows' median cost" in out
+    summary = __import__("json").loads((tmp_path / "summary.json").read_text())
+    assert [bool(r.get("rescue")) for r in summary["extra"]["resolves"]] == [False, True, False]
 
 
 def _first_window(task):

@@ -349,6 +349,14 @@ def _print_outcome(sol, task, wall: float) -> None:
             f"{', '.join(map(str, cold[:8]))}{' ...' if len(cold) > 8 else ''}): the shifted "
             "previous window blew the simulation up when rolled out (extra.resolves)"
         )
+    rescues = [r["rescue"] for r in sol.extra.get("resolves", []) if r.get("rescue")]
+    if rescues:
+        rh = task.config.receding_horizon
+        console.print(
+            f"note: {len(rescues)} window(s) ended above {rh.rescue_factor:g}x the recent windows' "
+            f"median cost and were solved on for up to {rh.rescue_iterations} more iterations "
+            f"({sum(r['kept'] for r in rescues)} lowered it; extra.resolves: rescue)"
+        )
 
 
 def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict:
