@@ -520,6 +520,7 @@ def test_a_window_whose_cost_jumps_is_solved_on_and_the_better_kept():
     continuation, with the window's own iterations first, and it records the rescue."""
     import dataclasses
 
+    from hydroilqr.model.plant import SimulationError
     from hydroilqr.solver import receding
 
     task = Task.load("cheetah-trot-1.0", smoke=True)
@@ -544,6 +545,16 @@ def test_a_window_whose_cost_jumps_is_solved_on_and_the_better_kept():
         np.testing.assert_array_equal(out.X, sol.X)
     off = dataclasses.replace(rh, rescue_factor=0.0)
     assert receding._rescued(problem, sol, st, off, solver, None) is sol
+
+    def blows_up(*a, **k):
+        raise SimulationError("step 3: the simulation diverged")
+
+    real = receding.solve
+    receding.solve = blows_up
+    try:  # a rescue that fails leaves the window as solved; it never ends the run
+        assert receding._rescued(problem, sol, st, rh, solver, None) is sol
+    finally:
+        receding.solve = real
 
 
 def test_a_rescue_is_recorded_in_the_windows_entry():

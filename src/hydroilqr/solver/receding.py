@@ -194,7 +194,12 @@ def _rescued(problem: Problem, sol: Solution, st: Checkpoint, rh, solver, callba
         or not sol.final_cost > rh.rescue_factor * float(np.median(prev))
     ):
         return sol
-    on = solve(problem, sol.U, solver, callbacks, rh.rescue_iterations, final_gains=True, X0=sol.X)
+    try:
+        on = solve(
+            problem, sol.U, solver, callbacks, rh.rescue_iterations, final_gains=True, X0=sol.X
+        )
+    except SimulationError:  # the window as solved stands; a rescue never ends the run
+        return sol
     kept = on.final_cost < sol.final_cost
     record = {
         "cost_before": sol.final_cost,
