@@ -144,10 +144,6 @@ def _goal_json(task, metrics: dict) -> dict:
     return evaluate(task.config.goal, metrics)
 
 
-#: How the transfer section plays each plan back: PD+ at the paper's gains, half speed.
-TRANSFER_PLAYBACK = HALF_SPEED
-
-
 def _moves_an_object(task) -> bool:
     return metrics.moves_object(task.config.metrics)
 
@@ -161,7 +157,7 @@ def transfer_table(results: Sequence[TaskResult], context: Context) -> Section |
     for r in results:
         if not _moves_an_object(r.task):
             continue
-        m, g, verdict = _play(r, PlaybackSettings(**TRANSFER_PLAYBACK))
+        m, g, verdict = _play(r, PlaybackSettings(**HALF_SPEED))
         ob = m["object"]
         rest = ob.get("resting_gap")
         rows.append(
