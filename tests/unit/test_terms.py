@@ -35,6 +35,8 @@ TERMS = [
      "terminal": True},
     {"name": "tilt", "type": "height", "body": "gripper", "target": 0.2,
      "normal": [0.2, 0.1, 1.0], "ramp": [0.5, 2.0]},
+    {"name": "over", "type": "height", "body": "gripper", "point": [0.01, 0.0, 0.02],
+     "above_body": "ball", "above_point": [0.0, 0.03, 0.0], "min": 0.5, "weight": 4.0},
     {"name": "near", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
      "target": 0.0, "weight": 7.0},
     {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
@@ -367,3 +369,22 @@ def test_cheetah_walk_example_prices_slip_on_its_four_feet():
     assert sorted(t.name for t in terms) == ["FL_slip", "FR_slip", "HL_slip", "HR_slip"]
     assert all(t.cfg.type == "slip" for t in terms)
     assert task.config.goal["diagonal_pair_overlap"].margin == 0.2
+
+
+def test_height_over_a_point_is_the_difference_of_the_two_points_heights(kinova):
+    """``above_body``: the height is measured from a point of another body (e.g. one foot over
+    another), not from the plane through the origin."""
+    task, X, U = kinova
+    terms = [
+        {"name": "g", "type": "height", "body": "gripper", "point": [0.0, 0.0, 0.02],
+         "target": 0.0},
+        {"name": "b", "type": "height", "body": "ball", "point": [0.0, 0.03, 0.0],
+         "target": 0.0},
+        {"name": "gb", "type": "height", "body": "gripper", "point": [0.0, 0.0, 0.02],
+         "above_body": "ball", "above_point": [0.0, 0.03, 0.0], "target": 0.1},
+    ]  # fmt: skip
+    t2 = Task.load("kinova-forward", smoke=True, overrides={"cost.terms": terms, "num_steps": N})
+    rep = t2.cost.task_terms.report(X)
+    g, ball, gb = (rep[n]["final"] for n in ("g", "b", "gb"))
+    assert gb == pytest.approx(g - ball, abs=1e-12)
+    assert abs(gb) > 1e-3  # (the two points are apart: the test sees a difference)

@@ -16,6 +16,7 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
 * ``velocity``: ``r = S (v_AP(q, v) − v*)``, P's translational velocity measured and expressed in
   A (default the world).
 * ``height``: ``s = n · p_WP`` (height above the plane through the origin with unit normal n),
+  or ``s = n · (p_WP − p_WQ)`` over a point Q on another body (``above_body``, ``above_point``),
   against a ``target`` (``r = s − target``) or one-sided bounds (``r = min(0, s − min) +
   max(0, s − max)``: a clearance ``min``).
 * ``distance``: ``s`` = the signed distance between two named geometries (the closest pair of
@@ -77,6 +78,8 @@ class _Term:
     target0: np.ndarray | None = None
     q_moving: np.ndarray | None = None  # velocity: coordinates of q that move P or A
     normal: np.ndarray | None = None  # height
+    frame_q: object = None  # height over a point: Q's frame (None: over the plane)
+    point_q: np.ndarray | None = None  # Q in that frame
     pairs: list | None = None  # distance: (GeometryId a, GeometryId b)
     coords: np.ndarray | None = None  # joint_limits: indices into q
     lower: np.ndarray | None = None  # joint_limits: where the cost starts, margin included
@@ -216,6 +219,9 @@ class TaskSpaceTerms:
             t.q_moving = self._moving_coordinates([t.frame, t.frame_a])
         if c.type == "height":
             t.normal = np.asarray(c.normal, float) / np.linalg.norm(c.normal)
+            if c.above_body:
+                t.frame_q = self._frame(c.above_body, f"{key}.above_body")
+                t.point_q = np.asarray(c.above_point, float)
         if c.type == "slip":
             t.q_moving = np.setdiff1d(
                 self._moving_coordinates([t.frame]), self._root_translations()
@@ -363,10 +369,17 @@ class TaskSpaceTerms:
             p = self.plant.CalcPointsPositions(
                 self._pc, t.frame, t.point, self.plant.world_frame()
             ).ravel()
+            if t.frame_q is not None:
+                p = p - self.plant.CalcPointsPositions(
+                    self._pc, t.frame_q, t.point_q, self.plant.world_frame()
+                ).ravel()
             s = float(t.normal @ p)
             r, d = self._scalar(t, s)
             if jac and d:
-                J[0, :nq] = d * (t.normal @ self._jq(t.frame, t.point))
+                Jp = self._jq(t.frame, t.point)
+                if t.frame_q is not None:
+                    Jp = Jp - self._jq(t.frame_q, t.point_q)
+                J[0, :nq] = d * (t.normal @ Jp)
             return np.array([r]), J, s
         sd = self._distance(t)
         s = float(sd.distance)

@@ -242,6 +242,11 @@ class TermConfig:
     max: float | None = None
     # height: the plane's unit normal through the world origin (height = normal · p).
     normal: list[float] = field(default_factory=lambda: [0.0, 0.0, 1.0])
+    # height: measured from a second point instead of the plane: the point ``above_point`` (xyz,
+    # m) fixed on ``above_body`` (height = normal · (p − p_above)); e.g. one foot's height over
+    # another's.
+    above_body: str = ""
+    above_point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     # distance: the two geometries (names as in ``geometry:``: a body, a collision name, or
     # BODY/GEOMETRY; the closest pair counts).
     geometry_a: str = ""
@@ -1695,7 +1700,7 @@ _TERM_KEYS = {
                  "relative_to_start"},
     "orientation": {"body", "relative_to", "axes", "target", "relative_to_start"},
     "velocity": {"body", "point", "relative_to", "axes", "target"},
-    "height": {"body", "point", "target", "min", "max", "normal"},
+    "height": {"body", "point", "target", "min", "max", "normal", "above_body", "above_point"},
     "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
     "joint_limits": {"joints", "margin"},
     "slip": {"body", "point", "radius", "clearance"},
@@ -1728,6 +1733,7 @@ def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     _check_length(term.point, 3, f"{key}.point")
     _check_length(term.target_velocity, 3, f"{key}.target_velocity")
     _check_length(term.normal, 3, f"{key}.normal")
+    _check_length(term.above_point, 3, f"{key}.above_point")
     if math.hypot(*term.normal) < 1e-9:
         raise ConfigError(f"{key}.normal: must be non-zero")
     if term.type == "joint_limits":
