@@ -36,3 +36,16 @@ def test_the_flight_metric_needs_a_foot_and_a_base():
         validate_task(Task.load("hopper-forward", ["metric_params.base=nothing"]))
     with pytest.raises(ConfigError, match="no collision geometry"):
         validate_task(Task.load("hopper-forward", ["metric_params.foot=hand"]))
+
+
+def test_flight_lengths_use_the_states_own_spacing(monkeypatch):
+    """A closed-loop run on a robot stepping finer than the plan (``mpc --plant-time-step``):
+    lengths count its steps, not the task's plan step."""
+    task = Task.load("hopper-forward", ["num_steps=8"])
+    on = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1], bool)[:, None]
+    pairs = [(("foot", "ground"), ("shin", "world"))]
+    monkeypatch.setattr(flight, "_cached", lambda task, sol: (pairs, on, np.zeros(on.shape)))
+    X = np.tile(task.x0, (9, 1))
+    m = flight.flight_metrics(task, SimpleNamespace(X=X, U=None, t=np.arange(9) * 0.01))
+    assert m["flight_time_s"] == pytest.approx(0.03)
+    assert m["longest_flight_s"] == pytest.approx(0.02)
