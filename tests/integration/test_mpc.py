@@ -534,3 +534,34 @@ def test_finger_spin_example_runs_its_loop_with_restarts(tmp_path):
     data = json.loads((out / "mpc.json").read_text())
     assert data["candidates"] == ["first_plan"] and data["updates"] >= 9
     assert "wheel_axle" in data["metrics"]["tracking_error_rms"]
+
+
+def test_delay_compensation_plans_from_the_state_one_period_ahead(monkeypatch):
+    """``delay_compensation`` (real time): each update plans from the state the plan in force
+    reaches one period later, predicted on the controller's model; with the robot simulated
+    on that same model, the prediction is where the robot is when the new plan takes over."""
+    calls = []
+    real = Controller.update
+
+    def spy(self, x, t, *a, **k):
+        calls.append((np.array(x), t))
+        return real(self, x, t, *a, **k)
+
+    monkeypatch.setattr(Controller, "update", spy)
+    task = Task.load("cartpole-wall")
+    kw = dict(duration=0.2, rate=50.0, horizon=0.2, realtime=True)
+    res = run_mpc(task, MPCConfig(delay_compensation=True, **kw))
+    dt = task.dynamics.dt
+    assert len(calls) == len(res.update_times) + 1  # (the first plan: from x0 at 0)
+    checked = 0
+    for (x, t), t_upd in zip(calls[1:], res.update_times):
+        assert t == pytest.approx(t_upd + 0.02)  # one period (two steps) ahead
+        k = int(round(t / dt))
+        if k < len(res.X):  # (the last update's plan would start after the run)
+            np.testing.assert_allclose(x, res.X[k], rtol=0, atol=1e-9)
+            checked += 1
+    assert checked >= 5
+    with pytest.raises(ConfigError, match="whole plan steps"):
+        check_settings(
+            MPCConfig(delay_compensation=True, rate=250.0, horizon=0.2, plant_time_step=0.002), task
+        )

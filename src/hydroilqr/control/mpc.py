@@ -121,6 +121,13 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
             f"mpc rate {settings.rate:g} Hz: an update period of {steps:g} time steps of the "
             f"{which} ({h:g} s); the period must be whole steps, e.g. {near}"
         )
+    if settings.delay_compensation:
+        m = 1.0 / (settings.rate * dt)
+        if settings.shrinking_horizon or m < 1 - 1e-9 or abs(m - round(m)) > 1e-4 * m:
+            raise ConfigError(
+                f"mpc.delay_compensation: the update period ({1.0 / settings.rate:g} s) must "
+                f"be whole plan steps ({dt:g} s) on a receding horizon"
+            )
     if not settings.shrinking_horizon and settings.horizon < 2 * dt * (1 - 1e-9):
         raise ConfigError(
             f"mpc horizon {settings.horizon:g} s: at least two time steps ({2 * dt:g} s)"
@@ -879,18 +886,41 @@ class ClosedLoop:
         on = s.deadline and s.realtime
         deadline = t0 + s.deadline / s.rate if on else None
         K = self.settings.iterations_per_update  # later updates: at most K iterations
-        new_plan, ok = self.ctrl.update(self.x, t_now, K, deadline=deadline)
+        ahead = self.period_steps if (s.realtime and s.delay_compensation) else 0
+        x_from, t_from = (
+            (self.predict(ahead), t_now + ahead * self.dt) if ahead else (self.x, t_now)
+        )
+        if x_from is None:  # the prediction failed: plan from the measured state
+            x_from, t_from, ahead = self.x, t_now, 0
+        new_plan, ok = self.ctrl.update(x_from, t_from, K, deadline=deadline)
         w = time.perf_counter() - t0
         self.failures += 0 if ok else 1
         self.solve_s.append(w)
         self.iters.append(new_plan.iterations if (ok and new_plan) else 0)
         self.upd_t.append(t_now)
-        # The old policy keeps running while the controller thinks.
-        if s.realtime and not self.simulate(int(math.ceil(w / self.dt))):
+        # The old policy keeps running while the controller thinks (with delay compensation,
+        # at least until the time the new plan starts from).
+        if s.realtime and not self.simulate(max(int(math.ceil(w / self.dt)), ahead)):
             return False
         if ok:
-            self.plan, self.t_plan = new_plan, t_now
+            self.plan, self.t_plan = new_plan, t_from
         return True
+
+    def predict(self, n: int) -> np.ndarray | None:
+        """The state the plan in force is expected to reach n simulation steps from now: the
+        controller's model (on the plan's grid) under that plan's policy from the measured
+        state; None if that rollout fails."""
+        dyn, plan, r = self.ctrl.dyn, self.plan, self.substeps
+        fb = self.settings.feedback_scale
+        i = max(self.k - int(round(self.t_plan / self.dt)), 0) // r
+        x = self.x
+        try:
+            for j in range(i, i + n // r):
+                j = min(j, plan.U.shape[0] - 1)
+                x = dyn.step(x, plan.U[j] - fb * (plan.K[j] @ (x - plan.X[j])))
+        except SimulationError:
+            return None
+        return x
 
     def simulate(self, n: int) -> bool:
         """``advance`` under the plan in force; False (and the failure kept) if the

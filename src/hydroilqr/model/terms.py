@@ -370,9 +370,12 @@ class TaskSpaceTerms:
                 self._pc, t.frame, t.point, self.plant.world_frame()
             ).ravel()
             if t.frame_q is not None:
-                p = p - self.plant.CalcPointsPositions(
-                    self._pc, t.frame_q, t.point_q, self.plant.world_frame()
-                ).ravel()
+                p = (
+                    p
+                    - self.plant.CalcPointsPositions(
+                        self._pc, t.frame_q, t.point_q, self.plant.world_frame()
+                    ).ravel()
+                )
             s = float(t.normal @ p)
             r, d = self._scalar(t, s)
             if jac and d:

@@ -431,6 +431,13 @@ class MPCConfig:
     deadline: float = 0.0
     # The simulation keeps running while the controller computes (its latency is felt).
     realtime: bool = False
+    # With realtime: each update plans from the state the plan in force is predicted to reach
+    # one control period later (the controller's model under that plan's policy), and the new
+    # plan takes over at that time, so its first control is the one applied. An update longer
+    # than the period applies the new plan late, past its first steps. Off: the plan starts
+    # from the state measured when the update began, and the time the update took is already
+    # past when it is applied. The period must be whole plan steps.
+    delay_compensation: bool = False
     # Scales K in u = ū − K(x − x̄); 0 = feedforward only.
     feedback_scale: float = 1.0
     # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
