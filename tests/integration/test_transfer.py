@@ -59,8 +59,14 @@ PUSHES = ("kinova-forward", "kinova-left")
 HALF_SPEED_PD = PlaybackSettings(**HALF_SPEED)  # the paper's hardware playback
 
 
+# Each solve computes in its own process: the test runner (and the study's Dask cluster)
+# already runs one job per core, and a solve's own worker processes on top of that only compete
+# for the same cores. The iterates are bitwise those of the parallel solve.
+SERIAL = ["solver.autodiff_workers=1", "solver.line_search_workers=1"]
+
+
 def _overrides() -> list[str]:
-    return os.environ.get("HYDROILQR_TRANSFER_SET", "").split()
+    return SERIAL + os.environ.get("HYDROILQR_TRANSFER_SET", "").split()
 
 
 def measure(name: str, k: int, mismatch: bool | None = None) -> dict:
