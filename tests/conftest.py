@@ -21,6 +21,13 @@ def pytest_configure(config):
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def pytest_collection_modifyitems(config, items):
+    """Tests marked ``slow`` (full-size solves of minutes) run first, in their own order: on
+    worker processes they then start on different workers at once, instead of one of them
+    starting last and running alone at the end."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # (a stable sort)
+
+
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 
 # A tiny acrobot task: twenty steps, solves in a moment (the run-directory and CLI tests).
