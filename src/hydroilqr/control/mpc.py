@@ -910,17 +910,18 @@ class ClosedLoop:
         """The state the plan in force is expected to reach n simulation steps from now: the
         controller's model (on the plan's grid) under that plan's policy from the measured
         state; None if that rollout fails."""
-        dyn, plan, r = self.ctrl.dyn, self.plan, self.substeps
-        fb = self.settings.feedback_scale
+        plan, r = self.plan, self.substeps
         i = max(self.k - int(round(self.t_plan / self.dt)), 0) // r
-        x = self.x
+        j = np.minimum(np.arange(i, i + n // r), plan.U.shape[0] - 1)  # (past its end: the last)
+        K = self.settings.feedback_scale * plan.K[j]
+        Xbar = plan.X[np.append(j, j[-1] + 1)]
         try:
-            for j in range(i, i + n // r):
-                j = min(j, plan.U.shape[0] - 1)
-                x = dyn.step(x, plan.U[j] - fb * (plan.K[j] @ (x - plan.X[j])))
+            X, _ = self.ctrl.dyn.closed_loop_rollout(
+                self.x, plan.U[j], Xbar, K, np.zeros_like(plan.U[j]), 0.0
+            )
         except SimulationError:
             return None
-        return x
+        return X[-1]
 
     def simulate(self, n: int) -> bool:
         """``advance`` under the plan in force; False (and the failure kept) if the

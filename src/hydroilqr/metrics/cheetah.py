@@ -59,6 +59,7 @@ import numpy as np
 
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.common import contact_pairs
+from hydroilqr.metrics.contacts import state_step
 from hydroilqr.metrics.registry import Metric, Report, register
 from hydroilqr.model.contacts import runs
 from hydroilqr.problem.config import ConfigError
@@ -397,7 +398,7 @@ def plot_cheetah(task, sol, out: Path) -> None:
 
     feet, _, body = contacts(task, sol)
     labels = [name.split("_")[0] for name in _params(task)["feet"]]
-    dt = float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+    dt = state_step(task, sol)
     fig, ax = plt.subplots(figsize=(6.5, 2.4))
     colors = ("C0", "C1", "C1", "C0")  # diagonal pairs share a colour
     for j in range(4):

@@ -57,11 +57,18 @@ def contact_metrics(task, sol) -> dict:
     }
 
 
+def state_step(task, sol) -> float:
+    """The time between the states of ``sol`` (s): an MPC run's robot may step finer than the
+    task's plan; a single state falls back on the task's time step."""
+    t = np.asarray(sol.t)
+    return float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+
+
 def plot_contacts(task, sol, out) -> None:
     plt = pyplot()
     pairs, on, _ = _cached(task, sol)
     t = np.asarray(sol.t)
-    dt = float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+    dt = state_step(task, sol)
     P = len(pairs)
     fig, ax = plt.subplots(figsize=(6.5, 1.2 + 0.3 * max(P, 1)))
     for j in range(P):

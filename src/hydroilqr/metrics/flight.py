@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroilqr.metrics.contacts import _cached
+from hydroilqr.metrics.contacts import _cached, state_step
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.model.contacts import runs
 from hydroilqr.problem.config import ConfigError
@@ -43,9 +43,7 @@ def flight_metrics(task, sol) -> dict:
         if any(_matches(n, b, feet) for n, b in zip(names, bodies))
     ]
     touching = on[:, cols].any(axis=1) if cols else np.zeros(len(on), bool)
-    # the states' own spacing (an MPC run's robot may step finer than the task's plan)
-    t = np.asarray(sol.t)
-    dt = float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
+    dt = state_step(task, sol)
     first = int(np.argmax(touching)) if touching.any() else len(touching)
     flights = [(a, b) for a, b in runs(~touching) if a > first]
     lengths = [(b - a + 1) * dt for a, b in flights]
