@@ -141,5 +141,7 @@ def test_line_search_kernel_accepts_a_descent_step_and_respects_the_deadline():
     assert ls.accepted and ls.J < J and ls.tried >= 1 and ls.X.shape == X.shape
     np.testing.assert_allclose(ls.J, prob.cost.total(ls.X, ls.U, 0.0))
     assert ls.eps == s.line_search_factor ** (ls.tried - 1)  # ε = 1, f, f², ...
+    warm = line_search(prob, X, U, J, bp.K, bp.kappa, bp.dV, s, None, 0.25)
+    assert warm.accepted and warm.eps == 0.25 * s.line_search_factor ** (warm.tried - 1)
     late = line_search(prob, X, U, J, bp.K, bp.kappa, bp.dV, s, _time.perf_counter() - 1)
     assert late.late and not late.accepted and late.tried == 0 and late.X is None

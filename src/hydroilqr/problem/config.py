@@ -331,6 +331,13 @@ class SolverConfig:
     expected_decrease_tolerance: float = 1e-7
     line_search_factor: float = 0.5
     line_search_max_steps: int = 12
+    # Start each line search one factor above the step the previous iteration accepted
+    # (ε = min(1, ε_prev / line_search_factor), then ε·f, ...) instead of at ε = 1; after an
+    # iteration without an accepted step, and in the first one, at 1. Saves the rejected
+    # long trials of a solve whose accepted steps stay short; the start grows back by one
+    # factor per iteration while the first trial is accepted. Off by default: it moves every
+    # contact-rich solve into other basins.
+    line_search_warm_start: bool = False
     # After a failed line search μ grows and the backward pass + line search run again, at
     # most this many times (and while μ <= regularization_max).
     line_search_retries: int = 20
@@ -339,9 +346,11 @@ class SolverConfig:
     regularization_min: float = 1e-9
     regularization_max: float = 1e10
     regularization_factor: float = 10.0
-    # After an accepted step shorter than this (line-search ε < short_step), μ grows by
-    # regularization_factor instead of shrinking (a trust region that shrinks while the
-    # quadratic model only holds for short steps); 0 = always shrink after a success.
+    # After an accepted step shorter than this (line-search ε < short_step) for which longer
+    # steps were rejected, μ grows by regularization_factor instead of shrinking (a trust
+    # region that shrinks while the quadratic model only holds for short steps); after one
+    # accepted as the first trial (line_search_warm_start) μ stays; 0 = always shrink after a
+    # success.
     short_step: float = 0.1
     derivative_interval: int = 1  # >1: exact derivatives every k steps, interpolated between
     # With derivative_interval > 1: also exact at both sides of every change of the set of

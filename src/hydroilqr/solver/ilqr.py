@@ -16,7 +16,8 @@ Levenberg-Marquardt term μ I added to Q_uu:
 Forward pass (eq. 7): u_k = ū_k − ε κ_k − K_k (x_k − x̄_k). The predicted cost change of a
 step of size ε is ΔJ(ε) = −ε Σ κᵀQ_u + ½ ε² Σ κᵀ Q_uu κ; a step is accepted when the actual
 decrease is at least ``armijo`` times the predicted one (ε = 1, f, f², ... for
-``line_search_factor`` f; with ``line_search_workers`` > 1 a round of them is evaluated side by
+``line_search_factor`` f, or from one factor above the last accepted step with
+``line_search_warm_start``; with ``line_search_workers`` > 1 a round of them is evaluated side by
 side in worker processes and the first acceptable one in that order is taken, so the iterates
 do not depend on the number of workers). A rollout that fails (contact solver
 not converging, non-finite state) is a rejected step. When no ε works, μ grows and the
@@ -140,17 +141,19 @@ def line_search(
     dV: tuple[float, float],
     s: SolverConfig,
     deadline: float | None = None,
+    first: float = 1.0,
 ) -> LineSearchResult:
     """Forward passes (eq. 7) around X: [N+1, nx], U: [N, nu] of cost J, along the backward
-    pass's K: [N, nu, nx], kappa: [N, nu] (predicted change ``dV``): ε = 1, f, f², ... (f =
-    ``line_search_factor``, at most ``line_search_max_steps`` trials); the first trial whose
+    pass's K: [N, nu, nx], kappa: [N, nu] (predicted change ``dV``): ε = first, first·f,
+    first·f², ... (f = ``line_search_factor``, ``first`` in (0, 1], at most
+    ``line_search_max_steps`` trials); the first trial whose
     actual decrease is at least ``armijo`` times the predicted one is accepted. Trials run a
     round at a time in the dynamics' line-search worker processes (1: serially); a rollout that
     fails is a rejected trial. No round starts after ``deadline`` (a perf_counter value)."""
     dyn, cost, t0 = problem.dynamics, problem.cost, problem.t0
     x0 = np.asarray(problem.x0, dtype=float)
     eps = expected = 0.0
-    next_eps, tried = 1.0, 0
+    next_eps, tried = first, 0
     while tried < s.line_search_max_steps:
         if deadline is not None and time.perf_counter() > deadline:
             return LineSearchResult(False, eps, expected, None, None, np.inf, tried, True)

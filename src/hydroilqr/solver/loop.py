@@ -98,10 +98,12 @@ class State:
 class Step:
     """One iteration's descent: whether a step was accepted (its Xn, Un, Jn, ε), the
     predicted decrease, whether the deadline cut the search, the last backward pass's
-    success ``pd``, its full-step prediction, and whether μ was raised."""
+    success ``pd``, its full-step prediction, whether μ was raised, and whether a longer step
+    than the accepted one was tried and rejected (``shortened``)."""
 
     accepted: bool = False
     eps: float = 0.0
+    shortened: bool = False
     expected: float = 0.0
     expected_full: float = np.inf  # stays so if no backward pass succeeds (Q_uu never PD)
     late: bool = False
@@ -305,6 +307,15 @@ def _exact_partials(st: State, ph: dict) -> None:
     ph["derivatives"] += time.perf_counter() - t
 
 
+def first_step(st: State) -> float:
+    """The line search's first ε: 1, or with ``line_search_warm_start`` one factor above the
+    step the previous iteration accepted (1 after an iteration that accepted none)."""
+    s = st.s
+    if not s.line_search_warm_start or not st.eps_hist or st.eps_hist[-1] <= 0:
+        return 1.0
+    return min(1.0, st.eps_hist[-1] / s.line_search_factor)
+
+
 def descend(st: State, ph: dict, deadline: float | None) -> Step:
     """Backward pass and line search, raising μ after an indefinite Q_uu or a failed search
     (at most ``line_search_retries`` times, μ up to ``regularization_max``). Along secant
@@ -346,13 +357,16 @@ def descend(st: State, ph: dict, deadline: float | None) -> Step:
         # are cheaper than the rest of the search)
         s_ls = replace(s, line_search_max_steps=min(SECANT_TRIALS, s.line_search_max_steps))
         s_ls = s_ls if _secant(st) else s
-        ls = line_search(st.problem, st.X, st.U, st.J, st.K, st.kappa, bp.dV, s_ls, deadline)
+        ls = line_search(
+            st.problem, st.X, st.U, st.J, st.K, st.kappa, bp.dV, s_ls, deadline, first_step(st)
+        )
         ph["line_search"] += time.perf_counter() - t
         if ls.tried:
             step.eps, step.expected = ls.eps, ls.expected
         step.accepted, step.late = ls.accepted, ls.late
         if step.accepted:
             step.Xn, step.Un, step.Jn = ls.X, ls.U, ls.J
+            step.shortened = ls.tried > 1
         if step.accepted or step.late:
             break
         if _secant(st):  # no step along secant partials: the same μ again with exact ones
@@ -376,7 +390,7 @@ def accept(st: State, step: Step) -> float:
     rel = (st.J - step.Jn) / max(abs(st.J), 1e-12)
     st.X, st.U, st.J = step.Xn, step.Un, step.Jn
     st.partials_current = False
-    st.mu = regularization.after_step(st.mu, step.eps, st.s)
+    st.mu = regularization.after_step(st.mu, step.eps, st.s, step.shortened)
     return rel
 
 

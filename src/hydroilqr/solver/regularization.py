@@ -1,9 +1,11 @@
 """The schedule of the Levenberg-Marquardt term μ I added to Q_uu in the backward pass.
 
 μ grows (``increase``) when Q_uu is not positive definite or no step size decreases the cost;
-after an accepted step it shrinks, unless the step was shorter than ``short_step``: the
-quadratic model then held only for a short step, so μ grows instead (a trust region that
-shrinks while the model is poor; ``after_step``).
+after an accepted step it shrinks, unless the step was shorter than ``short_step`` and longer
+ones were rejected: the quadratic model then held only for a short step, so μ grows instead (a
+trust region that shrinks while the model is poor; ``after_step``). A short step accepted as
+the first trial (a line search warm-started below 1) says nothing for or against the model: μ
+stays.
 """
 
 from __future__ import annotations
@@ -20,8 +22,11 @@ def increase(mu: float, s: SolverConfig) -> float:
     return max(mu * s.regularization_factor, MU_RESTART)
 
 
-def after_step(mu: float, eps: float, s: SolverConfig) -> float:
-    """μ after an accepted step of size ``eps``."""
+def after_step(mu: float, eps: float, s: SolverConfig, shortened: bool = True) -> float:
+    """μ after an accepted step of size ``eps``; ``shortened``: longer steps were tried and
+    rejected in its line search."""
+    if eps < s.short_step and not shortened:
+        return mu  # accepted at the first trial: no evidence on the model either way
     if eps < s.short_step:
         # The quadratic model only held for a short step: regularize more (a trust region
         # that shrinks while the model is poor) instead of less.
