@@ -9,13 +9,15 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
+from hydroilqr.model.terms import softmin
 from hydroilqr.problem.config import ConfigError
 from tests.conftest import edit, write_case
 
 # Every term type on the Kinova arm and its ball (a quaternion floating body), with the
 # options that change the residual: per-axis weights, a moving target, a relative frame,
-# relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window, a slip's
-# sphere radius (its contact point moves with the body's rotation) and its clearance.
+# relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window, a soft
+# minimum over the window, a slip's sphere radius (its contact point moves with the body's
+# rotation) and its clearance.
 TERMS = [
     {"name": "reach", "type": "position", "body": "end_effector_link", "point": [0, 0, 0.12],
      "target": [0.5, 0.1, 0.3], "target_velocity": [0.1, 0, 0], "weight": [1.0, 2.0, 3.0]},
@@ -41,6 +43,8 @@ TERMS = [
      "target": 0.0, "weight": 7.0},
     {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
      "max": 0.01, "weight": 2.0, "until": 0.015},
+    {"name": "touch", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
+     "max": 0.0, "weight": 3.0, "softmin": 1.0e-4},
     {"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0},
     {"name": "ballslip", "type": "slip", "body": "ball", "radius": 0.05, "clearance": 0.5,
      "weight": 3.0},
@@ -250,6 +254,10 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
          "cost.terms.t.axes: a slip term has no axes"),
         ({"name": "t", "type": "height", "body": "b", "min": 0, "clearance": 0.1},
          "cost.terms.t.clearance: a height term has no clearance"),
+        ({"name": "t", "type": "height", "body": "b", "min": 0, "softmin": -1},
+         "cost.terms.t.softmin: a temperature >= 0 (cost units), got -1"),
+        ({"name": "t", "type": "height", "body": "b", "min": 0, "softmin": 0.1,
+          "terminal": True}, "cost.terms.t.softmin: a terminal term has one step"),
     ],
 )  # fmt: skip
 def test_bad_terms_are_config_errors_before_the_plant_is_built(tmp_path, term, message):
@@ -388,3 +396,38 @@ def test_height_over_a_point_is_the_difference_of_the_two_points_heights(kinova)
     g, ball, gb = (rep[n]["final"] for n in ("g", "b", "gb"))
     assert gb == pytest.approx(g - ball, abs=1e-12)
     assert abs(gb) > 1e-3  # (the two points are apart: the test sees a difference)
+
+
+def test_softmin_lies_between_min_and_mean_and_its_gradient_is_the_softmax():
+    c = np.array([0.3, 0.1, 0.7, 5.0])
+    active = np.array([True, True, True, False])  # the last step is outside the window
+    for tau in (1e-3, 0.1, 10.0):
+        value, p = softmin(c, active, tau)
+        assert 0.1 <= value <= np.mean(c[:3]) + 1e-12
+        assert p[3] == 0.0 and p.sum() == pytest.approx(1.0)
+        h = 1e-7
+        for k in range(3):
+            e = np.zeros(4)
+            e[k] = h
+            fd = (softmin(c + e, active, tau)[0] - softmin(c - e, active, tau)[0]) / (2 * h)
+            assert p[k] == pytest.approx(fd, rel=1e-5, abs=1e-9)
+    assert softmin(c, active, 1e-6)[0] == pytest.approx(0.1, abs=1e-4)  # τ -> 0: the minimum
+    assert softmin(c, active, 1e6)[0] == pytest.approx(np.mean(c[:3]), rel=1e-5)  # the mean
+    assert softmin(np.full(4, 0.2), active, 0.1)[0] == pytest.approx(0.2)
+    assert softmin(c, np.zeros(4, bool), 0.1) == (0.0, pytest.approx(np.zeros(4)))
+
+
+def test_a_softmin_term_costs_its_windows_soft_minimum(kinova):
+    """The term's cost along X is the soft minimum of its steps' costs (not their sum), in
+    the breakdown and in the total; its gradient is checked with the others above."""
+    task, X, U = kinova
+    terms = task.cost.task_terms
+    names = [t.name for t in terms.terms]
+    i = names.index("touch")
+    active, factor, R, _, _ = terms._evaluate(X, 0.0, False)
+    c = factor[i] * np.einsum("ki,i,ki->k", R[i], terms.terms[i].weights, R[i])
+    assert np.ptp(c[active[i]]) > 1e-4  # the steps differ: the soft minimum is not trivial
+    value = softmin(c, active[i], 1.0e-4)[0]
+    assert c[active[i]].min() <= value < np.sum(c)
+    assert task.cost.breakdown(X, U)["terms.touch"] == pytest.approx(value, rel=1e-12)
+    assert terms.report(X)["touch"]["cost"] == pytest.approx(value, rel=1e-12)

@@ -32,6 +32,12 @@ its window (``f_k``: 1, or the linear ``ramp``, times the time step with
   ``clearance`` above the ground moves freely. No clock and no reference: it asks stance feet
   to stay put and swing feet to lift before they travel.
 
+A running term with ``softmin`` τ > 0 costs instead the soft minimum of its steps' costs c_k
+over its window, ``S = −τ log(mean_k exp(−c_k/τ))`` (between their minimum and their mean): a
+small residual at some step, not at every one. ``∂S/∂c_k = p_k``, the softmax of −c_k/τ, so
+each step's derivatives below are scaled by p_k (the coupling between steps is dropped from
+the Hessian: it is negative semidefinite, and the rest stays positive semidefinite).
+
 Derivatives are Gauss-Newton, ``l_x = 2 f Jᵀ W r`` and ``l_xx = 2 f Jᵀ W J`` with
 ``J = ∂r/∂x`` in the state's coordinates x = [q; v], from MultibodyPlant kinematics: position
 Jacobians with respect to q̇ (``JacobianWrtVariable.kQDot``: the partials in q itself, also
@@ -514,11 +520,14 @@ class TaskSpaceTerms:
 
     def _costs(self, X, t0) -> np.ndarray:
         """[n_terms, N+1]."""
-        _, factor, R, _, _ = self._evaluate(X, t0, False)
+        active, factor, R, _, _ = self._evaluate(X, t0, False)
         out = np.empty((len(self.terms), X.shape[0]))
         with np.errstate(over="ignore", invalid="ignore"):
             for i, t in enumerate(self.terms):
                 out[i] = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+                if t.cfg.softmin > 0:
+                    value, p = softmin(out[i], active[i], t.cfg.softmin)
+                    out[i] = p * value  # the soft minimum, spread over the window's steps
         return out
 
     def breakdown(self, X: np.ndarray, t0: float = 0.0) -> dict[str, float]:
@@ -528,11 +537,14 @@ class TaskSpaceTerms:
 
     def quadratize(self, X: np.ndarray, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Gauss-Newton lx: [N+1, nx] and lxx: [N+1, nx, nx] of the terms along X."""
-        _, factor, R, Js, _ = self._evaluate(X, t0, True)
+        active, factor, R, Js, _ = self._evaluate(X, t0, True)
         n = X.shape[0]
         lx, lxx = np.zeros((n, self.nx)), np.zeros((n, self.nx, self.nx))
         for i, t in enumerate(self.terms):
             f = factor[i][:, None]
+            if t.cfg.softmin > 0:  # d(soft minimum)/dc_k = p_k: each step's own terms times p_k
+                c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+                f = f * softmin(c, active[i], t.cfg.softmin)[1][:, None]
             lx += 2.0 * f * np.einsum("kmj,m,km->kj", Js[i], t.weights, R[i])
             lxx += 2.0 * f[:, :, None] * np.einsum("kmj,m,kml->kjl", Js[i], t.weights, Js[i])
         return lx, lxx
@@ -550,7 +562,9 @@ class TaskSpaceTerms:
                 continue
             k = int(steps[-1])
             m = meas[i][k]
-            cost = float(np.sum(factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])))
+            c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+            cost = softmin(c, active[i], t.cfg.softmin)[0] if t.cfg.softmin > 0 else np.sum(c)
+            cost = float(cost)
             out[t.name] = {
                 "error": float(np.linalg.norm(R[i][k])),
                 "final": np.asarray(m, float).tolist() if np.ndim(m) else float(m),
@@ -585,3 +599,22 @@ def _rpy(q: np.ndarray) -> list[float]:
     """Roll, pitch, yaw (rad) of a unit quaternion [w, x, y, z]."""
 
     return RollPitchYaw(Quaternion(q / np.linalg.norm(q))).vector().tolist()
+
+
+def softmin(c: np.ndarray, active: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
+    """The soft minimum S = -τ log(mean_k exp(-c_k / τ)) of the costs c: [N+1] over the active
+    steps (a bool mask [N+1]), and its gradient p = dS/dc: [N+1] (softmax weights of -c/τ on
+    the active steps, summing to 1; 0 elsewhere). S lies between min and mean of the active
+    c_k. (0, zeros) when no step is active."""
+    p = np.zeros_like(c)
+    idx = np.flatnonzero(active)
+    if idx.size == 0:
+        return 0.0, p
+    z = -c[idx] / tau
+    zmax = np.max(z)
+    if not np.isfinite(zmax):  # every cost infinite (or NaN): so is the minimum
+        return float(-zmax * tau if np.isinf(zmax) else np.nan), p
+    e = np.exp(z - zmax)
+    value = -tau * (zmax + np.log(np.mean(e)))
+    p[idx] = e / np.sum(e)
+    return float(value), p

@@ -269,6 +269,12 @@ class TermConfig:
     # Weight factors [at the window's start, at its end], linear in between (default [1, 1]);
     # a window without ``until`` ends at the task's end.
     ramp: list[float] = field(default_factory=list)
+    # A running term's cost over its window as a soft minimum of its steps' costs c_k instead
+    # of their sum: -τ log(mean_k exp(-c_k / τ)) with this temperature τ (cost units; 0 = the
+    # sum). The term then asks for a small residual at some step of the window, not at every
+    # one: e.g. an approach term that wants one touch per window and lets the finger leave in
+    # between. Between the window's minimum and its mean cost.
+    softmin: float = 0.0
 
 
 @dataclass
@@ -1773,6 +1779,11 @@ def _validate_term_window(term: TermConfig, key: str) -> None:
         raise ConfigError(f"{key}.after: must be >= 0 s, got {term.after}")
     if term.after is not None and term.until is not None and term.until < term.after:
         raise ConfigError(f"{key}.until: {term.until} s is before after ({term.after} s)")
+    sm = term.softmin
+    if isinstance(sm, bool) or not isinstance(sm, (int, float)) or not math.isfinite(sm) or sm < 0:
+        raise ConfigError(f"{key}.softmin: a temperature >= 0 (cost units), got {sm!r}")
+    if sm and term.terminal:
+        raise ConfigError(f"{key}.softmin: a terminal term has one step; softmin needs a window")
     if term.ramp:
         _check_length(term.ramp, 2, f"{key}.ramp")
         if min(term.ramp) < 0:
