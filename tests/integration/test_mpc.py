@@ -10,7 +10,7 @@ from hydroilqr import Task
 from hydroilqr.cli import main
 from hydroilqr.cli.common import GOAL_NOT_MET
 from hydroilqr.control.mpc import Controller, Push, check_settings, mpc_config, prepare, run_mpc
-from hydroilqr.problem.config import ConfigError, MPCConfig
+from hydroilqr.problem.config import TASKS_DIR, ConfigError, MPCConfig
 
 
 def test_mpc_lockstep_brings_pole_up_and_reports_timing():
@@ -565,3 +565,23 @@ def test_delay_compensation_plans_from_the_state_one_period_ahead(monkeypatch):
         check_settings(
             MPCConfig(delay_compensation=True, rate=250.0, horizon=0.2, plant_time_step=0.002), task
         )
+
+
+def test_command_line_plan_and_truth_overrides_come_after_the_task_files(tmp_path):
+    """--plan-set / --truth-set add to the task file's mpc.plan_overrides / truth_overrides
+    (the command line's last, so they win on a key); before, any --plan-set replaced the
+    file's list and the file's truth_overrides were dropped even without --truth-set."""
+    path = tmp_path / "task.yaml"
+    path.write_text(
+        f"extends: {TASKS_DIR / 'cartpole-wall.yaml'}\n"
+        "mpc:\n"
+        "  plan_overrides: [cost.R=0.02]\n"
+        "  truth_overrides: ['plant.gravity=[0, 0, -9.9]']\n"
+    )
+    for extra, plan in (([], ["cost.R=0.02"]), (["--plan-set", "cost.R=0.03"], None)):
+        out = tmp_path / f"m{len(extra)}"
+        argv = ["mpc", str(path), "--smoke", "--duration", "0.02", "--out", str(out)]
+        main([*argv, "--no-replay", *extra])
+        data = json.loads((out / "mpc.json").read_text())
+        assert data["plan_overrides"] == (plan or ["cost.R=0.02", "cost.R=0.03"])
+        assert data["truth_overrides"] == ["plant.gravity=[0, 0, -9.9]"]

@@ -54,7 +54,7 @@ def setup(p) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="override a task key of the simulated plant only (model mismatch), e.g. "
-        "ball.friction=0.3 (repeatable)",
+        "ball.friction=0.3 (repeatable; after the task's mpc.truth_overrides)",
     )
     p.add_argument(
         "--plan-set",
@@ -62,7 +62,8 @@ def setup(p) -> None:
         default=None,
         metavar="KEY=VALUE",
         help="override a task key of the controller's plans only (mpc.plan_overrides), e.g. "
-        "cost.terms.approach.weight=1e5 to keep an approach term on (repeatable)",
+        "cost.terms.approach.weight=1e5 to keep an approach term on (repeatable; after the "
+        "task's mpc.plan_overrides)",
     )
     p.add_argument(
         "--plant-time-step",
@@ -141,9 +142,10 @@ def _settings(args):
         threads=args.threads,
         derivatives=args.derivatives,
         feedback_scale=args.feedback_scale,
-        truth_overrides=list(args.truth_set),
+        # the command line's after the task file's (the later one wins on a key)
+        truth_overrides=list(task.config.mpc.truth_overrides) + list(args.truth_set),
         plant_time_step=args.plant_time_step,
-        plan_overrides=args.plan_set,
+        plan_overrides=list(task.config.mpc.plan_overrides) + list(args.plan_set or []),
         warm_start_plan=args.warm_start_plan,
     )
     if args.horizon is not None and settings.shrinking_horizon:
