@@ -431,3 +431,24 @@ def test_a_softmin_term_costs_its_windows_soft_minimum(kinova):
     assert c[active[i]].min() <= value < np.sum(c)
     assert task.cost.breakdown(X, U)["terms.touch"] == pytest.approx(value, rel=1e-12)
     assert terms.report(X)["touch"]["cost"] == pytest.approx(value, rel=1e-12)
+
+
+def test_a_term_of_weight_zero_is_reported_but_not_evaluated_in_the_cost(monkeypatch):
+    """finger-wheel's approach term has weight 0 outside its continuation stage: the cost, its
+    derivatives and the breakdown skip its signed-distance queries; the report measures it."""
+    task = Task.load("finger-wheel", smoke=True)
+    terms = task.cost.task_terms
+    assert terms.terms[0].name == "approach" and not np.any(terms.terms[0].weights)
+    calls = []
+    real = type(terms)._residual
+
+    def counting(self, t, *a, **k):
+        calls.append(t.cfg.name)
+        return real(self, t, *a, **k)
+
+    monkeypatch.setattr(type(terms), "_residual", counting)
+    X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
+    assert terms.stage_costs(X).sum() == 0.0 and np.all(terms.quadratize(X)[0] == 0.0)
+    assert calls == []
+    rep = terms.report(X)
+    assert "approach" in calls and rep["approach"]["final"] > 0.0  # not touching yet

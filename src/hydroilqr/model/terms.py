@@ -492,12 +492,17 @@ class TaskSpaceTerms:
             return np.asarray(times, float)
         return t0 + self.dt * np.arange(N + 1)
 
-    def _evaluate(self, X: np.ndarray, t0: float, jac: bool, times=None):
+    def _evaluate(self, X: np.ndarray, t0: float, jac: bool, times=None, unweighted=False):
         """Per term: residuals R [N+1, m] (0 outside its window), Jacobians [N+1, m, nx] (with
-        ``jac``) and the measured quantity at each active step (dict k -> value)."""
+        ``jac``) and the measured quantity at each active step (dict k -> value). Terms of
+        weight 0 (e.g. an approach term that only a continuation stage switches on) cost
+        nothing and are left out (their R stays 0) unless ``unweighted``: a report measures
+        them."""
         X = np.asarray(X, float)
         N = X.shape[0] - 1
         active, factor = self.windows(N, t0, times)
+        if not unweighted:
+            active = active & np.array([bool(np.any(t.weights)) for t in self.terms])[:, None]
         R = [np.zeros((N + 1, t.size)) for t in self.terms]
         Js = [np.zeros((N + 1, t.size, self.nx)) for t in self.terms] if jac else None
         meas: list[dict] = [{} for _ in self.terms]
@@ -554,7 +559,7 @@ class TaskSpaceTerms:
         ``final`` (the point's position or velocity [3], the height or distance), ``step``;
         and ``cost`` (its cost along X). Empty for a term whose window holds no step.
         ``times``: [N+1] the states' times, if not t0 + k·dt."""
-        active, factor, R, _, meas = self._evaluate(X, t0, False, times)
+        active, factor, R, _, meas = self._evaluate(X, t0, False, times, unweighted=True)
         out = {}
         for i, t in enumerate(self.terms):
             steps = np.flatnonzero(active[i])
