@@ -587,3 +587,23 @@ def test_command_line_plan_and_truth_overrides_come_after_the_task_files(tmp_pat
         data = json.loads((out / "mpc.json").read_text())
         assert data["plan_overrides"] == (plan or ["cost.R=0.02", "cost.R=0.03"])
         assert data["truth_overrides"] == ["plant.gravity=[0, 0, -9.9]"]
+
+
+def test_candidates_are_tried_every_candidate_period_updates(monkeypatch):
+    tries = []
+    real = Controller._cheapest_start
+
+    def spy(self, x, t, X0):
+        tries.append(t)
+        return real(self, x, t, X0)
+
+    monkeypatch.setattr(Controller, "_cheapest_start", spy)
+    task = Task.load("cartpole-wall")
+    for period in (1, 3):
+        tries.clear()
+        st = MPCConfig(duration=0.2, rate=50.0, horizon=0.2, candidates=["first_plan"])
+        res = run_mpc(task, dataclasses.replace(st, candidate_period=period))
+        assert len(tries) == len(res.update_times) // period  # (after the first plan)
+        assert res.stats()["candidate_period"] == period
+    with pytest.raises(ConfigError, match="mpc.candidate_period: a whole number"):
+        check_settings(MPCConfig(candidate_period=0), task)

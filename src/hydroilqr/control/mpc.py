@@ -325,6 +325,7 @@ class MPCResult:
             "shrinking_horizon": self.settings.shrinking_horizon,
             "updates_on_prediction": int(sum(self.reused_prediction)),
             "candidates": list(self.settings.candidates),
+            "candidate_period": self.settings.candidate_period,
             "updates_from_a_candidate": self.restarts,
             # Mean seconds per update in each solver phase (rollout, derivatives, ...).
             "phase_seconds_mean": {  # over the updates whose solve did not fail
@@ -401,6 +402,8 @@ class Controller:
         self.feedback_scale = settings.feedback_scale
         self.U_ref = U_ref  # controls by time step, or None
         self.candidates = list(settings.candidates)
+        self.candidate_period = settings.candidate_period
+        self.updates_since_first = 0  # (candidate_period counts the updates after the first)
         self.first: Solution | None = None  # the first (full) plan
         self.restarts = 0  # updates that started from a candidate instead of the warm start
         self.U = self._new_controls(0, horizon_steps, task.x0)
@@ -449,7 +452,13 @@ class Controller:
         U_before = self.U  # restored if this update fails (the plan in force stays the old one)
         t_pre = time.perf_counter()  # the initial rollout below belongs to the rollout phase
         X0, on_prediction = self._warm_start(x, t) if self.plan is not None else (None, False)
-        if self.candidates and self.plan is not None:
+        if self.plan is not None:
+            self.updates_since_first += 1
+        if (
+            self.candidates
+            and self.plan is not None
+            and self.updates_since_first % self.candidate_period == 0
+        ):
             X0, restarted = self._cheapest_start(x, t, X0)
             self.restarts += restarted
             on_prediction = on_prediction and not restarted

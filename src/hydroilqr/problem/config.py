@@ -427,6 +427,9 @@ class MPCConfig:
     # from their first step: the motion that made contact from a standstill, tried again),
     # "guess" (the task's initial guess for the horizon). Empty: the warm start only.
     candidates: list[str] = field(default_factory=list)
+    # The candidates are tried at every this-many-th update (1: every update): each try costs
+    # a rollout per candidate, which in a fast loop can leave no time for the line search.
+    candidate_period: int = 1
     # A solved run (its directory or solution.npz): its controls, by time step, seed the first
     # plan and the steps each shifted plan appends (past its end, warm_start_tail applies).
     warm_start_plan: str = ""
@@ -1352,6 +1355,9 @@ def validate_mpc(m: Any) -> None:
         )
     if m.warm_start_tail not in WARM_START_TAILS:
         raise ConfigError("mpc.warm_start_tail: expected last or guess")
+    cp = m.candidate_period
+    if isinstance(cp, bool) or not isinstance(cp, int) or cp < 1:
+        raise ConfigError(f"mpc.candidate_period: a whole number of updates >= 1, got {cp!r}")
     for c in m.candidates:
         if c not in MPC_CANDIDATES:
             raise ConfigError(
