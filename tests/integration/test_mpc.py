@@ -603,7 +603,8 @@ def test_candidates_are_tried_every_candidate_period_updates(monkeypatch):
         tries.clear()
         st = MPCConfig(duration=0.2, rate=50.0, horizon=0.2, candidates=["first_plan"])
         res = run_mpc(task, dataclasses.replace(st, candidate_period=period))
-        assert len(tries) == len(res.update_times) // period  # (after the first plan)
+        # (after the first plan): at the period-th update, the 2·period-th, ...
+        assert tries == pytest.approx(res.update_times[period - 1 :: period])
         assert res.stats()["candidate_period"] == period
     with pytest.raises(ConfigError, match="mpc.candidate_period: a whole number"):
         check_settings(MPCConfig(candidate_period=0), task)

@@ -415,6 +415,8 @@ def test_softmin_lies_between_min_and_mean_and_its_gradient_is_the_softmax():
     assert softmin(c, active, 1e6)[0] == pytest.approx(np.mean(c[:3]), rel=1e-5)  # the mean
     assert softmin(np.full(4, 0.2), active, 0.1)[0] == pytest.approx(0.2)
     assert softmin(c, np.zeros(4, bool), 0.1) == (0.0, pytest.approx(np.zeros(4)))
+    assert softmin(c, active, 1e-300)[0] == pytest.approx(0.1)  # no overflow for a tiny τ
+    assert softmin(np.array([0.3, np.inf, 0.7, 0.0]), active, 0.1)[0] == np.inf  # as a sum
 
 
 def test_a_softmin_term_costs_its_windows_soft_minimum(kinova):
@@ -430,7 +432,10 @@ def test_a_softmin_term_costs_its_windows_soft_minimum(kinova):
     value = softmin(c, active[i], 1.0e-4)[0]
     assert c[active[i]].min() <= value < np.sum(c)
     assert task.cost.breakdown(X, U)["terms.touch"] == pytest.approx(value, rel=1e-12)
-    assert terms.report(X)["touch"]["cost"] == pytest.approx(value, rel=1e-12)
+    rep = terms.report(X)["touch"]
+    assert rep["cost"] == pytest.approx(value, rel=1e-12)
+    k = int(np.argmin(np.where(active[i], c, np.inf)))  # reported where it is smallest
+    assert rep["step"] == k and rep["error"] == pytest.approx(np.linalg.norm(R[i][k]))
 
 
 def test_a_term_of_weight_zero_is_reported_but_not_evaluated_in_the_cost(monkeypatch):

@@ -531,8 +531,10 @@ class TaskSpaceTerms:
             for i, t in enumerate(self.terms):
                 out[i] = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
                 if t.cfg.softmin > 0:
-                    value, p = softmin(out[i], active[i], t.cfg.softmin)
-                    out[i] = p * value  # the soft minimum, spread over the window's steps
+                    mask = active[i] & (factor[i] > 0)
+                    value, p = softmin(out[i], mask, t.cfg.softmin)
+                    # the soft minimum, spread over the window's steps (an infinite one on each)
+                    out[i] = p * value if np.isfinite(value) else np.where(mask, value, 0.0)
         return out
 
     def breakdown(self, X: np.ndarray, t0: float = 0.0) -> dict[str, float]:
@@ -549,7 +551,7 @@ class TaskSpaceTerms:
             f = factor[i][:, None]
             if t.cfg.softmin > 0:  # d(soft minimum)/dc_k = p_k: each step's own terms times p_k
                 c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
-                f = f * softmin(c, active[i], t.cfg.softmin)[1][:, None]
+                f = f * softmin(c, active[i] & (factor[i] > 0), t.cfg.softmin)[1][:, None]
             lx += 2.0 * f * np.einsum("kmj,m,km->kj", Js[i], t.weights, R[i])
             lxx += 2.0 * f[:, :, None] * np.einsum("kmj,m,kml->kjl", Js[i], t.weights, Js[i])
         return lx, lxx
@@ -566,10 +568,12 @@ class TaskSpaceTerms:
             if steps.size == 0:
                 continue
             k = int(steps[-1])
-            m = meas[i][k]
             c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
-            cost = softmin(c, active[i], t.cfg.softmin)[0] if t.cfg.softmin > 0 else np.sum(c)
-            cost = float(cost)
+            cost = float(np.sum(c))
+            if t.cfg.softmin > 0:  # a soft minimum: its value, at the step it is smallest
+                cost = softmin(c, active[i] & (factor[i] > 0), t.cfg.softmin)[0]
+                k = int(steps[np.argmin(c[steps])])
+            m = meas[i][k]
             out[t.name] = {
                 "error": float(np.linalg.norm(R[i][k])),
                 "final": np.asarray(m, float).tolist() if np.ndim(m) else float(m),
@@ -610,16 +614,17 @@ def softmin(c: np.ndarray, active: np.ndarray, tau: float) -> tuple[float, np.nd
     """The soft minimum S = -τ log(mean_k exp(-c_k / τ)) of the costs c: [N+1] over the active
     steps (a bool mask [N+1]), and its gradient p = dS/dc: [N+1] (softmax weights of -c/τ on
     the active steps, summing to 1; 0 elsewhere). S lies between min and mean of the active
-    c_k. (0, zeros) when no step is active."""
+    c_k. (0, zeros) when no step is active; (inf or NaN, zeros) when an active c_k is (as a
+    sum of the costs would be)."""
     p = np.zeros_like(c)
     idx = np.flatnonzero(active)
     if idx.size == 0:
         return 0.0, p
-    z = -c[idx] / tau
-    zmax = np.max(z)
-    if not np.isfinite(zmax):  # every cost infinite (or NaN): so is the minimum
-        return float(-zmax * tau if np.isinf(zmax) else np.nan), p
-    e = np.exp(z - zmax)
-    value = -tau * (zmax + np.log(np.mean(e)))
+    ca = c[idx]
+    if not np.all(np.isfinite(ca)):
+        return float(np.sum(ca)), p
+    m = float(np.min(ca))
+    e = np.exp(-(ca - m) / tau)  # shifted by the minimum: no overflow for a small τ
+    value = m - tau * np.log(np.mean(e))
     p[idx] = e / np.sum(e)
     return float(value), p

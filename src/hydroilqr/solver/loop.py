@@ -99,7 +99,8 @@ class Step:
     """One iteration's descent: whether a step was accepted (its Xn, Un, Jn, ε), the
     predicted decrease, whether the deadline cut the search, the last backward pass's
     success ``pd``, its full-step prediction, whether μ was raised, and whether a longer step
-    than the accepted one was tried and rejected (``shortened``)."""
+    than the accepted one was tried and rejected in the search that accepted it
+    (``shortened``; earlier searches of the iteration, at a smaller μ, do not count)."""
 
     accepted: bool = False
     eps: float = 0.0
