@@ -529,7 +529,7 @@ class TaskSpaceTerms:
         out = np.empty((len(self.terms), X.shape[0]))
         with np.errstate(over="ignore", invalid="ignore"):
             for i, t in enumerate(self.terms):
-                out[i] = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+                out[i] = _step_costs(t, factor[i], R[i])
                 if t.cfg.softmin > 0:
                     mask = active[i] & (factor[i] > 0)
                     value, p = softmin(out[i], mask, t.cfg.softmin)
@@ -550,7 +550,7 @@ class TaskSpaceTerms:
         for i, t in enumerate(self.terms):
             f = factor[i][:, None]
             if t.cfg.softmin > 0:  # d(soft minimum)/dc_k = p_k: each step's own terms times p_k
-                c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+                c = _step_costs(t, factor[i], R[i])
                 f = f * softmin(c, active[i] & (factor[i] > 0), t.cfg.softmin)[1][:, None]
             lx += 2.0 * f * np.einsum("kmj,m,km->kj", Js[i], t.weights, R[i])
             lxx += 2.0 * f[:, :, None] * np.einsum("kmj,m,kml->kjl", Js[i], t.weights, Js[i])
@@ -568,7 +568,7 @@ class TaskSpaceTerms:
             if steps.size == 0:
                 continue
             k = int(steps[-1])
-            c = factor[i] * np.einsum("ki,i,ki->k", R[i], t.weights, R[i])
+            c = _step_costs(t, factor[i], R[i])
             cost = float(np.sum(c))
             if t.cfg.softmin > 0:  # a soft minimum: its value, at the step it is smallest
                 cost = softmin(c, active[i] & (factor[i] > 0), t.cfg.softmin)[0]
@@ -608,6 +608,11 @@ def _rpy(q: np.ndarray) -> list[float]:
     """Roll, pitch, yaw (rad) of a unit quaternion [w, x, y, z]."""
 
     return RollPitchYaw(Quaternion(q / np.linalg.norm(q))).vector().tolist()
+
+
+def _step_costs(t: _Term, factor: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """One term's cost at each step, f_k · Σ_i w_i r_i²: [N+1] (factor [N+1], R [N+1, m])."""
+    return factor * np.einsum("ki,i,ki->k", R, t.weights, R)
 
 
 def softmin(c: np.ndarray, active: np.ndarray, tau: float) -> tuple[float, np.ndarray]:
