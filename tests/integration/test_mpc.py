@@ -525,14 +525,33 @@ def test_a_candidate_restart_replaces_a_poor_warm_start():
         check_settings(MPCConfig(duration=0.2, candidates=["best"]), task)
 
 
+def test_first_plan_candidates_one_at_a_time():
+    """``first_plan_controls`` rolls out the first plan's controls open loop only,
+    ``first_plan_policy`` its feedback policy only, ``first_plan`` both (in that order)."""
+    task = Task.load("cartpole-wall")
+    N = 20
+    plans = {}
+    for name in ("first_plan", "first_plan_controls", "first_plan_policy"):
+        ctrl = Controller(task, N, MPCConfig(horizon=0.2, candidates=[name]))
+        ctrl.update(task.x0, 0.0, 3, full=True)
+        plans[name] = list(ctrl._candidate_plans(task.x0, 0.0))
+    both, controls = plans["first_plan"], plans["first_plan_controls"]
+    policy = plans["first_plan_policy"]
+    assert [K is None for _, _, K in both] == [True, False]
+    assert len(controls) == 1 and controls[0][2] is None
+    assert len(policy) == 1 and policy[0][2] is not None
+    np.testing.assert_array_equal(controls[0][0], both[0][0])
+    np.testing.assert_array_equal(policy[0][2], both[1][2])
+
+
 def test_finger_spin_example_runs_its_loop_with_restarts(tmp_path):
-    """examples/finger-spin.yaml under --smoke: the loop runs (10 updates), mpc.json reports
+    """The built-in finger-spin under --smoke: the loop runs (10 updates), mpc.json reports
     the candidates and the closed-loop tracking error its mpc.goal reads."""
     out = tmp_path / "spin"
-    code = main(["mpc", "examples/finger-spin.yaml", "--smoke", "--out", str(out)])
+    code = main(["mpc", "finger-spin", "--smoke", "--out", str(out)])
     assert code in (0, GOAL_NOT_MET)
     data = json.loads((out / "mpc.json").read_text())
-    assert data["candidates"] == ["first_plan"] and data["updates"] >= 9
+    assert data["candidates"] == ["first_plan_controls"] and data["updates"] >= 9
     assert "wheel_axle" in data["metrics"]["tracking_error_rms"]
 
 

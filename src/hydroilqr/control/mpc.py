@@ -484,8 +484,9 @@ class Controller:
         """The warm start (self.U, its rollout X0 or None) against each of ``candidates``
         rolled out from x: sets self.U to the cheapest by the task's cost from t and returns
         (its states, whether a candidate won). ``first_plan`` gives two: the first plan's
-        controls open loop, and its policy (u = ū − K(x − x̄), which steers back towards its
-        motion). A candidate that fails to roll out is skipped."""
+        controls open loop (``first_plan_controls`` alone), and its policy (u = ū − K(x − x̄),
+        which steers back towards its motion; ``first_plan_policy`` alone). A candidate that
+        fails to roll out is skipped."""
         options = []
         try:
             X = X0 if X0 is not None else self.dyn.rollout(x, self.U)
@@ -525,8 +526,10 @@ class Controller:
                 U = np.vstack([U, self.task.initial_guess(m, x, start=U.shape[0])])
                 X = np.vstack([X, np.repeat(X[-1:], m, axis=0)])
                 K = np.concatenate([K, np.zeros((m,) + K.shape[1:])])
-            yield U, None, None
-            yield U, X, K
+            if name in ("first_plan", "first_plan_controls"):
+                yield U, None, None
+            if name in ("first_plan", "first_plan_policy"):
+                yield U, X, K
 
     def _warm_start(self, x: np.ndarray, t: float):
         """Shifts the controls (and the partials) by the time since the last plan and returns

@@ -423,9 +423,11 @@ class MPCConfig:
     # from its shifted controls open loop (false).
     warm_start_feedback: bool = True
     # Restarts: besides its warm start, each update rolls out these candidates from the
-    # measured state and starts from the cheapest: "first_plan" (the first plan's controls,
-    # from their first step: the motion that made contact from a standstill, tried again),
-    # "guess" (the task's initial guess for the horizon). Empty: the warm start only.
+    # measured state and starts from the cheapest: "first_plan_controls" (the first plan's
+    # controls open loop, from their first step: the motion that made contact from a
+    # standstill, tried again), "first_plan_policy" (the same with the first plan's feedback,
+    # steering back towards its motion), "first_plan" (both), "guess" (the task's initial
+    # guess for the horizon). Empty: the warm start only.
     candidates: list[str] = field(default_factory=list)
     # The candidates are tried at every this-many-th update (1: every update): each try costs
     # a rollout per candidate, which in a fast loop can leave no time for the line search.
@@ -1321,7 +1323,8 @@ PLAYBACK_FEEDFORWARDS = ("scaled", "plan")
 CONTACT_MODELS = ("hydroelastic_with_fallback", "hydroelastic", "point")
 DERIVATIVES = tuple(m.value for m in DerivativeMethod)  # the YAML/CLI spellings
 WARM_START_TAILS = ("last", "guess")  # mpc.warm_start_tail
-MPC_CANDIDATES = ("first_plan", "guess")  # mpc.candidates
+# mpc.candidates
+MPC_CANDIDATES = ("first_plan", "first_plan_controls", "first_plan_policy", "guess")
 
 
 def _check_contact(p: ContactProperties, key: str) -> None:
