@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg import lapack
 
 from hydroilqr.model import workers
 from hydroilqr.model.cost import Quadratization
@@ -71,7 +72,8 @@ def _backward_pass(A, B, quad, mu) -> BackwardPassResult:
     d1 = d2 = 0.0
     eye = mu * np.eye(nu)
     lx, lu, lxx, luu = quad.lx, quad.lu, quad.lxx, quad.luu
-    cholesky, solve = np.linalg.cholesky, np.linalg.solve
+    potrf, solve, isfinite = lapack.dpotrf, np.linalg.solve, np.isfinite
+    G = np.empty((nu, nu + 1 + nx))  # [Q_uu | Q_u | Q_ux]: one finiteness test, and the rhs
     for k in range(N - 1, -1, -1):
         Ak, Bk = A[k], B[k]
         AtV = Ak.T @ Vxx
@@ -82,21 +84,21 @@ def _backward_pass(A, B, quad, mu) -> BackwardPassResult:
         Quu = luu[k] + BtV @ Bk + eye
         Qux = BtV @ Ak
         Quu = 0.5 * (Quu + Quu.T)
-        if not (np.isfinite(Quu).all() and np.isfinite(Qux).all() and np.isfinite(Qu).all()):
+        G[:, :nu] = Quu
+        G[:, nu] = Qu
+        G[:, nu + 1 :] = Qux
+        if not isfinite(G).all():
             # Overflowed cost-to-go (very stiff partials): treat like an indefinite Q_uu so
             # the caller raises the regularization instead of propagating NaN.
             return BackwardPassResult(K, kappa, (d1, d2), ok=False)
-        try:
-            cholesky(Quu)  # positive-definiteness test
-        except np.linalg.LinAlgError:
+        # Positive-definiteness test: LAPACK's Cholesky called directly (info > 0: not PD);
+        # numpy's cholesky wrapper costs several times the factorization of a small Q_uu.
+        if potrf(Quu, lower=1, clean=0)[1] != 0:
             return BackwardPassResult(K, kappa, (d1, d2), ok=False)
-        # A plain LAPACK solve: scipy's solve_triangular goes through OpenBLAS trsm, which
-        # spawns threads even for 1x1 systems and took ~13 ms per call on a loaded 2-core
-        # machine (the whole backward pass then dominated an iteration).
-        rhs = np.empty((nu, nx + 1))
-        rhs[:, 0] = Qu
-        rhs[:, 1:] = Qux
-        sol = solve(Quu, rhs)
+        # numpy's LAPACK solve, not scipy's: scipy's solve_triangular goes through OpenBLAS
+        # trsm, which spawns threads even for 1x1 systems (~13 ms per call on a loaded 2-core
+        # machine), and scipy's own gesv (another OpenBLAS build) differs in the last bits.
+        sol = solve(Quu, G[:, nu:])
         kap, Kk = sol[:, 0], sol[:, 1:]
         kappa[k], K[k] = kap, Kk
         QuuK = Quu @ Kk
