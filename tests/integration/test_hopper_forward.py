@@ -30,6 +30,7 @@ def test_the_start_stands_still_and_the_guess_is_positions_whose_rollout_hops():
         "base_forward_m",
         "flight_phases",
         "longest_flight_s",
+        "base_lowest_m",
     ]
 
 
@@ -38,6 +39,12 @@ def test_smoke_solve_runs_and_reports_the_flight_metrics():
     sol = solve(task)
     assert sol.status != "diverged"
     metrics = compute(task, sol)
-    for key in ("flight_phases", "flight_time_s", "longest_flight_s", "base_forward_m"):
+    for key in (
+        "flight_phases",
+        "flight_time_s",
+        "longest_flight_s",
+        "base_forward_m",
+        "base_lowest_m",
+    ):
         assert key in metrics
     assert metrics["base_displacement_m"][1] == 0.0  # planar: no sideways travel

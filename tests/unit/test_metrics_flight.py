@@ -20,6 +20,8 @@ def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monke
     monkeypatch.setattr(flight, "_cached", lambda task, sol: (pairs, on, np.zeros(on.shape)))
     X = np.tile(task.x0, (9, 1))
     X[-1, task.dynamics.layout.block("base_x").coords[0]] += 0.3
+    z = task.dynamics.layout.block("base_z").coords[0]
+    X[4, z] -= 0.25  # the torso dips 0.25 m at one state
     m = flight.flight_metrics(task, SimpleNamespace(X=X, U=None, t=np.arange(9) * 0.05))
     # state 0 (before any contact) is not a flight; 3-4 and 6 are
     assert m["flight_phases"] == 2
@@ -27,6 +29,8 @@ def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monke
     assert m["longest_flight_s"] == pytest.approx(0.10)
     assert m["base_forward_m"] == pytest.approx(0.3)
     assert m["base_displacement_m"] == pytest.approx([0.3, 0.0, 0.0])
+    z0 = flight.flight_metrics(task, SimpleNamespace(X=X[:1], U=None, t=np.zeros(1)))
+    assert m["base_lowest_m"] == pytest.approx(z0["base_lowest_m"] - 0.25)
 
 
 def test_the_flight_metric_needs_a_foot_and_a_base():

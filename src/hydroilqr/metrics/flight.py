@@ -10,9 +10,12 @@ anything) and the base body's position in the first and last state:
 - ``flight_time_s``: their total length, ``longest_flight_s`` the longest (a run of n states
   lasts n time steps);
 - ``base_displacement_m``: [dx, dy, dz] of the base body's origin from the first to the last
-  state (world frame), and ``base_forward_m`` its x.
+  state (world frame), and ``base_forward_m`` its x;
+- ``base_lowest_m``: the lowest height (world z) of the base body's origin over all states:
+  a robot that fell or folded its leg on the way has a low one, whatever its travel.
 
-A goal can ask for a hop: ``flight_phases: {min: 1}``, ``base_forward_m: {min: 0.4}``.
+A goal can ask for a hop that stays upright: ``flight_phases: {min: 1}``, ``base_forward_m:
+{min: 0.4}``, ``base_lowest_m: {min: 0.3}``.
 """
 
 from __future__ import annotations
@@ -56,12 +59,14 @@ def flight_metrics(task, sol) -> dict:
         return np.asarray(plant.EvalBodyPoseInWorld(ctx, body).translation())
 
     d = position(sol.X[-1]) - position(sol.X[0])
+    lowest = min(float(position(x)[2]) for x in sol.X)
     return {
         "flight_phases": len(flights),
         "flight_time_s": float(sum(lengths)),
         "longest_flight_s": float(max(lengths, default=0.0)),
         "base_displacement_m": d.tolist(),
         "base_forward_m": float(d[0]),
+        "base_lowest_m": lowest,
     }
 
 
@@ -90,6 +95,7 @@ register(
             ("forward m", "base_forward_m", ".3f", 1.0),
             ("flights", "flight_phases", "d", 1.0),
             ("longest flight s", "longest_flight_s", ".2f", 1.0),
+            ("lowest base m", "base_lowest_m", ".3f", 1.0),
         ),
     )
 )
