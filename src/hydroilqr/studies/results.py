@@ -37,6 +37,7 @@ DEFAULT_TASKS = (
     "kinova-up",
     "kinova-reach",
     "finger-wheel",
+    "finger-spin",
     "hopper-forward",
     "cheetah-trot-1.0",
     "cheetah-trot-0.5",
