@@ -555,6 +555,21 @@ def test_finger_spin_example_runs_its_loop_with_restarts(tmp_path):
     assert "wheel_axle" in data["metrics"]["tracking_error_rms"]
 
 
+def test_finger_spin_loop_keeps_touching_the_wheel():
+    """The built-in finger-spin's whole 5 s loop (lock-step, reproducible): the first plan's
+    flick, tried again as a restart, starts new strokes, so the wheel follows its moving
+    target (the task's mpc.goal) instead of coasting down after the first flick."""
+    from hydroilqr.metrics import compute
+    from hydroilqr.metrics.goals import evaluate
+
+    task = Task.load("finger-spin")
+    res = run_mpc(task)
+    metrics = compute(task, res.as_solution())
+    assert res.restarts >= 2  # strokes after the first one
+    verdict = evaluate(task.config.mpc.goal, metrics)
+    assert verdict["met"], verdict
+
+
 def test_delay_compensation_plans_from_the_state_one_period_ahead(monkeypatch):
     """``delay_compensation`` (real time): each update plans from the state the plan in force
     reaches one period later, predicted on the controller's model; with the robot simulated
