@@ -523,6 +523,9 @@ def test_a_candidate_restart_replaces_a_poor_warm_start():
     np.testing.assert_allclose(X, task.dynamics.rollout(task.x0, ctrl.U))
     with pytest.raises(ConfigError, match="mpc.candidates: 'best': unknown candidate"):
         check_settings(MPCConfig(duration=0.2, candidates=["best"]), task)
+    twice = MPCConfig(duration=0.2, candidates=["first_plan", "first_plan_controls"])
+    with pytest.raises(ConfigError, match="names a candidate twice"):
+        check_settings(twice, task)
 
 
 def test_first_plan_candidates_one_at_a_time():
@@ -544,7 +547,7 @@ def test_first_plan_candidates_one_at_a_time():
     np.testing.assert_array_equal(policy[0][2], both[1][2])
 
 
-def test_finger_spin_example_runs_its_loop_with_restarts(tmp_path):
+def test_finger_spin_runs_its_loop_with_restarts(tmp_path):
     """The built-in finger-spin under --smoke: the loop runs (10 updates), mpc.json reports
     the candidates and the closed-loop tracking error its mpc.goal reads."""
     out = tmp_path / "spin"

@@ -3,7 +3,7 @@
 ``metric_params``: ``foot`` (a body, collision name or ``BODY/COLLISION``: the geometry that
 carries the robot; several: a list) and ``base`` (the body whose travel counts). From the
 contact timeline (``contacts``: the states in which any of the foot geometries touches
-anything) and the base body's position in the first and last state:
+anything) and the base body's position in every state:
 
 - ``flight_phases``: runs of states without foot contact that start after a state with it
   (the robot took off; a run at the start, before any contact, does not count);

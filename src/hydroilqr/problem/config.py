@@ -1366,6 +1366,16 @@ def validate_mpc(m: Any) -> None:
             raise ConfigError(
                 f"mpc.candidates: {c!r}: {unknown_key(str(c), list(MPC_CANDIDATES), 'candidate')}"
             )
+    tried = [
+        r
+        for c in m.candidates
+        for r in ({"first_plan_controls", "first_plan_policy"} if c == "first_plan" else {c})
+    ]
+    if len(tried) != len(set(tried)):
+        raise ConfigError(
+            f"mpc.candidates: {list(m.candidates)} names a candidate twice (first_plan is "
+            "first_plan_controls and first_plan_policy)"
+        )
     if m.derivatives and m.derivatives not in DERIVATIVES:
         raise ConfigError(
             f"mpc.derivatives: expected one of {', '.join(DERIVATIVES)} (or empty: the "

@@ -96,8 +96,8 @@ def _backward_pass(A, B, quad, mu) -> BackwardPassResult:
         if potrf(Quu, lower=1, clean=0)[1] != 0:
             return BackwardPassResult(K, kappa, (d1, d2), ok=False)
         # numpy's LAPACK solve, not scipy's: scipy's solve_triangular goes through OpenBLAS
-        # trsm, which spawns threads even for 1x1 systems (~13 ms per call on a loaded 2-core
-        # machine), and scipy's own gesv (another OpenBLAS build) differs in the last bits.
+        # trsm, which spawns threads even for 1x1 systems (slow on a loaded machine), and
+        # scipy's own gesv (another OpenBLAS build) differs in the last bits.
         sol = solve(Quu, G[:, nu:])
         kap, Kk = sol[:, 0], sol[:, 1:]
         kappa[k], K[k] = kap, Kk
