@@ -124,6 +124,8 @@ class TaskSpaceTerms:
         self._context = dynamics.diagram.CreateDefaultContext()
         self._pc = self.plant.GetMyMutableContextFromRoot(self._context)
         self.terms = [self._resolve(c) for c in configs]
+        # [n_terms, 1]: terms that cost something (weight 0: left out of the cost's evaluation)
+        self._weighted = np.array([bool(np.any(t.weights)) for t in self.terms])[:, None]
         x0 = np.asarray(x0, float)
         self._set(x0)
         for t in self.terms:
@@ -502,7 +504,7 @@ class TaskSpaceTerms:
         N = X.shape[0] - 1
         active, factor = self.windows(N, t0, times)
         if not unweighted:
-            active = active & np.array([bool(np.any(t.weights)) for t in self.terms])[:, None]
+            active = active & self._weighted
         R = [np.zeros((N + 1, t.size)) for t in self.terms]
         Js = [np.zeros((N + 1, t.size, self.nx)) for t in self.terms] if jac else None
         meas: list[dict] = [{} for _ in self.terms]
