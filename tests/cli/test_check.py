@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import yaml
 
 from hydroilqr import Task, cli
 from tests.conftest import assert_one_line, edit, write_case
@@ -163,3 +164,19 @@ def test_model_files_name_only_regular_bounded_files(tmp_path, capsys, case):
     cap = capsys.readouterr()
     kind = "a character device" if case == "dev-zero-mesh" else "a named pipe"
     assert_one_line(rc, cap.out, cap.err, f"{kind}, not a regular file")
+
+
+@pytest.mark.parametrize(
+    "section, needle",
+    [
+        ({"rate": 33}, "33 Hz"),
+        ({"truth_overrides": ["nosuchbody.friction=0.3"]}, "mpc.truth_overrides"),
+        ({"plan_overrides": ["plant.time_step=0.02"]}, "mpc.plan_overrides"),
+    ],
+)
+def test_check_refuses_an_mpc_section_that_mpc_would_refuse(tmp_path, capsys, section, needle):
+    path = tmp_path / "task.yaml"
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall", "mpc": section}))
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert rc == 2 and needle in cap.err and "Traceback" not in cap.err

@@ -62,3 +62,43 @@ def test_mpc_goal_judges_the_closed_loop_apart_from_the_plan_goal(tmp_path, caps
     rc = main([*argv, "--set", "mpc.goal={nosuch_metric: {max: 1}}"])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "mpc.goal.nosuch_metric")
+
+
+def test_the_task_files_realtime_and_feedback_scale_apply_unless_the_command_line_says(
+    tmp_path,
+):
+    """A task's ``mpc.realtime`` and ``mpc.feedback_scale`` are its defaults (the options
+    only override them); mpc.json records them and the derivative method in use."""
+    import json
+
+    from hydroilqr.cli import main
+
+    out = tmp_path / "o"
+    argv = ["mpc", "cartpole-wall", "--smoke", "--no-replay", "--out", str(out)]
+    task_says = ["--set", "mpc.realtime=true", "--set", "mpc.feedback_scale=0"]
+    assert main([*argv, *task_says]) in (0, 4)
+    doc = json.loads((out / "mpc.json").read_text())
+    assert doc["realtime_mode"] is True and doc["feedback_scale"] == 0.0
+    assert doc["derivatives"] in ("autodiff", "forward", "central")
+    assert main([*argv, *task_says, "--no-realtime", "--feedback-scale", "0.5"]) in (0, 4)
+    doc = json.loads((out / "mpc.json").read_text())
+    assert doc["realtime_mode"] is False and doc["feedback_scale"] == 0.5
+
+
+@pytest.mark.parametrize(
+    "option, needle",
+    [
+        (["--plan-set", "mpc.rate=10"], "mpc.plan_overrides"),
+        (["--plan-set", "goal.final_angle_error_rad.max=10"], "mpc.plan_overrides"),
+        (["--plan-set", "ensemble=[{tip.friction: 0.1}]"], "mpc.plan_overrides"),
+        (["--push", "0.096:cart:-20,0,0"], "--push at 0.096"),
+        (["--push", "0.05:cart:-20,0,0", "--push-duration", "0.001"], "--push-duration"),
+    ],
+)
+def test_settings_the_loop_would_not_apply_as_asked_are_refused(tmp_path, capsys, option, needle):
+    """A plan override of a key no plan reads, and a push that is not whole simulated steps
+    (it would be rounded: moved, lengthened or dropped), are one-line errors."""
+    argv = ["mpc", "cartpole-wall", "--smoke", "--no-replay", "--out", str(tmp_path / "o")]
+    rc = cli.main([*argv, *option])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)

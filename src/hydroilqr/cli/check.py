@@ -7,6 +7,7 @@ import math
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
+from hydroilqr.problem.config import ConfigError, MPCConfig
 
 HELP = "validate a task and report its layout and contacts"
 
@@ -41,8 +42,26 @@ def run(args) -> int:
         from hydroilqr.model.task import Task
 
         validate_task(Task.load(task_name_from_args(args), list(args.set or []), args.config, True))
+    _check_mpc_section(task)
     check_task(task, on_section=print_section)
     return 0
+
+
+def _check_mpc_section(task) -> None:
+    """A task file's ``mpc:`` section is checked as ``hydroilqr mpc`` would run it (rate and
+    time steps, warm-start plan, truth and plan overrides): ConfigError, as there."""
+    from hydroilqr.control.mpc import check_settings, mpc_config, planning_task
+
+    if task.config.mpc == MPCConfig():
+        return  # no mpc: section (`mpc` then runs on the defaults and its own options)
+    settings = mpc_config(task)
+    check_settings(settings, task)
+    planning_task(task, settings).dynamics  # noqa: B018 (builds the plan's model: names checked)
+    if settings.truth_overrides:  # the simulated plant's model, built: its names checked
+        try:
+            task.with_overrides(settings.truth_overrides).dynamics  # noqa: B018
+        except ConfigError as e:
+            raise ConfigError(f"mpc.truth_overrides: {e}") from None
 
 
 def print_section(name: str, report: dict) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from rich.progress import Progress
 
 from hydroilqr.cli.common import (
@@ -37,8 +39,10 @@ def setup(p) -> None:
     )
     p.add_argument(
         "--realtime",
-        action="store_true",
-        help="simulated time advances by the controller's wall time (latency felt)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="simulated time advances by the controller's wall time (latency felt); "
+        "--no-realtime: lock-step, the simulation waits for each update (default: mpc.realtime)",
     )
     p.add_argument(
         "--push",
@@ -81,8 +85,8 @@ def setup(p) -> None:
     p.add_argument(
         "--feedback-scale",
         type=float,
-        default=1.0,
-        help="scale of the iLQR feedback gains between updates (0: feedforward)",
+        help="scale of the iLQR feedback gains between updates (0: feedforward; default: "
+        "mpc.feedback_scale)",
     )
     p.add_argument(
         "--warm-start-plan",

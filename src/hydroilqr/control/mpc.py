@@ -85,8 +85,8 @@ def check_settings(settings: MPCConfig, task) -> np.ndarray | None:
     _check_iteration(settings)
     validate_mpc(settings)  # the checks shared with a task file's mpc: section
     U_ref = plan_controls(settings, task) if settings.warm_start_plan else None
-    _check_pushes(settings, task.dynamics.plant)
     _check_truth(settings, task, dt)
+    _check_pushes(settings, task.dynamics.plant, simulation_step(settings, dt)[0])
     return U_ref
 
 
@@ -148,8 +148,9 @@ def _check_iteration(settings: MPCConfig) -> None:
         raise ConfigError("mpc line_search_steps >= 1 and line_search_retries >= 0 required")
 
 
-def _check_pushes(settings: MPCConfig, plant) -> None:
-    """Each push: on a movable body of ``plant``, of positive duration, within the run."""
+def _check_pushes(settings: MPCConfig, plant, h: float) -> None:
+    """Each push: on a movable body of ``plant``, of positive duration, within the run, its
+    start and length whole steps of the simulated robot (``h`` s), as it is applied."""
     welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
     for p in settings.pushes:
         if not plant.HasBodyNamed(p.body) or p.body in welded:
@@ -163,6 +164,20 @@ def _check_pushes(settings: MPCConfig, plant) -> None:
         if not 0 <= p.time < settings.duration:
             raise ConfigError(
                 f"--push at {p.time:g} s: outside the run (0 to {settings.duration:g} s)"
+            )
+        for what, value in (("--push at", p.time), ("--push-duration", p.duration)):
+            n = value / h
+            if abs(n - round(n)) > 1e-6 * max(1.0, n):
+                lo, hi = math.floor(n) * h, math.ceil(n) * h
+                near = f"{lo:g} or {hi:g}" if lo > 0 or what == "--push at" else f"{hi:g}"
+                raise ConfigError(
+                    f"{what} {value:g} s: not whole steps of the simulated robot ({h:g} s), "
+                    f"as a push is applied; e.g. {near} s"
+                )
+        if round(p.time / h) >= round(settings.duration / h):
+            raise ConfigError(
+                f"--push at {p.time:g} s: starts after the run's last step "
+                f"({settings.duration:g} s)"
             )
 
 
@@ -306,6 +321,9 @@ class MPCResult:
             "iterations_per_update": self.settings.iterations_per_update,
             "mean_iterations": float(np.mean(self.iterations)) if self.iterations else 0.0,
             "realtime_mode": self.settings.realtime,
+            "delay_compensation": self.settings.delay_compensation,
+            "threads": self.settings.threads,
+            "derivatives": self.settings.derivatives,
             "solve_seconds": {
                 "p50": float(np.percentile(s, 50)),
                 "p95": float(np.percentile(s, 95)),
@@ -734,11 +752,37 @@ class Truth:
         return self.dyn.step(x, u), u
 
 
+# Task keys a controller's plan never reads: a plan override of one would change nothing.
+UNPLANNED_KEYS = frozenset(
+    {
+        "name",
+        "description",
+        "mpc",
+        "goal",
+        "metrics",
+        "metric_params",
+        "smoke",
+        "ensemble",
+        "ensemble_weight",
+        "ensemble_warm_start",
+        "mismatch",
+        "receding_horizon",
+    }
+)
+
+
 def planning_task(task, settings: MPCConfig):
     """The task the controller plans with: ``task`` with ``settings.plan_overrides`` (itself
     without); ConfigError for overrides that change its time grid, state or inputs."""
     if not settings.plan_overrides:
         return task
+    for item in settings.plan_overrides:
+        top = str(item).split("=", 1)[0].strip().split(".", 1)[0]
+        if top in UNPLANNED_KEYS:
+            raise ConfigError(
+                f"mpc.plan_overrides: {item!r}: the controller does not read {top!r} (its "
+                "plans take the task's cost, model and solver settings); set it with --set"
+            )
     try:
         planner = task.with_overrides(settings.plan_overrides)
         dyn = planner.dynamics
@@ -770,6 +814,8 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
         settings = dataclasses.replace(settings, horizon=N * dt)  # the caller's is unchanged
     task.check_memory(N, "mpc.horizon")
     solver = controller_solver(planner.config.solver, settings)
+    if not settings.derivatives:  # recorded as the method in use (the caller's is unchanged)
+        settings = dataclasses.replace(settings, derivatives=solver.derivatives)
     ctrl = Controller(planner, N, settings, solver, U_ref)
     h, _ = simulation_step(settings, dt)
     return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides, h))
