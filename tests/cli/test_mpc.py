@@ -85,6 +85,24 @@ def test_the_task_files_realtime_and_feedback_scale_apply_unless_the_command_lin
     assert doc["realtime_mode"] is False and doc["feedback_scale"] == 0.5
 
 
+def test_commands_beyond_limits_counts_what_the_controller_asked_not_what_was_applied(tmp_path):
+    """The applied inputs are clipped; the metric counts the commands that were clipped, as
+    the saturation warning does."""
+    import json
+
+    import numpy as np
+
+    from hydroilqr.cli import main
+
+    out = tmp_path / "o"
+    argv = ["mpc", "hopper-forward", "--smoke", "--rate", "20", "--horizon", "0.5"]
+    assert main([*argv, "--plant-time-step", "0.01", "--no-replay", "--out", str(out)]) in (0, 4)
+    doc = json.loads((out / "mpc.json").read_text())
+    n = np.load(out / "mpc.npz")["U"].size
+    assert doc["metrics"]["commands_beyond_limits"] == round(doc["saturated_fraction"] * n)
+    assert doc["metrics"]["commands_beyond_limits"] > 0  # this loop's hops ask beyond limits
+
+
 @pytest.mark.parametrize(
     "option, needle",
     [

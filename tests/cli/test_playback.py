@@ -139,3 +139,21 @@ def test_a_joint_without_a_motor_leads_with_the_plan_end_gap(acrobot_run, tmp_pa
     assert "; after the plan, unheld (no motor): resting gap" in printed
     data = json.loads((out / "playback.json").read_text())
     assert data["executed_metrics_final_state"] == "end of the hold after the plan"
+
+
+@pytest.mark.parametrize(
+    "option, needle",
+    [
+        (["--rest-max", "1e9"], "rest-max"),  # a hold of 1e12 truth steps: refused, not run
+        (["--truth-time-step", "0.0003"], "truth-time-step 0.0003"),  # not whole steps of it
+    ],
+)
+def test_a_playback_too_long_or_off_the_tasks_grid_is_refused(
+    acrobot_run, tmp_path, capsys, option, needle
+):
+    from hydroilqr import cli
+    from tests.conftest import assert_one_line
+
+    rc = cli.main(["playback", str(acrobot_run), "--out", str(tmp_path / "pb"), *option])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)

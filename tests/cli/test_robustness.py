@@ -132,8 +132,18 @@ def test_robustness_arguments_are_refused_before_work(tmp_path, capsys):
         (["--workers", "0"], "--workers: must be at least 1"),
         (["--min-rate", "2"], "--min-rate"),
         (["--set", "solver.max_iterations=-3"], "max_iterations"),
+        (["--set", "goal={no_such_metric: {max: 1}}"], "no_such_metric"),  # checked as solve
+        (["--set", "metrics=[default, nosuchset]"], "nosuchset"),
     ]:
         rc = cli.main(["robustness", "cartpole-wall", "--out", str(tmp_path / "r"), *extra])
         assert rc == 2, extra
         assert message in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_robustness_refuses_an_output_it_cannot_write_before_any_solve(tmp_path, capsys):
+    a_file = tmp_path / "afile"
+    a_file.write_text("")
+    rc = cli.main(["robustness", "cartpole-wall", "--smoke", "--runs", "1", "--out", str(a_file)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--out" in err and "Traceback" not in err

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
 from hydroilqr.io.files import atomic_write
@@ -70,6 +69,10 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
+    # (late: the arguments are checked before Drake and Dask are loaded)
+    from hydroilqr.metrics import validate_task
+    from hydroilqr.model.task import Task
+    from hydroilqr.output.report import output_dir
     from hydroilqr.studies.results import DEFAULT_TASKS
 
     _check(args)
@@ -77,6 +80,7 @@ def run(args) -> int:
     refs = []
     for name in names:  # every task loads and validates before any solve starts
         cfg = load_task(name, list(args.set), None, args.smoke)
+        validate_task(Task(cfg))  # its metrics and goal, as solve checks them
         refs.append(
             {
                 "label": cfg.name,
@@ -88,8 +92,7 @@ def run(args) -> int:
         )
     if len({r["label"] for r in refs}) != len(refs):
         raise ConfigError("a task is named twice")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args.out)  # created, locked and proven writable before any solve
     from hydroilqr.studies.robustness import run_robustness, table
 
     where = args.scheduler or "a local Dask cluster"

@@ -300,6 +300,7 @@ class MPCResult:
     past_deadline: int = 0  # updates whose line search mpc.deadline cut short
     saturated_fraction: float = 0.0  # commands clipped at an effort limit (of all commands)
     restarts: int = 0  # updates that started from an mpc.candidates entry
+    saturated_commands: int = 0  # commands (entries of u) the controller asked beyond a limit
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -1013,4 +1014,5 @@ class ClosedLoop:
             ctrl.past_deadline,
             self.truth.saturated / max(1, self.truth.commands),
             ctrl.restarts,
+            self.truth.saturated,
         )

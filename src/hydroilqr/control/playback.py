@@ -166,6 +166,20 @@ class PlaybackSettings:
                     f"playback is {steps:.3g} truth steps (at most {MAX_STEPS:.0e}): raise "
                     "--speed or --truth-time-step"
                 )
+        span = task.steps * dt  # the task's horizon: the truth's task keeps it
+        n = span / self.truth_time_step
+        if abs(n - round(n)) > 1e-6 * max(1.0, n):
+            raise ConfigError(
+                f"playback truth-time-step {self.truth_time_step:g} s: the task's {span:g} s "
+                "are not whole truth steps; choose a step that divides it (a divisor of the "
+                f"plan's {dt:g} s always does)"
+            )
+        rest_steps = self.rest_max / self.truth_time_step
+        if rest_steps > MAX_STEPS:  # the hold after the plan is stepped (and kept) as well
+            raise ConfigError(
+                f"playback rest-max {self.rest_max:g} s: {rest_steps:.3g} truth steps of hold "
+                f"(at most {MAX_STEPS:.0e}): lower --rest-max or raise --truth-time-step"
+            )
 
     def truth_contact_for(self, task) -> str:
         """The "real" system's contact approximation: ``truth_contact``, else the default

@@ -108,6 +108,9 @@ def write_mpc(
         if res.settings.truth_overrides:
             sim_task = task.with_overrides(res.settings.truth_overrides)
         task_metrics = metrics_mod.compute(sim_task, sol)
+        if "commands_beyond_limits" in task_metrics:
+            # sol.U is what the plant applied (clipped): count what the controller asked
+            task_metrics["commands_beyond_limits"] = res.saturated_commands
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
     data = {
