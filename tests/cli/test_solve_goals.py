@@ -103,6 +103,8 @@ def test_multistart_arguments_are_checked_before_work(tmp_path, capsys):
         (["--starts", "2", "--workers", "-1"], "--workers: must be at least 1"),
         (["--starts", "2", "--workers", "0"], "--workers: must be at least 1"),
         (["--starts", "2", "--seed", "-1"], "--seed: must be at least 0"),
+        (["--seed", "3"], "--seed and --start-noise go with --starts N"),  # else ignored
+        (["--start-noise", "0.2"], "--seed and --start-noise go with --starts N"),
     ]:
         assert cli.main(["solve", task, "--out", str(tmp_path / "x"), *extra]) == 2
         assert message in capsys.readouterr().err

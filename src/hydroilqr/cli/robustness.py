@@ -104,6 +104,8 @@ def run(args) -> int:
     def done(r) -> None:
         rec = r.record()
         goal = {True: "goal PASS", False: "goal FAIL", None: "no goal"}[rec["goal_met"]]
+        if args.smoke and rec["goal_met"] is not None:
+            goal += " (smoke-sized run: not judged)"
         failed = f" ({', '.join(rec['failed_checks'])})" if rec["failed_checks"] else ""
         detail = f" [{r.error}]" if r.error else ""
         console.print(
@@ -126,6 +128,8 @@ def run(args) -> int:
     report["overrides"] = list(args.set)
     path = atomic_write(out / "robustness.json", json.dumps(report, indent=1) + "\n")
     console.print(table(report))
+    if args.smoke:
+        console.print("smoke-sized runs: the pass rates above are not judged")
     console.print(f"wrote {path}")
     low = [
         t["task"]

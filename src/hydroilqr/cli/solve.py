@@ -53,11 +53,10 @@ def setup(p) -> None:
         help="multi-start: N solves from perturbed initial guesses (the first unperturbed) as "
         "Dask jobs; the best (goal met, then cost) is kept and the spread reported",
     )
-    p.add_argument("--seed", type=int, default=0, help="multi-start: the perturbations' seed")
+    p.add_argument("--seed", type=int, help="multi-start: the perturbations' seed (default 0)")
     p.add_argument(
         "--start-noise",
         type=float,
-        default=0.1,
         metavar="F",
         help="multi-start: perturbation size, a fraction of each input's scale: its RMS over "
         "the guess, or its effort limit where the guess is zero (default 0.1)",
@@ -117,13 +116,23 @@ def run(args) -> int:
     return code
 
 
+def _seed(args) -> int:
+    return 0 if args.seed is None else args.seed  # multi-start's default seed
+
+
+def _noise(args) -> float:
+    return 0.1 if args.start_noise is None else args.start_noise  # multi-start's default
+
+
 def _check_starts(task, args) -> None:
     """Refuses multi-start arguments that cannot work, before any work."""
     if not 1 <= args.starts <= MAX_STARTS:
         raise ConfigError(f"--starts: must be from 1 to {MAX_STARTS}, got {args.starts}")
-    if not (0 <= args.start_noise < math.inf):  # (NaN fails too)
+    if args.starts == 1 and (args.seed is not None or args.start_noise is not None):
+        raise ConfigError("--seed and --start-noise go with --starts N (N > 1)")
+    if not (0 <= _noise(args) < math.inf):  # (NaN fails too)
         raise ConfigError(f"--start-noise: must be a finite number >= 0, got {args.start_noise}")
-    if args.seed < 0:
+    if _seed(args) < 0:
         raise ConfigError(f"--seed: must be at least 0, got {args.seed}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers: must be at least 1, got {args.workers}")
@@ -150,7 +159,7 @@ def _solve_many(task, args):
         "smoke": bool(args.smoke),
     }
     where = args.scheduler or "a local Dask cluster"
-    console.print(f"multi-start: {args.starts} solves (seed {args.seed}) on {where}")
+    console.print(f"multi-start: {args.starts} solves (seed {_seed(args)}) on {where}")
 
     def done(r) -> None:
         console.print(f"  start {r.index}: {start_line(r.record())}", soft_wrap=True)
@@ -158,7 +167,7 @@ def _solve_many(task, args):
     interrupted = False
     try:
         results, best = run_multistart(
-            ref, args.starts, args.seed, args.start_noise, args.scheduler, args.workers, done
+            ref, args.starts, _seed(args), _noise(args), args.scheduler, args.workers, done
         )
     except Interrupted as e:  # Ctrl+C: the starts that finished are kept
         results, best, interrupted = e.results, best_index(e.results), True
@@ -173,8 +182,8 @@ def _solve_many(task, args):
         f"{s['starts']} finished; goal met by {s['goal_met']} of {s['starts']}"
     )
     entry = {
-        "seed": args.seed,
-        "noise": args.start_noise,
+        "seed": _seed(args),
+        "noise": _noise(args),
         "best": best,
         **s,
         "requested": args.starts,

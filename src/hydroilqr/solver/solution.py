@@ -26,6 +26,11 @@ def load_run_solution(path: str | Path, key: str) -> tuple[Solution, Path]:
     except ValueError as e:  # foreign file or arrays that disagree
         why = str(e).removeprefix(f"{path}: ")
         raise ConfigError(f"{key}: cannot read {path}: {why}") from None
+    except KeyError as e:  # an npz without one of a solution's arrays
+        missing = str(e.args[0] if e.args else "?").split(" is not a file")[0]
+        raise ConfigError(
+            f"{key}: cannot read {path}: not a solution file (no array {missing!r})"
+        ) from None
     except Exception as e:  # noqa: BLE001 - missing or torn file
         raise ConfigError(f"{key}: cannot read {path} ({type(e).__name__})") from None
 
