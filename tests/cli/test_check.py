@@ -180,3 +180,10 @@ def test_check_refuses_an_mpc_section_that_mpc_would_refuse(tmp_path, capsys, se
     rc = cli.main(["check", str(path)])
     cap = capsys.readouterr()
     assert rc == 2 and needle in cap.err and "Traceback" not in cap.err
+
+
+def test_check_does_not_read_an_mpc_warm_start_plan_that_a_later_solve_writes(tmp_path, capsys):
+    path = tmp_path / "task.yaml"
+    section = {"warm_start_plan": "run"}  # (relative to the task file: not solved yet)
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall", "mpc": section}))
+    assert cli.main(["check", str(path)]) == 0

@@ -101,6 +101,7 @@ def test_commands_beyond_limits_counts_what_the_controller_asked_not_what_was_ap
     n = np.load(out / "mpc.npz")["U"].size
     assert doc["metrics"]["commands_beyond_limits"] == round(doc["saturated_fraction"] * n)
     assert doc["metrics"]["commands_beyond_limits"] > 0  # this loop's hops ask beyond limits
+    assert doc["metrics"]["max_command_to_limit_ratio"] > 1.0  # of the asked commands
 
 
 @pytest.mark.parametrize(

@@ -145,15 +145,24 @@ def test_a_joint_without_a_motor_leads_with_the_plan_end_gap(acrobot_run, tmp_pa
     "option, needle",
     [
         (["--rest-max", "1e9"], "rest-max"),  # a hold of 1e12 truth steps: refused, not run
-        (["--truth-time-step", "0.0003"], "truth-time-step 0.0003"),  # not whole steps of it
     ],
 )
-def test_a_playback_too_long_or_off_the_tasks_grid_is_refused(
-    acrobot_run, tmp_path, capsys, option, needle
-):
+def test_a_playback_hold_too_long_is_refused(acrobot_run, tmp_path, capsys, option, needle):
     from hydroilqr import cli
     from tests.conftest import assert_one_line
 
     rc = cli.main(["playback", str(acrobot_run), "--out", str(tmp_path / "pb"), *option])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, needle)
+
+
+def test_a_truth_step_off_the_tasks_grid_is_named_as_the_option():
+    """The task's own check of its horizon under the truth's step, worded for the option."""
+    from hydroilqr import Task
+    from hydroilqr.control.playback import PlaybackSettings, truth_config
+    from hydroilqr.problem.config import ConfigError
+
+    task = Task.load("cartpole-wall")  # 2 s, no num_steps: the horizon must be whole steps
+    with pytest.raises(ConfigError, match=r"^playback truth-time-step 0.003 s: horizon"):
+        truth_config(task, PlaybackSettings(truth_time_step=0.003))
+    assert truth_config(task, PlaybackSettings(truth_time_step=0.002)).plant.time_step == 0.002

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
-from hydroilqr.problem.config import ConfigError, MPCConfig
+from hydroilqr.problem.config import MPCConfig
 
 HELP = "validate a task and report its layout and contacts"
 
@@ -49,19 +50,14 @@ def run(args) -> int:
 
 def _check_mpc_section(task) -> None:
     """A task file's ``mpc:`` section is checked as ``hydroilqr mpc`` would run it (rate and
-    time steps, warm-start plan, truth and plan overrides): ConfigError, as there."""
-    from hydroilqr.control.mpc import check_settings, mpc_config, planning_task
+    time steps, overrides, the controller's and the simulated robot's models built; no plan
+    is solved): ConfigError, as there. Its warm-start plan is not read: it may be a run that
+    does not exist yet (``mpc`` checks it)."""
+    from hydroilqr.control.mpc import mpc_config, prepare
 
     if task.config.mpc == MPCConfig():
         return  # no mpc: section (`mpc` then runs on the defaults and its own options)
-    settings = mpc_config(task)
-    check_settings(settings, task)
-    planning_task(task, settings).dynamics  # noqa: B018 (builds the plan's model: names checked)
-    if settings.truth_overrides:  # the simulated plant's model, built: its names checked
-        try:
-            task.with_overrides(settings.truth_overrides).dynamics  # noqa: B018
-        except ConfigError as e:
-            raise ConfigError(f"mpc.truth_overrides: {e}") from None
+    prepare(task, dataclasses.replace(mpc_config(task), warm_start_plan=""))
 
 
 def print_section(name: str, report: dict) -> None:

@@ -69,13 +69,13 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
-    # (late: the arguments are checked before Drake and Dask are loaded)
+    _check(args)
+    # (late: the command's arguments are checked before Drake and Dask are loaded)
     from hydroilqr.metrics import validate_task
     from hydroilqr.model.task import Task
     from hydroilqr.output.report import output_dir
     from hydroilqr.studies.results import DEFAULT_TASKS
 
-    _check(args)
     names = list(args.tasks or DEFAULT_TASKS)
     refs = []
     for name in names:  # every task loads and validates before any solve starts

@@ -169,7 +169,7 @@ def _check_pushes(settings: MPCConfig, plant, h: float) -> None:
             n = value / h
             if abs(n - round(n)) > 1e-6 * max(1.0, n):
                 lo, hi = math.floor(n) * h, math.ceil(n) * h
-                near = f"{lo:g} or {hi:g}" if lo > 0 or what == "--push at" else f"{hi:g}"
+                near = f"{lo:.10g} or {hi:.10g}" if lo > 0 or what == "--push at" else f"{hi:.10g}"
                 raise ConfigError(
                     f"{what} {value:g} s: not whole steps of the simulated robot ({h:g} s), "
                     f"as a push is applied; e.g. {near} s"
@@ -300,7 +300,8 @@ class MPCResult:
     past_deadline: int = 0  # updates whose line search mpc.deadline cut short
     saturated_fraction: float = 0.0  # commands clipped at an effort limit (of all commands)
     restarts: int = 0  # updates that started from an mpc.candidates entry
-    saturated_commands: int = 0  # commands (entries of u) the controller asked beyond a limit
+    # [T, nu] the inputs the controller asked for, before the effort limits clipped them (U)
+    U_commanded: np.ndarray | None = None
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -767,7 +768,6 @@ UNPLANNED_KEYS = frozenset(
         "ensemble_weight",
         "ensemble_warm_start",
         "mismatch",
-        "receding_horizon",
     }
 )
 
@@ -819,7 +819,13 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
         settings = dataclasses.replace(settings, derivatives=solver.derivatives)
     ctrl = Controller(planner, N, settings, solver, U_ref)
     h, _ = simulation_step(settings, dt)
-    return ClosedLoop(task, settings, ctrl, Truth(task, settings.truth_overrides, h))
+    try:
+        truth = Truth(task, settings.truth_overrides, h)
+    except ConfigError as e:  # e.g. a body the overrides name that the model lacks
+        if not settings.truth_overrides:
+            raise
+        raise ConfigError(f"mpc.truth_overrides (--truth-set): {e}") from None
+    return ClosedLoop(task, settings, ctrl, truth)
 
 
 def run_mpc(task, settings: MPCConfig | None = None, on_update=None) -> MPCResult:
@@ -852,7 +858,7 @@ class ClosedLoop:
         # (each update re-plans from the measured state on a grid starting then).
         self.period_steps = max(1, int(round(1.0 / (settings.rate * self.dt))))
         self.x = task.x0.copy()
-        self.X, self.U = [self.x], []
+        self.X, self.U, self.U_asked = [self.x], [], []
         self.upd_t, self.solve_s, self.iters = [], [], []
         self.failures, self.k = 0, 0
         self.plan, self.t_plan = None, 0.0
@@ -897,6 +903,7 @@ class ClosedLoop:
             u = plan.U[i] - fb * (plan.K[i] @ (self.x - x_ref))
             if not np.all(np.isfinite(u)):
                 raise SimulationError("the controller produced a non-finite input")
+            self.U_asked.append(u)
             self.x, u = self.truth.step(self.x, u, self.k, self.settings.pushes)
             self.X.append(self.x)
             self.U.append(u)
@@ -1014,5 +1021,5 @@ class ClosedLoop:
             ctrl.past_deadline,
             self.truth.saturated / max(1, self.truth.commands),
             ctrl.restarts,
-            self.truth.saturated,
+            np.array(self.U_asked[: len(self.U)]),
         )
