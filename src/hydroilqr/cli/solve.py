@@ -17,6 +17,11 @@ from hydroilqr.cli.common import (
 )
 from hydroilqr.problem.config import DERIVATIVES, ConfigError
 
+# Multi-start's seed and perturbation size when --starts N is given without them (None on
+# the command line means "not given": they are refused without --starts).
+MULTISTART_SEED = 0
+MULTISTART_NOISE = 0.1
+
 HELP = "solve a task and write its results"
 
 #: The most starts one multi-start runs (each is a whole solve; their records are kept).
@@ -53,13 +58,17 @@ def setup(p) -> None:
         help="multi-start: N solves from perturbed initial guesses (the first unperturbed) as "
         "Dask jobs; the best (goal met, then cost) is kept and the spread reported",
     )
-    p.add_argument("--seed", type=int, help="multi-start: the perturbations' seed (default 0)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        help=f"multi-start: the perturbations' seed (default {MULTISTART_SEED})",
+    )
     p.add_argument(
         "--start-noise",
         type=float,
         metavar="F",
         help="multi-start: perturbation size, a fraction of each input's scale: its RMS over "
-        "the guess, or its effort limit where the guess is zero (default 0.1)",
+        f"the guess, or its effort limit where the guess is zero (default {MULTISTART_NOISE})",
     )
     p.add_argument(
         "--scheduler",
@@ -117,11 +126,11 @@ def run(args) -> int:
 
 
 def _seed(args) -> int:
-    return 0 if args.seed is None else args.seed  # multi-start's default seed
+    return MULTISTART_SEED if args.seed is None else args.seed
 
 
 def _noise(args) -> float:
-    return 0.1 if args.start_noise is None else args.start_noise  # multi-start's default
+    return MULTISTART_NOISE if args.start_noise is None else args.start_noise
 
 
 def _check_starts(task, args) -> None:
