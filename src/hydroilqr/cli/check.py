@@ -74,6 +74,8 @@ def _model(r: dict) -> None:
         f"({m['contact_model']}, {m['contact_surface_representation']})  "
         f"derivatives={m['derivatives']}"
     )
+    if m.get("gravity_off"):
+        console.print(f"  gravity off (models.N.gravity: false) for {'; '.join(m['gravity_off'])}")
     fd = r.get("fd")
     if fd is None:
         return

@@ -598,6 +598,8 @@ def _add_models(task: TaskConfig, plant, scene_graph) -> None:
     _add_packages(task, parser.package_map())
     for i, m in enumerate(task.models):
         instances = _add_model(task, plant, scene_graph, parser, m, f"models[{i}]")
+        for inst in instances:  # (Drake: each model instance's gravity on or off)
+            plant.set_gravity_enabled(inst, m.gravity)
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
         for wkey, w in welds:

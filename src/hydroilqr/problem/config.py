@@ -123,6 +123,9 @@ class ModelConfig:
     name: str = ""
     weld: WeldConfig | None = None
     welds: list[WeldConfig] = field(default_factory=list)  # more welds (e.g. several bases)
+    # False: gravity does not act on this model's bodies (an arm whose own controller
+    # compensates it); plant.gravity acts on the others.
+    gravity: bool = True
 
 
 @dataclass

@@ -364,6 +364,9 @@ def _model(task) -> dict:
         "contact_surface_representation": cfg.plant.contact_surface_representation,
         "derivatives": cfg.solver.derivatives,
         "initial_guess": describe_guess(cfg.initial_guess),
+        "gravity_off": [
+            f"models[{i}]: {m.file}" for i, m in enumerate(cfg.models) if not m.gravity
+        ],
     }
 
 

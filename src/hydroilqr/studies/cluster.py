@@ -15,6 +15,7 @@ import signal
 import socket
 import threading
 import time
+from multiprocessing import resource_tracker
 
 import psutil
 from distributed import Client, LocalCluster
@@ -139,6 +140,9 @@ def _sigint_blocked_in_new_threads():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    # (multiprocessing's resource tracker, started with the first worker, unblocks SIGINT in
+    # the thread that starts it: it is started here first, before anything is blocked)
+    resource_tracker.ensure_running()
     previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
