@@ -255,6 +255,16 @@ def _position_guess(p: dict) -> None:
         console.print(f"  largest control / effort limit: {', '.join(effort)}")
 
 
+def _bases(b: dict) -> None:
+    """Where each free or planar base ends along the guess (studies/bases.py)."""
+    for row in b.get("bodies") or []:
+        end = ", ".join(f"{v:.2f}" for v in row["end"])
+        console.print(
+            f"  {row['name']} (free base) after {b['steps']} steps of the guess: at ({end}) m, "
+            f"lowest z {row['lowest_z']:.2f} m, top speed {row['top_speed']:.2g} m/s"
+        )
+
+
 def _simulation(r: dict) -> None:
     n, steps, guess = r["rollout_steps"], r["task_steps"], r["model"]["initial_guess"]
     rollout = (
@@ -278,6 +288,7 @@ def _simulation(r: dict) -> None:
         )
     else:
         console.print(f"  no contact {along}")
+    _bases(r.get("bases") or {})
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
         stages = "".join(

@@ -40,6 +40,7 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
+from hydroilqr.studies.bases import base_report
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
@@ -279,6 +280,8 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
+    for w in out["bases"]["warnings"]:  # (free and planar bases: fell, left, flew)
+        warn(w)
     w = _untracked_contact_warning(
         out["touched_pairs"],
         set(out["tracked_objects"]),
@@ -466,6 +469,7 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
+    out["bases"] = base_report(task, Xc if tracked else _contact_rollout(task, X))
     out.update(
         {
             "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),
