@@ -49,6 +49,29 @@ def _box(shape, X, inspector, gid) -> tuple[np.ndarray, np.ndarray] | None:
     return None if r is None else (p - r, p + r)
 
 
+def extent_below(shape, inspector, gid) -> float | None:
+    """How far the geometry reaches below its own origin along its -z axis (m; None:
+    unknown)."""
+    if isinstance(shape, Sphere):
+        return shape.radius()
+    if isinstance(shape, Box):
+        return 0.5 * shape.height()
+    if isinstance(shape, Cylinder):
+        return 0.5 * shape.length()
+    if isinstance(shape, Capsule):
+        return shape.radius() + 0.5 * shape.length()
+    if isinstance(shape, Ellipsoid):
+        return shape.c()
+    try:  # meshes and convex hulls: their bounding box's lowest corner
+        obb = inspector.GetObbInGeometryFrame(gid)
+    except Exception:  # noqa: BLE001 - a shape without one
+        return None
+    if obb is None:
+        return None
+    reach = np.abs(obb.pose().rotation().matrix()) @ obb.half_width()
+    return float(reach[2] - obb.pose().translation()[2])
+
+
 def _radius(shape, inspector, gid) -> float | None:
     """Radius of a sphere around the geometry's origin that holds it (None: unknown)."""
     if isinstance(shape, Sphere):

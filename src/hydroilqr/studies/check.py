@@ -41,6 +41,8 @@ from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
 from hydroilqr.studies.bases import base_report
+from hydroilqr.studies.step_cost import step_cost_report
+from hydroilqr.studies.stiffness import stiffness_report
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
@@ -233,9 +235,11 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         warn(w)
 
     _contact_at_start(dyn, x0, pairs, out)
+    out["stiffness"] = stiffness_report(dyn, geoms, pairs)  # (forces at a few overlaps)
     done("contacts")
 
     _simulation(task, pairs, rollout_steps, out)
+    out["step_cost"] = step_cost_report(task, out["rollout_steps"])  # (faces, ms, coarser)
     if cfg.cost.terms:  # the task-space cost terms on the guess's rollout over the horizon
         out["terms"] = terms_on_guess(task)
     done("simulation")
