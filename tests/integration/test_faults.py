@@ -608,8 +608,9 @@ def test_ctrl_c_while_pydrake_loads_is_raised_once_it_is_loaded():
 @pytest.mark.parametrize(
     "args, needle",
     [
-        (["--rate", "0.5", "--duration", "1"], "longer than the duration (1 s): no update"),
+        (["--rate", "0.5", "--duration", "1"], "not shorter than the duration (1 s): no update"),
         (["--rate", "1e-300", "--duration", "1"], "no update would run"),
+        (["--rate", "1", "--duration", "1"], "no update would run"),  # (only the first plan)
         (["--push", "0.05:cart:1,0,0", "--push-duration", "1e-9"], "shorter than one step"),
         (["--plant-time-step", "1e-9"], "--plant-time-step (mpc.plant_time_step) 1e-09 s"),
     ],

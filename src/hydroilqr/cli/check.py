@@ -299,8 +299,8 @@ def _step_cost(c: dict) -> None:
     if coarse is not None:
         console.print(
             f"  most faces: {c['geometry']} (resolution_hint {c['resolution_hint']:g}); with "
-            f"{2 * c['resolution_hint']:g}, measured: up to {coarse['max_faces']} faces, "
-            f"{_ms(coarse)}"
+            f"{2 * c['resolution_hint']:g}, measured: up to {coarse['max_faces']} faces at a step "
+            f"(now {now['max_faces']}), {_ms(coarse)}"
         )
 
 

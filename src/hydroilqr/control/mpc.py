@@ -100,10 +100,10 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
         raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
     if settings.threads < 0:
         raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
-    if 1.0 / settings.rate > settings.duration * (1 + 1e-9):
+    if 1.0 / settings.rate > settings.duration * (1 - 1e-9):  # (the first update: at one period)
         raise ConfigError(
             f"mpc rate {settings.rate:g} Hz: its update period ({1.0 / settings.rate:g} s) is "
-            f"longer than the duration ({settings.duration:g} s): no update would run"
+            f"not shorter than the duration ({settings.duration:g} s): no update would run"
         )
     for what, seconds in (("horizon", settings.horizon), ("duration", settings.duration)):
         if seconds / dt > MAX_STEPS:
