@@ -100,11 +100,6 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
         raise ConfigError("mpc: rate, horizon and duration must be positive finite numbers")
     if settings.threads < 0:
         raise ConfigError("mpc threads: must be >= 0 (0 = all cores)")
-    if 1.0 / settings.rate > settings.duration * (1 - 1e-9):  # (the first update: at one period)
-        raise ConfigError(
-            f"mpc rate {settings.rate:g} Hz: its update period ({1.0 / settings.rate:g} s) is "
-            f"not shorter than the duration ({settings.duration:g} s): no update would run"
-        )
     for what, seconds in (("horizon", settings.horizon), ("duration", settings.duration)):
         if seconds / dt > MAX_STEPS:
             raise ConfigError(
@@ -140,6 +135,11 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
     if int(round(settings.duration / dt)) < 1:
         raise ConfigError(
             f"mpc duration {settings.duration:g} s: shorter than one time step ({dt:g} s)"
+        )
+    if 1.0 / settings.rate > settings.duration * (1 - 1e-9):  # (the first update: at one period)
+        raise ConfigError(
+            f"mpc rate {settings.rate:g} Hz: its update period ({1.0 / settings.rate:g} s) is "
+            f"not shorter than the duration ({settings.duration:g} s): no update would run"
         )
 
 
