@@ -690,10 +690,11 @@ def test_dask_workers_start_with_ctrl_c_blocked_and_this_process_keeps_it():
 
     from hydroilqr.studies.cluster import _spawned_pids, open_client
 
+    handler, mask = signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, [])
     client, cluster = open_client(None, workers=1)
     try:
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
-        assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+        assert signal.getsignal(signal.SIGINT) is handler  # (never ignored meanwhile)
+        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
         (pid,) = _spawned_pids(psutil.Process(), set())
         status = Path(f"/proc/{pid}/status").read_text()
         blocked = int(
