@@ -3,8 +3,9 @@ pair at every step of the guess's rollout, the time of each step with and withou
 the geometry whose mesh decides the count (the finest ``resolution_hint`` of the busiest
 pair), and the same rollout measured again with that hint doubled, side by side.
 
-Each step's time is measured on this machine as it runs (contended if others run beside it;
-the two rollouts are measured one after the other, so their ratio is the comparison)."""
+Each step's time is measured on this machine as it runs (contended if others run beside it);
+the two rollouts compared run step by step in turn, so load from elsewhere falls on both alike
+and their ratio is the comparison."""
 
 from __future__ import annotations
 
@@ -28,22 +29,25 @@ def _faces(dyn, x: np.ndarray, names: dict) -> dict[tuple[str, str], int]:
     return out
 
 
-def _timed_rollout(dyn, x0: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(X [K+1, nx], seconds of each step [K]) of the controls U from x0."""
-    X = np.empty((len(U) + 1, len(x0)))
-    X[0] = x0
-    seconds = np.empty(len(U))
+def _timed_rollouts(dyns: list, x0: np.ndarray, U: np.ndarray) -> list:
+    """[(X [K+1, nx], seconds of each step [K])] of the controls U from x0 on each of
+    ``dyns``, their steps interleaved (step k of each, then step k + 1 of each), so that
+    load from elsewhere falls on all of them alike."""
+    X = [np.empty((len(U) + 1, len(x0))) for _ in dyns]
+    seconds = [np.empty(len(U)) for _ in dyns]
+    for Xi in X:
+        Xi[0] = x0
     for k, u in enumerate(U):
-        tic = time.perf_counter()
-        X[k + 1] = dyn.step(X[k], u)
-        seconds[k] = time.perf_counter() - tic
-    return X, seconds
+        for dyn, Xi, si in zip(dyns, X, seconds, strict=True):
+            tic = time.perf_counter()
+            Xi[k + 1] = dyn.step(Xi[k], u)
+            si[k] = time.perf_counter() - tic
+    return list(zip(X, seconds, strict=True))
 
 
-def _measure(dyn, x0: np.ndarray, U: np.ndarray) -> dict:
-    """Faces per pair at every step and each step's time, along the rollout of U."""
+def _measure(dyn, X: np.ndarray, seconds: np.ndarray) -> dict:
+    """Faces per pair at every step of the rollout X and each step's time."""
     names = {gid: f"{n} ({b})" for gid, (n, b) in dyn.geometry_names().items()}
-    X, seconds = _timed_rollout(dyn, x0, U)
     per_step = [_faces(dyn, x, names) for x in X[:-1]]
     total = np.array([sum(f.values()) for f in per_step])
     pairs: dict[tuple[str, str], list[int]] = {}
@@ -94,7 +98,7 @@ def step_cost_report(task, steps: int) -> dict:
     dyn = task.dynamics
     U = task.initial_guess(task.steps)[:steps]
     try:
-        now = _measure(dyn, task.x0, U)
+        now = _measure(dyn, *_timed_rollouts([dyn], task.x0, U)[0])
     except SimulationError:
         return {}
     out = {"now": now, "steps": len(U), "coarser": None}
@@ -105,9 +109,12 @@ def step_cost_report(task, steps: int) -> dict:
         return out
     key, h = finest
     out["geometry"], out["resolution_hint"] = key, h
-    try:
-        coarse = task.with_overrides([f"geometry.{key}.resolution_hint={2 * h:g}"])
-        out["coarser"] = _measure(coarse.dynamics, task.x0, U)
+    try:  # both measured again, side by side
+        coarse = task.with_overrides([f"geometry.{key}.resolution_hint={2 * h:g}"]).dynamics
+        runs = _timed_rollouts([dyn, coarse], task.x0, U)
     except (ConfigError, SimulationError) as e:
         out["coarser_error"] = str(e)
+        return out
+    out["now"] = _measure(dyn, *runs[0])
+    out["coarser"] = _measure(coarse, *runs[1])
     return out
