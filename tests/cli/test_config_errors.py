@@ -414,3 +414,44 @@ def test_numbers_too_large_for_the_cost_are_one_line(tmp_path, capsys, change, k
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, f"{key}: ")
     assert "too large to compute a cost with" in cap.err
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("extends: cartpole-wall\n? [a, b]\n: c\n", "line 2: a key that is a list or a mapping"),
+        ("extends: cartpole-wall\nmetric_params:\n  ? {a: 1}\n  : c\n", "line 3: a key that is"),
+        ("extends: cartpole-wall\nhorizon: 1\0\0\n", "line 2: unacceptable character #x0000"),
+    ],
+)
+def test_yaml_a_task_file_cannot_hold_is_one_line(tmp_path, capsys, text, needle):
+    """Issue 53, 4-5: a complex key was an internal TypeError; a NUL byte a two-line
+    error."""
+    path = tmp_path / "task.yaml"
+    path.write_text(text)
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)
+
+
+@pytest.mark.parametrize(
+    "guess, needle",
+    [
+        ("{waypoints: [{t: 0.5, pole_angle: left}]}", "initial_guess.waypoints[0].pole_angle"),
+        ("{waypoints: [{t: 0.5, pole_angle: {a: 1}}]}", "waypoints[0].pole_angle: expected a"),
+        ("{waypoints: [{t: 0.5, pole_angle: [[1, 2], [3]]}]}", "[0].pole_angle: expected a"),
+        ("{target: {pole_angle: .inf}}", "initial_guess.target.pole_angle"),
+        ("{waypoints: [{t: 0.5, pole_angle: 1}], period: .nan}", "initial_guess.period"),
+        ("{waypoints: [{t: 0.5, pole_angle: 1}], period: [1]}", "initial_guess.period"),
+        ("{waypoints: 3}", "initial_guess.waypoints: expected a list"),
+    ],
+)
+def test_a_bad_waypoint_or_mapping_of_a_guess_is_named_by_its_key(tmp_path, capsys, guess, needle):
+    """Issue 53, 8: waypoint values were internal errors; a bad mapping was "expected a
+    string" (the other form initial_guess takes)."""
+    path = tmp_path / "task.yaml"
+    path.write_text(f"extends: cartpole-wall\ninitial_guess: {guess}\n")
+    rc = cli.main(["check", str(path)])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, needle)
+    assert "expected a string" not in cap.err

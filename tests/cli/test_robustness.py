@@ -147,3 +147,20 @@ def test_robustness_refuses_an_output_it_cannot_write_before_any_solve(tmp_path,
     rc = cli.main(["robustness", "cartpole-wall", "--smoke", "--runs", "1", "--out", str(a_file)])
     err = capsys.readouterr().err
     assert rc == 2 and "--out" in err and "Traceback" not in err
+
+
+def test_one_worker_runs_one_solve_at_a_time_and_each_solves_threads_are_stated(tmp_path):
+    """Issue 53, 17: how many solves ran at once is measured (their start and end times) and
+    each solve's threads are recorded, so contended times are visible."""
+    from hydroilqr.model.derivatives import num_threads
+    from hydroilqr.studies.robustness import run_robustness
+
+    ref = {"label": "c", "name": "cartpole-wall", "overrides": [], "config": None, "smoke": True}
+    report = run_robustness([ref], runs=3, workers=1)
+    assert report["workers"] == 1 and report["most_solves_at_once"] == 1
+    (task,) = report["tasks"]
+    runs = task["results"]
+    assert all(r["threads"] == num_threads(0) for r in runs)  # (central differences, threads 0)
+    spans = sorted((r["started"], r["finished"]) for r in runs)
+    assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:]))  # one after another
+    assert report["threads_per_solve"] == {"c": num_threads(0)}

@@ -457,3 +457,250 @@ def test_probe_and_client_accept_a_real_scheduler():
             await asyncio.get_running_loop().run_in_executor(None, connect)
 
     asyncio.run(main())
+
+
+# -- issue 53: model files, interrupts while loading, mpc timing, results' --out, commits ---
+
+MODELS = Path(__file__).resolve().parents[2] / "src/hydroilqr/models"
+CARTPOLE_SDF = MODELS / "cartpole_wall" / "cartpole.sdf"
+
+
+def _cartpole_with(tmp_path: Path, extra: str, where: str = "link") -> Path:
+    """A task of cartpole-wall whose model is the project's cartpole.sdf (``drake:`` tags, no
+    namespace declared) with ``extra`` added inside its pole link (or its model)."""
+    text = CARTPOLE_SDF.read_text()
+    anchor = '<visual name="rod_visual">' if where == "link" else "</model>"
+    (tmp_path / "model.sdf").write_text(text.replace(anchor, extra + anchor, 1))
+    task = tmp_path / "task.yaml"
+    task.write_text("extends: cartpole-wall\nmodels:\n  - file: model.sdf\n")
+    return task
+
+
+def _check_within(path: Path, seconds: int = 60) -> int:
+    """``hydroilqr check`` in this process, failing (not hanging) if it waits on a file."""
+    import signal
+
+    from hydroilqr import cli as cli_mod
+
+    def hung(*_):
+        raise TimeoutError("the model check waited on a file")
+
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(seconds)
+    try:
+        return cli_mod.main(["check", str(path)])
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+MESH = "<{kind} name='m'><geometry><mesh><uri>{uri}</uri></mesh></geometry></{kind}>"
+
+
+@pytest.mark.parametrize(
+    "case, extra, where, needle",
+    [
+        ("fifo-collision", MESH.format(kind="collision", uri="pipe.obj"), "link", "a named pipe"),
+        ("zero-visual", MESH.format(kind="visual", uri="/dev/zero"), "link", "a character device"),
+        ("fifo-include", "<include><uri>pipe.obj</uri></include>", "model", "a named pipe"),
+        ("missing-include", "<include><uri>gone.sdf</uri></include>", "model", "does not exist"),
+        ("huge-mesh", MESH.format(kind="visual", uri="big.obj"), "link", "more than the 256"),
+    ],
+)
+def test_sdf_with_undeclared_drake_prefix_names_only_regular_bounded_files(
+    tmp_path, capsys, case, extra, where, needle
+):
+    """Issue 53, 1-3: the project's own SDFs use ``drake:`` tags without declaring the
+    namespace; the mesh and include guard read them all the same (it gave up on the XML
+    error: a FIFO mesh hung check, /dev/zero grew to GBs, a FIFO include was dropped)."""
+    os.mkfifo(tmp_path / "pipe.obj")
+    with open(tmp_path / "big.obj", "wb") as f:
+        f.truncate(inputs.MAX_MESH_BYTES + 1)  # (sparse)
+    rc = _check_within(_cartpole_with(tmp_path, extra, where))
+    cap = capsys.readouterr()
+    assert rc == 2 and "Traceback" not in cap.err
+    line = one_line_error(subprocess.CompletedProcess([], rc, cap.out, cap.err))
+    assert "models[0].file: model.sdf names" in line and needle in line
+
+
+def test_model_references_are_read_leniently_and_in_linear_time():
+    """No reference is missed for an undeclared prefix, a '--' in a comment (Drake's parser
+    takes both), and malformed text never raises."""
+    refs = inputs.model_file_references
+    for sdf in MODELS.glob("*/*.sdf"):
+        assert refs(sdf.read_text()) == []  # (primitives only)
+    sdf = (
+        "<!-- a -- comment --><sdf><model name='m'><drake:x/><link name='l'><visual>"
+        "<geometry><mesh><uri> a.obj </uri><drake:declare_convex/></mesh></geometry></visual>"
+        "</link><include><uri><![CDATA[b.sdf]]></uri></include></model></sdf>"
+    )
+    assert refs(sdf) == [("a.obj", False), ("b.sdf", True)]
+    urdf = '<robot><link name="l"><visual><geometry><mesh filename="c.stl"/></geometry>'
+    assert refs(urdf + "</visual></link></robot>") == [("c.stl", False)]
+    mjcf = '<mujoco><compiler meshdir="meshes"/><asset><mesh file="d.obj"/></asset></mujoco>'
+    assert refs(mjcf + '<include file="e.xml"/>') == [("meshes/d.obj", False), ("e.xml", True)]
+    assert refs("<a" * 200_000) == [] and refs("<mesh filename='x'") == []
+
+
+def test_a_drake_package_that_cannot_be_downloaded_says_how_to_use_a_local_copy(tmp_path, capsys):
+    """Issue 53, 19: drake_models is downloaded on first use; offline that fails, in one
+    line naming package_map, which replaces Drake's own entry with a local directory."""
+    from hydroilqr.model.plant import _refuse_failed_download
+
+    message = (
+        "PackageMap: when downloading 'drake_models', the downloader experienced an error: "
+        "All downloads failed:\n\nCandidate https://example.org/models.tar.gz failed:\n<x>"
+    )
+    with pytest.raises(ConfigError) as e:
+        _refuse_failed_download(message, "models[0].file", "package://drake_models/a.sdf")
+    assert "package_map: {drake_models: DIRECTORY}" in str(e.value) and "\n" not in str(e.value)
+    assert "unpack https://example.org/models.tar.gz" in str(e.value)
+    local = tmp_path / "models" / "cartpole"
+    local.mkdir(parents=True)
+    (local / "cartpole.sdf").write_text(CARTPOLE_SDF.read_text())
+    task = tmp_path / "task.yaml"
+    task.write_text(
+        "extends: cartpole-wall\npackage_map: {drake_models: models}\n"
+        "models:\n  - file: package://drake_models/cartpole/cartpole.sdf\n"
+    )
+    assert _check_within(task) == 0, capsys.readouterr().err
+
+
+def test_an_import_error_a_ctrl_c_caused_is_an_interruption(capsys):
+    """Issue 53, 6: Ctrl+C while pydrake loads made it fail as ImportError."""
+    from hydroilqr import cli as cli_mod
+
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as k:
+            raise ImportError("initialization failed") from k
+    except ImportError as e:
+        assert cli_mod._exit_code(e) == 130
+    assert capsys.readouterr().err.strip() == "hydroilqr: interrupted"
+    with cli_mod._interrupts_held() as held:
+        os.kill(os.getpid(), __import__("signal").SIGINT)  # held, not raised
+        time.sleep(0.05)
+    assert held
+
+
+def test_ctrl_c_while_pydrake_loads_is_raised_once_it_is_loaded():
+    """Cut short, pydrake prints a 50-line stack from C++ and fails to import; loaded with
+    the interrupt held, the KeyboardInterrupt comes after and pydrake works."""
+    code = (
+        "import os, signal, sys, threading\n"
+        "from hydroilqr import cli\n"
+        "sys.meta_path.insert(0, cli._DrakeLoadsWhole())\n"
+        "threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT)).start()\n"
+        "try:\n"
+        "    import pydrake\n"
+        "    print('not interrupted')\n"
+        "except KeyboardInterrupt:\n"
+        "    from pydrake.common import RandomGenerator\n"
+        "    RandomGenerator()\n"
+        "    print('interrupted after loading')\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert r.stdout.strip() in ("interrupted after loading", "not interrupted")
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--rate", "0.5", "--duration", "1"], "not shorter than the duration (1 s): no update"),
+        (["--rate", "1e-300", "--duration", "1"], "no update would run"),
+        (["--rate", "1", "--duration", "1"], "no update would run"),  # (only the first plan)
+        (["--push", "0.05:cart:1,0,0", "--push-duration", "1e-9"], "shorter than one step"),
+        (["--plant-time-step", "1e-9"], "--plant-time-step (mpc.plant_time_step) 1e-09 s"),
+    ],
+)
+def test_mpc_timing_that_cannot_run_as_asked_is_refused_before_any_work(
+    tmp_path, capsys, args, needle
+):
+    """Issue 53, 9, 10, 12: no update in the run (it ran, then failed on its summary), a
+    push shorter than the step that applies it (recorded as 1e-9 s, applied for 10 ms), a
+    plant step too fine (refused naming `horizon`)."""
+    from hydroilqr import cli as cli_mod
+
+    out = tmp_path / "m"
+    rc = cli_mod.main(["mpc", "cartpole-wall", "--smoke", *args, "--out", str(out)])
+    cap = capsys.readouterr()
+    line = one_line_error(subprocess.CompletedProcess([], rc, cap.out, cap.err))
+    assert rc == 2 and needle in line and not out.exists()
+
+
+def test_results_proves_its_out_before_solving(tmp_path, monkeypatch, capsys):
+    """Issue 53, 11: an unwritable docs/ failed after every task was solved."""
+    from hydroilqr import cli as cli_mod
+    from hydroilqr.studies import results
+
+    def never(*_a, **_k):
+        raise AssertionError("solved before --out was checked")
+
+    monkeypatch.setattr(results, "solve_tasks", never)
+    (tmp_path / "file").write_text("")
+    assert cli_mod.main(["results", "cartpole-wall", "--out", str(tmp_path / "file")]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if subprocess.run(["chattr", "+i", str(ro)], capture_output=True).returncode != 0:
+        ro.chmod(0o555)  # (root writes into it: then the refusal is not testable)
+        if os.geteuid() == 0:
+            return
+    try:
+        assert cli_mod.main(["results", "cartpole-wall", "--out", str(ro)]) == 2
+    finally:
+        subprocess.run(["chattr", "-i", str(ro)], capture_output=True)
+        ro.chmod(0o755)
+    assert f"--out {ro}: not writable" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("step", ["retire:0", "install:0"])
+def test_a_commit_cut_short_is_visible_in_the_directory(tmp_path, step):
+    """Issue 53, 13: killed while installing, the directory held only hidden entries; a
+    visible file says what happened and what finishes it, and goes when it is finished."""
+    from hydroilqr.io import rundir
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text("old")
+    script = (
+        "from pathlib import Path\nfrom hydroilqr.io import rundir\n"
+        f"with rundir.result_set(Path({str(out)!r}), ['summary.json']) as st:\n"
+        "    (st / 'summary.json').write_text('new')\n"
+    )
+    env = {**os.environ, rundir.KILL_ENV: step}
+    assert subprocess.run([sys.executable, "-c", script], env=env).returncode == -9
+    visible = [p.name for p in out.iterdir() if not p.name.startswith(".")]
+    assert rundir.MARKER in visible
+    assert "hydroilqr" in (out / rundir.MARKER).read_text()
+    assert rundir.solution_file(out) == out / "solution.npz"  # a reader completes it
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+    assert (out / "summary.json").read_text() == "new"
+
+
+def test_dask_workers_start_with_ctrl_c_blocked_and_this_process_keeps_it():
+    """Issue 53, 7: the workers never act on a terminal's Ctrl+C, and this process never
+    ignores it (ignored while the workers were spawned, a Ctrl+C in those seconds was
+    lost on a busy machine)."""
+    import signal
+
+    import psutil
+
+    from hydroilqr.studies.cluster import _spawned_pids, open_client
+
+    handler, mask = signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    client, cluster = open_client(None, workers=1)
+    try:
+        assert signal.getsignal(signal.SIGINT) is handler  # (never ignored meanwhile)
+        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
+        (pid,) = _spawned_pids(psutil.Process(), set())
+        status = Path(f"/proc/{pid}/status").read_text()
+        blocked = int(
+            next(ln for ln in status.splitlines() if ln.startswith("SigBlk")).split()[1], 16
+        )
+        assert blocked & (1 << (signal.SIGINT - 1))
+    finally:
+        client.close()
+        cluster.close()

@@ -9,21 +9,30 @@ from __future__ import annotations
 
 import argparse
 import codecs
+import contextlib
+import importlib.abc
+import importlib.util
 import os
 import shlex
+import signal
 import sys
+import threading
 
 from hydroilqr import __version__
-from hydroilqr.cli.common import (  # noqa: F401 - also importable from here, as before
-    add_task_args,
-    console,
-    err_console,
-    load_task_from_args,
-    task_name_from_args,
-    warn,
-)
-from hydroilqr.io.environment import environment
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
+
+# Also importable from here, as before; loaded on first use (importing hydroilqr.cli loads
+# nothing heavy: ``main`` loads the commands with Ctrl+C held, see ``_interrupts_held``).
+_COMMON = ("add_task_args", "console", "err_console", "load_task_from_args", "task_name_from_args")
+_COMMON += ("warn",)
+
+
+def __getattr__(name: str):
+    if name in _COMMON:
+        from hydroilqr.cli import common
+
+        return getattr(common, name)
+    raise AttributeError(f"module 'hydroilqr.cli' has no attribute {name!r}")
 
 
 def commands() -> dict:
@@ -66,6 +75,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _version_line() -> str:
+    from hydroilqr.io.environment import environment
+
     e = environment()
     return (
         f"hydroilqr {__version__} (code {e['code'] or 'unknown'}; drake {e['drake']}, "
@@ -142,11 +153,59 @@ def _first_line(e: object) -> str:
     return text.splitlines()[0][:500] if text else ""
 
 
+@contextlib.contextmanager
+def _interrupts_held():
+    """Ctrl+C (SIGINT) inside the block is held until it ends: the list it yields is then
+    non-empty. An import cut short by KeyboardInterrupt can leave a half-initialized
+    extension behind (pydrake's then fails as ImportError) or print a traceback."""
+    held: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield held
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if previous is not signal.default_int_handler:  # (ignored, or the caller's own)
+        yield held
+        return
+    signal.signal(signal.SIGINT, lambda *_: held.append(1))
+    try:
+        yield held
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class _DrakeLoadsWhole(importlib.abc.MetaPathFinder):
+    """Loads pydrake (its first import, wherever a command makes it) with Ctrl+C held, and
+    raises the KeyboardInterrupt once it is loaded: cut short, pydrake prints a 50-line
+    stack from C++ and fails as ImportError."""
+
+    def find_spec(self, fullname, path, target=None):
+        if fullname != "pydrake":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        load = spec.loader.exec_module
+
+        def exec_module(module):
+            with _interrupts_held() as held:
+                load(module)
+            if held:
+                raise KeyboardInterrupt
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
 def main(argv: list[str] | None = None) -> int:
     _escape_unencodable_output()
-    try:
-        commands()  # imports Drake: Ctrl+C here is an interruption like any other
-    except KeyboardInterrupt:
+    if "pydrake" not in sys.modules and not any(
+        isinstance(f, _DrakeLoadsWhole) for f in sys.meta_path
+    ):
+        sys.meta_path.insert(0, _DrakeLoadsWhole())
+    with _interrupts_held() as held:
+        commands()  # imports numpy, Dask and Drake
+    if held:
         print("hydroilqr: interrupted", file=sys.stderr)
         return 130
     parser = build_parser()
@@ -184,8 +243,8 @@ def _run(args) -> int:
 def _exit_code(e: BaseException) -> int | None:
     """Prints the one line that reports ``e`` on stderr and returns the exit code; None for
     what is raised on (SystemExit, and any error under HYDROILQR_DEBUG=1)."""
-    if isinstance(e, KeyboardInterrupt):
-        detail = f": {e}" if str(e) else ""
+    if isinstance(e, KeyboardInterrupt) or _caused_by_interrupt(e):
+        detail = f": {e}" if isinstance(e, KeyboardInterrupt) and str(e) else ""
         print(f"hydroilqr: interrupted{detail}", file=sys.stderr)
         return 130
     if os.environ.get("HYDROILQR_DEBUG"):
@@ -197,6 +256,18 @@ def _exit_code(e: BaseException) -> int | None:
     code, line = _error_line(e)
     print(line, file=sys.stderr)
     return code
+
+
+def _caused_by_interrupt(e: BaseException) -> bool:
+    """True for an error raised because of a Ctrl+C: pydrake's import cut short fails as
+    ImportError caused by a KeyboardInterrupt."""
+    seen: set[int] = set()
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        e = e.__cause__ or e.__context__
+    return False
 
 
 def _system_exit_code(e: SystemExit) -> int | None:

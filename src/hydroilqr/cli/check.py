@@ -74,6 +74,8 @@ def _model(r: dict) -> None:
         f"({m['contact_model']}, {m['contact_surface_representation']})  "
         f"derivatives={m['derivatives']}"
     )
+    if m.get("gravity_off"):
+        console.print(f"  gravity off (models.N.gravity: false) for {'; '.join(m['gravity_off'])}")
     fd = r.get("fd")
     if fd is None:
         return
@@ -215,7 +217,25 @@ def _pairs(r: dict) -> None:
         )
 
 
+def _stiffness(rows: list[dict]) -> None:
+    """Each compliant geometry's force pressed into a rigid plane (studies/stiffness.py)."""
+    if rows:
+        console.print(
+            "[bold]compliant geometries pressed into a rigid plane[/bold] (force at an "
+            "overlap, and force/overlap: match a point contact's stiffness with "
+            "hydroelastic_modulus; the force scales with it)"
+        )
+    for g in rows:
+        forces = ", ".join(
+            f"{f['force_n']:.3g} N at {1e3 * f['overlap_m']:g} mm "
+            f"({f['stiffness_n_per_m']:.3g} N/m)"
+            for f in g["forces"]
+        )
+        console.print(f"  {g['geometry']} (modulus {g['modulus']:.3g} Pa): {forces}")
+
+
 def _contacts(r: dict) -> None:
+    _stiffness(r.get("stiffness") or [])
     contacts = r["contacts"]
     if contacts:
         console.print(
@@ -253,6 +273,47 @@ def _position_guess(p: dict) -> None:
         console.print(f"  largest control / effort limit: {', '.join(effort)}")
 
 
+def _ms(m: dict) -> str:
+    both = m["ms_in_contact"] is not None and m["ms_without_contact"] is not None
+    split = (
+        f" ({m['ms_in_contact']:.3g} in contact, {m['ms_without_contact']:.3g} without)"
+        if both
+        else ""
+    )
+    return f"{m['ms_per_step']:.3g} ms/step{split}"
+
+
+def _step_cost(c: dict) -> None:
+    """Contact faces per pair along the guess and what a coarser mesh gives
+    (studies/step_cost.py)."""
+    now = c.get("now")
+    if not now or not now["pairs"]:
+        return
+    pairs = "; ".join(
+        f"{p['pair'][0]}/{p['pair'][1]} up to {p['max_faces']} (mean {p['mean_faces']:.0f} "
+        f"over {p['steps']} steps)"
+        for p in now["pairs"]
+    )
+    console.print(f"  contact faces along {c['steps']} steps of the guess: {pairs}; {_ms(now)}")
+    coarse = c.get("coarser")
+    if coarse is not None:
+        console.print(
+            f"  most faces: {c['geometry']} (resolution_hint {c['resolution_hint']:g}); with "
+            f"{2 * c['resolution_hint']:g}, measured: up to {coarse['max_faces']} faces at a step "
+            f"(now {now['max_faces']}), {_ms(coarse)}"
+        )
+
+
+def _bases(b: dict) -> None:
+    """Where each free or planar base ends along the guess (studies/bases.py)."""
+    for row in b.get("bodies") or []:
+        end = ", ".join(f"{v:.2f}" for v in row["end"])
+        console.print(
+            f"  {row['name']} (free base) after {b['steps']} steps of the guess: at ({end}) m, "
+            f"lowest z {row['lowest_z']:.2f} m, top speed {row['top_speed']:.2g} m/s"
+        )
+
+
 def _simulation(r: dict) -> None:
     n, steps, guess = r["rollout_steps"], r["task_steps"], r["model"]["initial_guess"]
     rollout = (
@@ -276,6 +337,8 @@ def _simulation(r: dict) -> None:
         )
     else:
         console.print(f"  no contact {along}")
+    _bases(r.get("bases") or {})
+    _step_cost(r.get("step_cost") or {})
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
         stages = "".join(

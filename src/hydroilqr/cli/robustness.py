@@ -68,6 +68,16 @@ def _check(args) -> None:
         raise ConfigError("--workers sizes the local cluster; it does not go with --scheduler")
 
 
+def _concurrency(report: dict) -> str:
+    """How the runs shared the machine: workers, solves at once (measured), threads each."""
+    threads = ", ".join(f"{k} {v}" for k, v in report["threads_per_solve"].items())
+    return (
+        f"{report['workers']} worker(s), one solve at a time each; at most "
+        f"{report['most_solves_at_once']} solve(s) ran at once\n"
+        f"cores one solve keeps busy (solver.threads; autodiff_workers): {threads}"
+    )
+
+
 def run(args) -> int:
     _check(args)
     # (late: the command's arguments are checked before Drake and Dask are loaded)
@@ -128,6 +138,7 @@ def run(args) -> int:
     report["overrides"] = list(args.set)
     path = atomic_write(out / "robustness.json", json.dumps(report, indent=1) + "\n")
     console.print(table(report))
+    console.print(_concurrency(report))
     if args.smoke:
         console.print("smoke-sized runs: the pass rates above are not judged")
     console.print(f"wrote {path}")

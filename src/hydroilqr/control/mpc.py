@@ -136,6 +136,11 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
         raise ConfigError(
             f"mpc duration {settings.duration:g} s: shorter than one time step ({dt:g} s)"
         )
+    if 1.0 / settings.rate > settings.duration * (1 - 1e-9):  # (the first update: at one period)
+        raise ConfigError(
+            f"mpc rate {settings.rate:g} Hz: its update period ({1.0 / settings.rate:g} s) is "
+            f"not shorter than the duration ({settings.duration:g} s): no update would run"
+        )
 
 
 def _check_iteration(settings: MPCConfig) -> None:
@@ -167,6 +172,11 @@ def _check_pushes(settings: MPCConfig, plant, h: float) -> None:
             )
         for what, value in (("--push at", p.time), ("--push-duration", p.duration)):
             n = value / h
+            if what == "--push-duration" and round(n) < 1:
+                raise ConfigError(
+                    f"--push-duration {value:g} s: shorter than one step of the simulated "
+                    f"robot ({h:g} s), the shortest push it applies"
+                )
             if abs(n - round(n)) > 1e-6 * max(1.0, n):
                 lo, hi = math.floor(n) * h, math.ceil(n) * h
                 near = f"{lo:.10g} or {hi:.10g}" if lo > 0 or what == "--push at" else f"{hi:.10g}"
@@ -203,7 +213,12 @@ def simulation_step(settings: MPCConfig, dt: float) -> tuple[float, int]:
 def _check_truth(settings: MPCConfig, task, dt: float) -> None:
     """The simulated plant's overrides and time step, and a shrinking horizon that ends with
     the task."""
-    simulation_step(settings, dt)
+    h, substeps = simulation_step(settings, dt)
+    if task.steps * substeps > MAX_STEPS:  # (the simulated plant spans the task's horizon)
+        raise ConfigError(
+            f"--plant-time-step (mpc.plant_time_step) {h:g} s: the task's horizon "
+            f"({task.steps * dt:g} s) is {task.steps * substeps} steps of it; at most {MAX_STEPS}"
+        )
     if settings.truth_overrides:
         check_truth_overrides(settings.truth_overrides)
         truth = with_overrides(task.config, settings.truth_overrides)

@@ -9,6 +9,10 @@ there does ``commit`` replace the earlier set, in three steps recorded by a jour
 2. install: the staged entries are renamed into ``out/``;
 3. the journal is removed, then ``.previous`` and the stage are deleted.
 
+While a commit runs, a visible file ``REPLACING-RESULTS.txt`` (``MARKER``) says so: a user who
+lists a directory whose commit a kill cut short sees it, and what finishes the commit, instead
+of only the hidden entries.
+
 Renames within one directory are atomic and need no free space. A process killed at any
 instant leaves either no journal (the earlier set is complete in ``out/``; the stage is
 discarded on the next run) or a journal with a complete stage and ``.previous``, which
@@ -36,6 +40,15 @@ from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_JSON_BYTES, check
 STAGE = ".partial"
 PREVIOUS = ".previous"
 JOURNAL = ".commit"
+MARKER = "REPLACING-RESULTS.txt"
+MARKER_TEXT = """\
+hydroilqr was replacing the results in this directory when it stopped (killed, or the machine
+went down). Both sets are complete: the new one in .partial/, the earlier one in .previous/
+(hidden), and .commit says what goes where. The next hydroilqr command that reads this
+directory (`hydroilqr playback DIR`, a plan named by mpc.warm_start_plan) or writes into it
+(`--out DIR`) finishes the replacement first, installing the new set, and removes this file.
+Nothing needs to be moved by hand.
+"""
 KILL_ENV = "HYDROILQR_KILL_AT"  # fault injection for tests: a step name below
 
 
@@ -87,9 +100,10 @@ def commit(out: Path, retire: list[str]) -> list[str]:
     out = Path(out)
     st = out / STAGE
     new = sorted(p.name for p in st.iterdir())
-    old = sorted({n for n in [*retire, *new] if n not in (STAGE, PREVIOUS, JOURNAL)})
+    old = sorted({n for n in [*retire, *new] if n not in (STAGE, PREVIOUS, JOURNAL, MARKER)})
     _fsync_dir(st)
     _fault("staged")
+    atomic_write(out / MARKER, MARKER_TEXT)
     atomic_write(out / JOURNAL, json.dumps({"retire": old, "install": new}))
     _fault("journal")
     _roll_forward(out)
@@ -103,7 +117,7 @@ def _plain_name(name: object) -> bool:
     """A name of an entry directly in the run directory (no path, not a commit's own)."""
     return (
         isinstance(name, str)
-        and name not in ("", ".", "..", STAGE, PREVIOUS, JOURNAL)
+        and name not in ("", ".", "..", STAGE, PREVIOUS, JOURNAL, MARKER)
         and "/" not in name
         and "\\" not in name
         and "\0" not in name
@@ -150,6 +164,7 @@ def _roll_forward(out: Path) -> None:
     _fsync_dir(out)
     (out / JOURNAL).unlink()
     _fault("installed")
+    _remove(out / MARKER)
     _remove(prev)
     _remove(st)
 
@@ -167,8 +182,9 @@ def recover(out: Path) -> bool:
             # replaces it
             return False
         return True
-    if _exists(out / PREVIOUS):
-        _remove(out / PREVIOUS)
+    for leftover in (PREVIOUS, MARKER):  # (a commit done, or killed before its journal)
+        if _exists(out / leftover):
+            _remove(out / leftover)
     return False
 
 
@@ -206,7 +222,7 @@ def solution_file(path: str | Path) -> Path:
     if path.is_dir():
         # a commit a killed run left half done: completed first (as every command does), so
         # the reader gets the new complete set, not a missing file
-        if (path / JOURNAL).exists():
+        if _exists(path / JOURNAL) or _exists(path / MARKER):
             recover(path)
         return path / "solution.npz"
     if not path.exists() and path.suffix != ".npz" and path.with_name(path.name + ".npz").exists():

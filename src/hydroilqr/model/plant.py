@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -55,7 +54,13 @@ from hydroilqr.problem.config import (
     TaskConfig,
     unknown_key,
 )
-from hydroilqr.problem.inputs import MAX_MESH_BYTES, MAX_MODEL_BYTES, check_file, read_bounded
+from hydroilqr.problem.inputs import (
+    MAX_MESH_BYTES,
+    MAX_MODEL_BYTES,
+    check_file,
+    model_file_references,
+    read_bounded,
+)
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6
@@ -329,10 +334,9 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
         if plant.HasModelInstanceNamed(m.name):
             raise ConfigError(f"{key}.name: a model instance named {m.name!r} exists already")
         own = Parser(plant, scene_graph, model_name_prefix=m.name)
-        for pkg, path in task.package_map.items():  # (checked by the caller)
-            own.package_map().Add(pkg, str(task.resolve_path(path)))
+        _add_packages(task, own.package_map())
         parser = own
-    check_model_references(_model_path(task, parser, m), parser.package_map(), f"{key}.file")
+    check_model_references(_model_path(task, parser, m, key), parser.package_map(), f"{key}.file")
     try:
         with _drake_warnings() as warnings:
             if m.file.startswith("package://"):
@@ -340,6 +344,7 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
             else:
                 instances = parser.AddModels(str(task.resolve_path(m.file)))
     except Exception as e:
+        _refuse_failed_download(str(e), f"{key}.file", m.file)
         msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ConfigError(f"{key}.file: could not parse {m.file}: {msg}") from None
     _refuse_replaced_inertia(warnings, f"{key}.file: {m.file}")
@@ -348,14 +353,45 @@ def _add_model(task: TaskConfig, plant, scene_graph, parser, m, key: str) -> lis
     return instances
 
 
-def _model_path(task: TaskConfig, parser, m) -> Path | None:
-    """The model file of a ``models`` entry (None: a package it cannot resolve; Drake says)."""
+def _model_path(task: TaskConfig, parser, m, key: str) -> Path | None:
+    """The model file of a ``models`` entry (None: a package it cannot resolve; Drake says;
+    a package Drake could not download: ConfigError saying how to name a local copy)."""
     if not m.file.startswith("package://"):
         return task.resolve_path(m.file)
     try:
-        return Path(parser.package_map().ResolveUrl(m.file))
-    except Exception:  # noqa: BLE001 - AddModels reports the unknown package
+        with _drake_warnings():  # (holds back Drake's "Downloading" line)
+            return Path(parser.package_map().ResolveUrl(m.file))
+    except Exception as e:  # noqa: BLE001 - AddModels reports the unknown package
+        _refuse_failed_download(str(e), f"{key}.file", m.file)
         return None
+
+
+def _add_packages(task: TaskConfig, package_map) -> None:
+    """The task's ``package_map`` on a parser's; a name Drake knows already (its
+    ``drake_models``, downloaded on first use) is replaced by the task's local directory."""
+    for name, path in task.package_map.items():
+        where = task.resolve_path(path)
+        if not where.is_dir():
+            raise ConfigError(f"package_map.{name}: {where} is not a directory")
+        if package_map.Contains(name):
+            package_map.Remove(name)
+        package_map.Add(name, str(where))
+
+
+def _refuse_failed_download(message: str, key: str, url: str) -> None:
+    """ConfigError if ``message`` is Drake's failure to download a remote package (such as
+    ``drake_models``): this machine is offline or blocked; a local copy named in the task's
+    ``package_map`` needs no download."""
+    pkg = re.search(r"when downloading '([^']+)'", message)
+    if pkg is None:
+        return
+    archive = re.search(r"Candidate (\S+) failed", message)
+    source = f" (unpack {archive[1]})" if archive else ""
+    raise ConfigError(
+        f"{key}: {url} is in Drake's package {pkg[1]!r}, which Drake downloads on first use, "
+        f"and the download failed (offline?); use a local copy{source}: package_map: "
+        f"{{{pkg[1]}: DIRECTORY}}"
+    )
 
 
 MODEL_INCLUDE_DEPTH = 8  # included model files followed at most this deep
@@ -365,49 +401,35 @@ def check_model_references(path: Path | None, package_map, key: str, depth: int 
     """Every file the model file ``path`` names (meshes, visual or collision, and included
     models, followed) is a regular file within its size cap: ConfigError naming the model
     and the file otherwise, before Drake reads any (a mesh that is /dev/zero or a named pipe
-    would exhaust memory or wait forever). References it cannot resolve are left to Drake."""
+    would exhaust memory or wait forever). An included model that does not exist is an
+    error too (Drake's SDFormat parser may drop it); other references it cannot resolve
+    (a package it does not know, a missing mesh) are left to Drake."""
 
     if path is None or depth > MODEL_INCLUDE_DEPTH:
         return
-    try:
-        root = ET.fromstring(read_bounded(path, f"{key}:", MAX_MODEL_BYTES))
-    except ET.ParseError:
-        return  # (Drake reports the parse error)
-    for ref, include in _model_references(root):
-        target = _resolve_reference(ref, path.parent, package_map)
-        if target is None or not (target.exists() or target.is_symlink()) or target.is_dir():
-            continue  # (a model directory, a missing file: Drake resolves or reports it)
+    data = read_bounded(path, f"{key}:", MAX_MODEL_BYTES)
+    text = data.decode("utf-8", errors="replace")
+    for ref, include in model_file_references(text):
         what = f"{key}: {path.name} names"
+        target = _resolve_reference(ref, path.parent, package_map, what)
+        if target is None or target.is_dir():
+            continue  # (a model directory, an unknown package: Drake resolves or reports it)
+        if not (target.exists() or target.is_symlink()):
+            if include:
+                raise ConfigError(f"{what} {ref}, which does not exist ({target})")
+            continue  # (a missing mesh: Drake reports it)
         check_file(target, what, MAX_MODEL_BYTES if include else MAX_MESH_BYTES)
         if include:
             check_model_references(target, package_map, key, depth + 1)
 
 
-def _model_references(root) -> list[tuple[str, bool]]:
-    """(reference, is an included model) of every mesh and include of a URDF, SDFormat or
-    MJCF document."""
-    refs: list[tuple[str, bool]] = []
-    for el in root.iter():
-        tag = el.tag.rsplit("}", 1)[-1] if isinstance(el.tag, str) else ""
-        if tag == "mesh":
-            refs += [(el.get(a), False) for a in ("filename", "file") if el.get(a)]
-            uri = el.find("uri")
-            if uri is not None and (uri.text or "").strip():
-                refs.append((uri.text.strip(), False))
-        elif tag == "include":
-            uri = el.find("uri")
-            if uri is not None and (uri.text or "").strip():
-                refs.append((uri.text.strip(), True))
-            if el.get("file"):  # MJCF
-                refs.append((el.get("file"), True))
-    return refs
-
-
-def _resolve_reference(ref: str, directory: Path, package_map) -> Path | None:
+def _resolve_reference(ref: str, directory: Path, package_map, what: str) -> Path | None:
     if ref.startswith(("package://", "model://")):
         try:
-            return Path(package_map.ResolveUrl(ref))
-        except Exception:  # noqa: BLE001 - an unknown package: Drake reports it
+            with _drake_warnings():  # (holds back Drake's "Downloading" line)
+                return Path(package_map.ResolveUrl(ref))
+        except Exception as e:  # noqa: BLE001 - an unknown package: Drake reports it
+            _refuse_failed_download(str(e), what, ref)
             return None
     if "://" in ref and not ref.startswith("file://"):
         return None  # (a remote resource)
@@ -573,13 +595,11 @@ def check_inertias(plant) -> None:
 def _add_models(task: TaskConfig, plant, scene_graph) -> None:
     """The task's model files (packages from its package_map) and their welds."""
     parser = Parser(plant)
-    for name, path in task.package_map.items():
-        where = task.resolve_path(path)
-        if not where.is_dir():
-            raise ConfigError(f"package_map.{name}: {where} is not a directory")
-        parser.package_map().Add(name, str(where))
+    _add_packages(task, parser.package_map())
     for i, m in enumerate(task.models):
         instances = _add_model(task, plant, scene_graph, parser, m, f"models[{i}]")
+        for inst in instances:  # (Drake: each model instance's gravity on or off)
+            plant.set_gravity_enabled(inst, m.gravity)
         welds = [(f"models[{i}].weld", m.weld)] if m.weld is not None else []
         welds += [(f"models[{i}].welds[{j}]", w) for j, w in enumerate(m.welds)]
         for wkey, w in welds:

@@ -86,6 +86,7 @@ import math
 import re
 import types
 import typing
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -122,6 +123,9 @@ class ModelConfig:
     name: str = ""
     weld: WeldConfig | None = None
     welds: list[WeldConfig] = field(default_factory=list)  # more welds (e.g. several bases)
+    # False: gravity does not act on this model's bodies (an arm whose own controller
+    # compensates it); plant.gravity acts on the others.
+    gravity: bool = True
 
 
 @dataclass
@@ -654,7 +658,7 @@ def _coerce_union(value: Any, args: tuple, key: str) -> Any:
     """The first of ``args`` that ``value`` converts to (None for None when allowed)."""
     if value is None and type(None) in args:
         return None
-    errors = []
+    errors, fitting = [], []
     for a in args:
         if a is type(None):
             continue
@@ -662,7 +666,21 @@ def _coerce_union(value: Any, args: tuple, key: str) -> Any:
             return _coerce(value, a, key)
         except ConfigError as e:
             errors.append(str(e))
-    raise ConfigError(errors[0] if errors else f"{key}: invalid value {value!r}")
+            if _same_shape(value, a):  # (a mapping's error is its own key's, not "a string")
+                fitting.append(str(e))
+    raise ConfigError((fitting or errors or [f"{key}: invalid value {value!r}"])[0])
+
+
+def _same_shape(value: Any, tp: Any) -> bool:
+    """Whether ``value`` is of the kind ``tp`` holds: a mapping for a section or a mapping
+    type, a list for a list type, a scalar for a scalar type."""
+    origin = typing.get_origin(tp)
+    mapping = dataclasses.is_dataclass(tp) or origin is dict
+    if isinstance(value, dict):
+        return mapping
+    if isinstance(value, (list, tuple)):
+        return origin is list
+    return not mapping and origin is not list
 
 
 def _coerce_dataclass(value: Any, tp: Any, key: str) -> Any:
@@ -977,6 +995,13 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         seen: dict[Any, int] = {}
         for key_node, _ in node.value:
             key = self.construct_object(key_node, deep=True)
+            if not isinstance(key, Hashable):
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    "a key that is a list or a mapping (keys are names)",
+                    key_node.start_mark,
+                )
             if key in seen:
                 raise yaml.constructor.ConstructorError(
                     None,
@@ -1068,6 +1093,21 @@ def yaml_value(text: str) -> Any:
 _KEY_LIKE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]{0,63}$")  # shown in messages as typed
 
 
+def _yaml_problem(e: yaml.YAMLError, text: str) -> str:
+    """ ": line L: what is wrong" of a YAML error, on one line (a reader's error, such as a NUL
+    byte, by the line of its character)."""
+    mark = getattr(e, "problem_mark", None)
+    line = mark.line + 1 if mark is not None else None
+    if isinstance(e, yaml.reader.ReaderError):
+        line = text.count("\n", 0, e.position) + 1
+    problem = getattr(e, "problem", None) or str(e) or "malformed YAML"
+    if isinstance(e, yaml.reader.ReaderError):
+        char = f" #x{e.character:04x}" if isinstance(e.character, int) else ""
+        problem = f"unacceptable character{char} (a YAML file holds text only)"
+    problem = " ".join(str(problem).split())
+    return (f": line {line}" if line is not None else "") + f": {problem}"
+
+
 def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     if path.resolve() in _chain:
         loop = " -> ".join(p.name for p in (*_chain, path.resolve()))
@@ -1076,10 +1116,7 @@ def load_raw(path: Path, what: str = "task file", _chain: tuple[Path, ...] = ())
     try:
         data = yaml_value(text)
     except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f": line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(e, "problem", None) or str(e) or "malformed YAML"
-        raise ConfigError(f"{what} {path}{where}: {problem}") from None
+        raise ConfigError(f"{what} {path}{_yaml_problem(e, text)}") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -1510,7 +1547,25 @@ def _validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> No
             raise ConfigError(f"{key}.waypoints[{i}].t: {t:g} s must be before period {g.period:g}")
         if len(wp) < 2:
             raise ConfigError(f"{key}.waypoints[{i}]: names no block")
+        _check_configuration(wp, f"{key}.waypoints[{i}]")
         last = float(t)
+    _check_configuration(g.target, f"{key}.target")
+
+
+def _check_configuration(point: dict[str, Any], key: str) -> None:
+    """Each block's value of a waypoint or target is a number or a flat list of numbers."""
+    for name, v in point.items():
+        if name == "t":
+            continue
+        values = v if isinstance(v, list) else [v]
+        if not values or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            for x in values
+        ):
+            raise ConfigError(
+                f"{key}.{name}: expected a number or a list of numbers (one per component), "
+                f"got {v!r}"
+            )
 
 
 # Keys a continuation stage or an ensemble member cannot override (the time grid and start).

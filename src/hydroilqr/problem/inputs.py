@@ -7,7 +7,9 @@ allocated when it would not fit."""
 
 from __future__ import annotations
 
+import html
 import os
+import re
 import stat
 import zipfile
 from pathlib import Path
@@ -186,3 +188,87 @@ def check_memory(steps: int, nx: int, nu: int, what: str, extra: int = 0) -> Non
             f"{what}: {steps} time steps of nx={nx}, nu={nu} need about {need / MiB:,.0f} MiB "
             f"of memory; {have / MiB:,.0f} MiB can be used (fewer steps, or a longer time step)"
         )
+
+
+# --------------------------------------------------------------------------------------------
+# Files a model file names
+# --------------------------------------------------------------------------------------------
+
+# A start or end tag: its name and attributes (no "<" inside, so a scan stays linear).
+_XML_TAG = re.compile(r"<(/?)([A-Za-z_:][^\s/<>]*)((?:\"[^\"<]*\"|'[^'<]*'|[^<>\"'])*)>")
+_XML_ATTR = re.compile(r"([^\s=/]+)\s*=\s*(?:\"([^\"]*)\"|'([^']*)')")
+_XML_SKIP = (("<!--", "-->"), ("<?", "?>"), ("<!", ">"))
+
+
+def _xml_events(text: str):
+    """("start"|"empty"|"end", local tag name, attributes) and ("text", str) of an XML
+    document, read leniently as Drake's parser (tinyxml2) reads one: namespace prefixes need
+    no declaration (``drake:`` tags), comments end at the first ``-->``, no error is raised."""
+    i, n = 0, len(text)
+    while i < n:
+        lt = text.find("<", i)
+        if lt < 0:
+            yield "text", html.unescape(text[i:])
+            return
+        if lt > i:
+            yield "text", html.unescape(text[i:lt])
+        if text.startswith("<![CDATA[", lt):
+            end = text.find("]]>", lt)
+            yield "text", text[lt + 9 : n if end < 0 else end]
+            i = n if end < 0 else end + 3
+            continue
+        close = next((c for o, c in _XML_SKIP if text.startswith(o, lt)), None)
+        if close is not None:
+            end = text.find(close, lt + 2)
+            i = n if end < 0 else end + len(close)
+            continue
+        m = _XML_TAG.match(text, lt)
+        if m is None:
+            yield "text", "<"
+            i = lt + 1
+            continue
+        name, attrs = m[2].rsplit(":", 1)[-1], m[3]
+        kind = "end" if m[1] else ("empty" if attrs.rstrip().endswith("/") else "start")
+        values = {a: html.unescape(b if b or not c else c) for a, b, c in _XML_ATTR.findall(attrs)}
+        yield kind, name, values
+        i = m.end()
+
+
+def model_file_references(text: str) -> list[tuple[str, bool]]:
+    """(reference, is an included model) of every mesh and include a URDF, SDFormat or MJCF
+    document names: ``<mesh filename=...>`` (URDF), ``<mesh><uri>`` and ``<include><uri>``
+    (SDFormat), ``<mesh file=...>`` and ``<include file=...>`` (MJCF, under its
+    ``<compiler meshdir=...>``). Read leniently (``_xml_events``): a document Drake would
+    parse is never skipped for a namespace it does not declare."""
+    refs: list[tuple[str, bool]] = []
+    stack: list[str] = []
+    uri: list[str] | None = None
+    meshdir = ""
+    for kind, *rest in _xml_events(text):
+        if kind == "text":
+            if uri is not None:
+                uri.append(rest[0])
+            continue
+        name, attrs = rest
+        if kind == "end":
+            if name == "uri" and uri is not None and len(stack) >= 2:
+                parent = stack[-2]
+                if "".join(uri).strip():
+                    refs.append(("".join(uri).strip(), parent == "include"))
+            uri = None
+            if name in stack:
+                del stack[len(stack) - 1 - stack[::-1].index(name) :]
+            continue
+        if name == "compiler":
+            meshdir = attrs.get("meshdir") or attrs.get("assetdir") or meshdir
+        elif name == "mesh":
+            refs += [(attrs[a], False) for a in ("filename",) if attrs.get(a)]
+            if attrs.get("file"):
+                refs.append((os.path.join(meshdir, attrs["file"]), False))
+        elif name == "include" and attrs.get("file"):
+            refs.append((attrs["file"], True))
+        if kind == "start":
+            stack.append(name)
+            if name == "uri" and len(stack) >= 2 and stack[-2] in ("mesh", "include"):
+                uri = []
+    return refs

@@ -40,6 +40,9 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
+from hydroilqr.studies.bases import base_report
+from hydroilqr.studies.step_cost import step_cost_report
+from hydroilqr.studies.stiffness import stiffness_report
 
 # Largest rollout the sanity check runs (steps), and the speed treated as a blow-up (m/s, rad/s).
 ROLLOUT_STEPS = 50
@@ -232,9 +235,11 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
         warn(w)
 
     _contact_at_start(dyn, x0, pairs, out)
+    out["stiffness"] = stiffness_report(dyn, geoms, pairs)  # (forces at a few overlaps)
     done("contacts")
 
     _simulation(task, pairs, rollout_steps, out)
+    out["step_cost"] = step_cost_report(task, out["rollout_steps"])  # (faces, ms, coarser)
     if cfg.cost.terms:  # the task-space cost terms on the guess's rollout over the horizon
         out["terms"] = terms_on_guess(task)
     done("simulation")
@@ -278,6 +283,8 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     up, contact that misses the tracked objects, too many contact polygons."""
     w = _start_warning(pairs, out["max_speed"])
     if w:
+        warn(w)
+    for w in out["bases"]["warnings"]:  # (free and planar bases: fell, left, flew)
         warn(w)
     w = _untracked_contact_warning(
         out["touched_pairs"],
@@ -364,6 +371,9 @@ def _model(task) -> dict:
         "contact_surface_representation": cfg.plant.contact_surface_representation,
         "derivatives": cfg.solver.derivatives,
         "initial_guess": describe_guess(cfg.initial_guess),
+        "gravity_off": [
+            f"models[{i}]: {m.file}" for i, m in enumerate(cfg.models) if not m.gravity
+        ],
     }
 
 
@@ -463,6 +473,7 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
+    out["bases"] = base_report(task, Xc if tracked else _contact_rollout(task, X))
     out.update(
         {
             "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),

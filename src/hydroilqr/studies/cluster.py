@@ -8,12 +8,14 @@ address (a silent listener, one that closes, or one speaking another protocol in
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
 import socket
 import threading
 import time
+from multiprocessing import resource_tracker
 
 import psutil
 from distributed import Client, LocalCluster
@@ -88,27 +90,31 @@ def open_client(scheduler: str | None, workers: int | None = None):
         return _client_within(Client, scheduler), None
 
     n = workers or cores()
-    # Ctrl+C in a terminal reaches the whole process group. The workers ignore it, so only
-    # this process acts on it: it stops the work and the cluster, without every worker
-    # printing its own KeyboardInterrupt traceback. A worker inherits an ignored SIGINT from
-    # this process, which ignores it only while the worker processes are being spawned
-    # (_spawn_workers; ignoring it for the whole start-up lost a Ctrl+C pressed in those
-    # seconds and let a sweep run to its end), and ignores it again itself as it starts
-    # (worker_setup, preloaded: also a worker Dask restarts later).
+    # Ctrl+C in a terminal reaches the whole process group. The workers never act on it, so
+    # only this process does: it stops the work and the cluster, without every worker
+    # printing its own KeyboardInterrupt traceback. The cluster's threads (its event loop,
+    # which starts the worker processes, also those Dask restarts later) are created with
+    # SIGINT blocked, and a process inherits its starter's blocked signals: the workers start
+    # with it blocked (worker_setup also ignores it). This process keeps receiving it
+    # throughout: ignoring it while the workers were spawned lost a Ctrl+C pressed in those
+    # seconds (on a busy machine the sweep then ran to its end).
     cluster = None
+    others = {c.pid for c in psutil.Process().children()}
     try:
-        cluster = LocalCluster(
-            n_workers=0,  # (started by _spawn_workers)
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-            # The scheduler's HTTP routes still bind a port: any free one, so
-            # parallel sweeps do not warn about 8787 being taken.
-            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-            preload=["hydroilqr.studies.worker_setup"],
-        )
-        _spawn_workers(cluster, n)
+        with _sigint_blocked_in_new_threads():
+            cluster = LocalCluster(
+                n_workers=0,  # (started by scale below)
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+                # The scheduler's HTTP routes still bind a port: any free one, so
+                # parallel sweeps do not warn about 8787 being taken.
+                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                preload=["hydroilqr.studies.worker_setup"],
+            )
+        _OTHER_CHILDREN[id(cluster)] = others
+        cluster.scale(n)
         try:
             cluster.wait_for_workers(n, timeout=START_SECONDS)
         except TimeoutError:
@@ -122,41 +128,41 @@ def open_client(scheduler: str | None, workers: int | None = None):
     return Client(cluster), cluster
 
 
+# id(cluster) -> the child processes this process had before it started that cluster
+_OTHER_CHILDREN: dict[int, set[int]] = {}
 START_SECONDS = 300.0  # a local cluster's workers start within this long, or it is an error
-SPAWN_SECONDS = 30.0  # at most this long with SIGINT ignored while workers are spawned
 
 
-def _spawn_workers(cluster, n: int) -> None:
-    """Asks ``cluster`` for ``n`` workers and returns once their processes exist, with SIGINT
-    ignored meanwhile (from the main thread) so that they inherit an ignored one."""
-
+@contextlib.contextmanager
+def _sigint_blocked_in_new_threads():
+    """SIGINT blocked in this thread inside the block, so the threads started meanwhile
+    (and the processes they start) block it; this thread's mask is restored after."""
     if threading.current_thread() is not threading.main_thread():
-        cluster.scale(n)
+        yield
         return
-    me = psutil.Process()
-    before = {c.pid for c in me.children()}
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # (multiprocessing's resource tracker, started with the first worker, unblocks SIGINT in
+    # the thread that starts it: it is started here first, before anything is blocked)
+    resource_tracker.ensure_running()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        cluster.scale(n)
-        deadline = time.monotonic() + SPAWN_SECONDS
-        while time.monotonic() < deadline and _spawned(me, before) < n:
-            time.sleep(0.02)
+        yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
-def _spawned(me, before: set[int]) -> int:
-    """Worker processes (multiprocessing spawns) started since ``before``."""
-
-    n = 0
+def _spawned_pids(me, before: set[int]) -> list[int]:
+    """The process ids of ``me``'s multiprocessing spawns (worker processes) not in
+    ``before``."""
+    pids = []
     for child in me.children():
         if child.pid in before:
             continue
         try:
-            n += any("spawn_main" in part for part in child.cmdline())
+            if any("spawn_main" in part for part in child.cmdline()):
+                pids.append(child.pid)
         except psutil.Error:
             pass
-    return n
+    return pids
 
 
 def kill_workers(cluster) -> None:
@@ -164,13 +170,20 @@ def kill_workers(cluster) -> None:
     jobs are abandoned anyway; closing them politely waits for a busy worker and lets it
     log the scheduler's going away)."""
 
-    for nanny in list(getattr(cluster, "workers", {}).values()):
-        pid = getattr(nanny, "pid", None)
-        if pid:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
+    for name in ("distributed", "tornado.application"):  # (a nanny whose worker it kills)
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    pids = {getattr(nanny, "pid", None) for nanny in list(getattr(cluster, "workers", {}).values())}
+    # A worker still starting (on a busy machine, seconds) is not listed yet: left alive, it
+    # printed a heartbeat traceback when the scheduler went away. Every worker process is a
+    # multiprocessing spawn of this process.
+    # (children this process had before the cluster started are not its workers)
+    if id(cluster) in _OTHER_CHILDREN:
+        pids |= set(_spawned_pids(psutil.Process(), _OTHER_CHILDREN[id(cluster)]))
+    for pid in pids - {None}:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
 
 
 def _close_quietly(cluster) -> None:

@@ -26,7 +26,7 @@ from hydroilqr.io.environment import environment
 from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import evaluate
-from hydroilqr.output.report import json_safe
+from hydroilqr.output.report import json_safe, output_dir
 from hydroilqr.problem.config import mismatch_overrides
 from hydroilqr.studies.robustness import table
 
@@ -494,7 +494,7 @@ def generate(
     atomically). ``command``: the line recorded at the top (default: the equivalent
     ``hydroilqr results ...`` command). Returns the paths written, by format."""
     tasks = list(tasks)
-    out = Path(out)
+    out = output_dir(out)  # created, locked and proven writable before any solve
     context = Context(
         command=command or command_line(tasks, out, smoke, overrides),
         smoke=smoke,
@@ -505,7 +505,6 @@ def generate(
     env = dict(environment())
     env["command"] = context.command
     md, page = render(results, context, env, sections)
-    out.mkdir(parents=True, exist_ok=True)
     paths = {
         "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
         "md": atomic_write(out / "results.md", md),

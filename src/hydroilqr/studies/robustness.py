@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -32,8 +34,10 @@ from distributed import as_completed
 
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
+from hydroilqr.model.derivatives import num_threads
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
+from hydroilqr.problem.config import ConfigError, load_task
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.multistart import solve_start
 
@@ -56,6 +60,12 @@ class RunResult:
     checks: list = field(default_factory=list)
     error: str = ""
     seconds: float = 0.0
+    # Cores the solve keeps busy at most (``solve_threads``); its start and end (Unix time,
+    # on its worker) and the worker's process id: how many solves ran at once is measured.
+    threads: int = 0
+    started: float = 0.0
+    finished: float = 0.0
+    worker: int = 0
     # With transfer: {"goal_met", "failed_checks", "resting_gap"} of the plan's playback, or
     # {"error"} if it could not be played back; None: not played back.
     transfer: dict | None = None
@@ -71,6 +81,10 @@ class RunResult:
             "failed_checks": [c["metric"] for c in self.checks if not c.get("passed")],
             "values": {c["metric"]: c.get("value") for c in self.checks},
             "seconds": round(self.seconds, 2),
+            "threads": self.threads,
+            "started": self.started,
+            "finished": self.finished,
+            "worker": self.worker,
             **({"error": self.error} if self.error else {}),
             **({"transfer": self.transfer} if self.transfer is not None else {}),
         }
@@ -81,9 +95,18 @@ def solve_run(task_ref: dict, k: int, seed: int, noise: float, transfer: bool = 
     guess perturbed by run ``k``'s draw, metrics and goal), and with ``transfer`` its plan
     played back (``played_back``); a failure is recorded as a run that did not meet the
     goal."""
+    started = time.time()
     r = solve_start(task_ref, k, seed, noise)
     sol = r.solution
     res = RunResult(task=task_ref["label"], index=k, error=r.error, seconds=r.seconds)
+    res.started, res.finished, res.worker = started, time.time(), os.getpid()
+    try:
+        cfg = load_task(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        res.threads = solve_threads(cfg.solver)
+    except ConfigError:
+        pass  # (the failed solve says why)
     if sol is None:
         res.goal_met = False
         return res
@@ -94,6 +117,28 @@ def solve_run(task_ref: dict, k: int, seed: int, noise: float, transfer: bool = 
     if transfer and not r.error:
         res.transfer = played_back(task_ref, sol)
     return res
+
+
+def solve_threads(solver) -> int:
+    """Cores one solve with the settings ``solver`` keeps busy at most: its finite-difference
+    threads (``solver.threads``, 0 = one per core), its AutoDiff or line-search worker
+    processes (``autodiff_workers``, ``line_search_workers``; 1: in its own process)."""
+    fd = solver.derivatives in ("forward", "central")
+    derivatives = num_threads(solver.threads if fd else solver.autodiff_workers)
+    return max(derivatives, num_threads(solver.line_search_workers))
+
+
+def most_at_once(runs: Sequence[RunResult]) -> int:
+    """The most solves that ran at the same time (from their start and end times)."""
+    events = sorted(
+        [(r.started, 1) for r in runs if r.finished]
+        + [(r.finished, -1) for r in runs if r.finished]
+    )  # (an end before a start at the same instant: not overlapping)
+    most = now = 0
+    for _, step in events:
+        now += step
+        most = max(most, now)
+    return most
 
 
 def played_back(task_ref: dict, sol) -> dict:
@@ -176,6 +221,7 @@ def run_robustness(
     env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)
     by_task: dict[str, list[RunResult]] = {ref["label"]: [] for ref in task_refs}
+    n_workers = len(client.scheduler_info().get("workers", {}))
     try:
         futures = [
             client.submit(
@@ -209,6 +255,11 @@ def run_robustness(
         "tasks": [summarize(label, rs) for label, rs in by_task.items()],
         "environment": env,
         "transfer": transfer,
+        "workers": n_workers,  # each runs one solve at a time
+        "most_solves_at_once": most_at_once([r for rs in by_task.values() for r in rs]),
+        "threads_per_solve": {
+            label: max((r.threads for r in rs), default=0) for label, rs in by_task.items()
+        },
     }
 
 
