@@ -1,0 +1,224 @@
+"""A task's sampling search on Dask workers, then iLQR polish of its best samples.
+
+``run_search(task_ref, ...)`` runs ``solver.search.run_search`` with an evaluator that sends
+each iteration's samples in batches to Dask workers (``studies/cluster.py``: a local cluster
+by default, an existing scheduler by address). Each worker builds the task's plant once and
+holds it (``held``, by the task's reference) for every batch it gets; the samples themselves
+are drawn in this process from the search's one seeded generator, so the same seed gives
+the same samples, costs and best with any number of workers.
+
+``polish(task_ref, candidates, ...)`` solves the task with iLQR from each candidate's
+torques (as Dask jobs too) and ``select`` picks among them: the first (lowest search cost)
+whose plan meets the task's goal, else the lowest final cost (``search.select: goal``), or
+the lowest final cost (``cost``).
+
+``throughput(task_ref, worker_counts, ...)`` measures samples per second with each number of
+workers side by side, and the fixed cost of a batch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hydroilqr import metrics as metrics_mod
+from hydroilqr.metrics.goals import evaluate as evaluate_goal
+from hydroilqr.model.task import Task
+from hydroilqr.solver import search as search_mod
+from hydroilqr.solver.api import solve
+from hydroilqr.studies.cluster import kill_workers, open_client
+from hydroilqr.studies.multistart import StartResult, _close
+
+#: Per worker process: the task and search space of the last task reference it evaluated.
+_HELD: dict = {}
+
+
+def held(task_ref: dict):
+    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}), built once per
+    process and kept (a new reference replaces it)."""
+    key = json.dumps(task_ref, sort_keys=True, default=str)
+    if key not in _HELD:
+        _HELD.clear()
+        task = Task.load(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        _HELD[key] = (task, search_mod.SearchSpace(task))
+    return _HELD[key]
+
+
+def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
+    """Runs on a worker: the costs of a batch of commands on its held plant."""
+    task, space = held(task_ref)
+    return [space.cost(task, c) for c in commands]
+
+
+class DaskEvaluator:
+    """``evaluate(commands) -> costs`` over a Dask client: ``batches`` batches per call (0:
+    one per worker), gathered in order."""
+
+    def __init__(self, client, task_ref: dict, batches: int = 0):
+        self.client = client
+        self.task_ref = task_ref
+        self.workers = max(1, len(client.scheduler_info().get("workers", {})))
+        self.batches = batches or self.workers
+        self.calls = 0
+
+    def __call__(self, commands: list) -> list[float]:
+        n = max(1, min(self.batches, len(commands)))
+        bounds = np.linspace(0, len(commands), n + 1).round().astype(int)
+        futures = [
+            self.client.submit(
+                evaluate_batch,
+                self.task_ref,
+                commands[a:b],
+                pure=False,
+                key=f"search-{self.calls}-{i}",
+            )
+            for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))
+        ]
+        self.calls += 1
+        costs: list[float] = []
+        for part in self.client.gather(futures):
+            costs += part
+        return costs
+
+
+def load(task_ref: dict) -> Task:
+    return Task.load(task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"])
+
+
+@dataclass
+class SearchRun:
+    """A search's outcome: the space, the sampling result, the best sample as a Solution."""
+
+    space: object
+    result: object
+    solution: object
+    workers: int = 0
+    polished: list = field(default_factory=list)  # StartResult per candidate
+    chosen: int | None = None  # index into polished
+
+
+def run_search(
+    task_ref: dict,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    on_iteration=None,
+    polish: bool = False,
+    on_polish=None,
+) -> SearchRun:
+    """The task's search on Dask (and, with ``polish``, iLQR from its best
+    ``search.polish`` samples on the same workers); Ctrl+C keeps the best so far."""
+    task = load(task_ref)
+    client, cluster = open_client(scheduler, workers)
+    try:
+        ev = DaskEvaluator(
+            client, task_ref, task.config.search.batches if task.config.search else 0
+        )
+        space, result = search_mod.run_search(task, ev, on_iteration=on_iteration)
+        run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
+        if polish and not result.interrupted and space.settings.polish > 0:
+            run.polished = _polish(client, task_ref, space, result, on_polish)
+            run.chosen = select(run.polished, space.settings.select)
+    except KeyboardInterrupt:
+        if cluster is not None:
+            kill_workers(cluster)
+        raise
+    finally:
+        _close(client, cluster)
+    return run
+
+
+def polish_one(task_ref: dict, U0: np.ndarray, index: int) -> StartResult:
+    """Runs on a worker: iLQR from the controls U0, the metrics and the goal. Never raises."""
+    t0 = time.perf_counter()
+    res = StartResult(index=index)
+    try:
+        task = load(task_ref)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res.solution = solve(task, U0=U0)
+        res.metrics = metrics_mod.compute(task, res.solution)
+        res.goal = evaluate_goal(task.config.goal, res.metrics)
+    except Exception as e:  # noqa: BLE001 - a failed polish is data; the others go on
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        res.error = f"{type(e).__name__}: {first}"[:300]
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _polish(client, task_ref, space, result, on_polish) -> list[StartResult]:
+    task = load(task_ref)
+    futures = []
+    for i, cand in enumerate(result.candidates):
+        U0 = space.rollout(task, cand.command).U
+        futures.append(client.submit(polish_one, task_ref, U0, i, pure=False, key=f"polish-{i}"))
+    out = []
+    for fut in futures:
+        r = fut.result()
+        out.append(r)
+        if on_polish is not None:
+            on_polish(r)
+    return out
+
+
+def select(polished: list[StartResult], how: str = "goal") -> int | None:
+    """The chosen polished plan: ``goal``: the first (by search cost) whose goal is met,
+    else the lowest final cost; ``cost``: the lowest final cost. None if none finished."""
+    ok = [r for r in polished if math.isfinite(r.cost)]
+    if not ok:
+        return None
+    if how == "goal":
+        met = [r for r in ok if r.goal.get("met") is True]
+        if met:
+            return met[0].index
+    return min(ok, key=lambda r: r.cost).index
+
+
+def throughput(
+    task_ref: dict, worker_counts=(1, 2), samples: int = 64, rounds: int = 3
+) -> list[dict]:
+    """Samples per second of the task's search rollouts with each number of local workers,
+    side by side in one run: per count, a warm-up call (the workers build their plants),
+    then ``rounds`` calls of ``samples`` random samples in one batch per worker; and the
+    overhead of a batch: the time of an empty batch's round trip."""
+    task = load(task_ref)
+    space = search_mod.SearchSpace(task)
+    rng = np.random.default_rng(0)
+    nominal = space.nominal(task)
+    commands = [
+        space.decode(np.clip(nominal + 0.3 * space.scale * rng.standard_normal(nominal.shape),
+                             space.lower, space.upper))
+        for _ in range(samples)
+    ]  # fmt: skip
+    out = []
+    for n in worker_counts:
+        client, cluster = open_client(None, n)
+        try:
+            ev = DaskEvaluator(client, task_ref)
+            ev(commands[: ev.workers])  # warm-up: each worker builds its plant
+            t0 = time.perf_counter()
+            for _ in range(rounds):
+                ev(commands)
+            seconds = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            for _ in range(rounds):
+                client.gather([client.submit(evaluate_batch, task_ref, [], pure=False)])
+            overhead = (time.perf_counter() - t1) / rounds
+        finally:
+            _close(client, cluster)
+        out.append(
+            {
+                "workers": n,
+                "samples": samples * rounds,
+                "seconds": seconds,
+                "samples_per_second": samples * rounds / seconds,
+                "batch_overhead_seconds": overhead,
+            }
+        )
+    return out
