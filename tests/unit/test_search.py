@@ -196,7 +196,7 @@ def test_samples_stay_within_the_bounds():
         ("search.noise=inf", "search.noise"),
         ("search.noise=0", "search.noise"),
         ("search.noise=-1", "search.noise"),
-        ("search.elites=100", "search.elites"),
+        ("search.elites=0", "search.elites"),
         ("search.temperature=0", "search.temperature"),
         ("search.select=robustly", "search.select"),
         ("search.seed=-1", "search.seed"),
@@ -262,3 +262,21 @@ def test_a_search_space_decodes_and_costs_with_the_tasks_own_cost(cartpole):
     small = SearchConfig(space="torque", samples=6, iterations=2, knots=3, elites=2)
     space2, res = run_search(cartpole, settings=small)
     assert res.best.cost <= res.costs[0, 0] and res.costs.shape == (2, 6)
+
+
+def test_the_same_best_sample_with_one_and_two_dask_workers():
+    """Samples drawn centrally, evaluated in batches on workers that hold their plant: the
+    same costs and best sample with 1 and 2 workers for one seed."""
+    from hydroilqr.studies.search import run_search
+
+    ref = {
+        "name": "cartpole-wall",
+        "overrides": ["num_steps=10", "search.samples=6", "search.iterations=2", "search.knots=3"],
+        "config": None,
+        "smoke": False,
+    }
+    runs = [run_search(ref, workers=n) for n in (1, 2)]
+    assert [r.workers for r in runs] == [1, 2]
+    assert np.array_equal(runs[0].result.costs, runs[1].result.costs)
+    assert np.array_equal(runs[0].result.best.knots, runs[1].result.best.knots)
+    assert np.array_equal(runs[0].solution.X, runs[1].solution.X)

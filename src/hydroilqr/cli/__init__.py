@@ -39,6 +39,7 @@ def commands() -> dict:
         results,
         robustness,
         schema,
+        search,
         solve,
         sweep,
         tasks,
@@ -47,6 +48,7 @@ def commands() -> dict:
     return {
         "tasks": tasks,
         "solve": solve,
+        "search": search,
         "check": check,
         "sweep": sweep,
         "playback": playback,

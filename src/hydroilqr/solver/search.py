@@ -141,7 +141,7 @@ def run_search(task, evaluate=None, settings: SearchConfig | None = None, on_ite
 
 def as_solution(task, space: SearchSpace, result: sampling.SamplingResult) -> Solution:
     """The best sample as a Solution (its rollout; no gains): ``costs`` the best cost after
-    each iteration (led by the nominal's), ``extra.search`` what the search did."""
+    each iteration, led by the nominal's (``record`` says what the search did)."""
     r = space.rollout(task, result.best.command)
     costs = np.concatenate([result.costs[:1, 0], result.best_costs]) if result.history else [r.cost]
     return Solution(
@@ -157,7 +157,6 @@ def as_solution(task, space: SearchSpace, result: sampling.SamplingResult) -> So
         reason="interrupted" if result.interrupted else "search",
         derivatives="none (sampling)",
         status="interrupted" if result.interrupted else "max_iterations",
-        extra={"search": record(space, result)},
     )
 
 

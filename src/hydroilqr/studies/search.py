@@ -102,6 +102,31 @@ class SearchRun:
     workers: int = 0
     polished: list = field(default_factory=list)  # StartResult per candidate
     chosen: int | None = None  # index into polished
+    polish_interrupted: bool = False  # Ctrl+C during the polish: the finished ones kept
+
+    @property
+    def interrupted(self) -> bool:
+        return bool(self.result.interrupted or self.polish_interrupted)
+
+    def record(self) -> dict:
+        """summary.json's ``search``: the search (``solver.search.record``), and the polish."""
+        out = search_mod.record(self.space, self.result)
+        out["workers"] = self.workers
+        if self.polished or self.polish_interrupted:
+            out["polish"] = {
+                "select": self.space.settings.select,
+                "chosen": self.chosen,
+                "interrupted": self.polish_interrupted,
+                "results": [r.record() for r in self.polished],
+            }
+        return out
+
+    @property
+    def chosen_solution(self):
+        """The chosen polished plan, else the search's best sample."""
+        if self.chosen is None:
+            return self.solution
+        return next(r.solution for r in self.polished if r.index == self.chosen)
 
 
 def run_search(
@@ -123,8 +148,12 @@ def run_search(
         space, result = search_mod.run_search(task, ev, on_iteration=on_iteration)
         run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
         if polish and not result.interrupted and space.settings.polish > 0:
-            run.polished = _polish(client, task_ref, space, result, on_polish)
+            run.polished, run.polish_interrupted = _polish(
+                client, task, task_ref, space, result, on_polish
+            )
             run.chosen = select(run.polished, space.settings.select)
+        if run.interrupted and cluster is not None:
+            kill_workers(cluster)  # (their unfinished batches or solves are abandoned)
     except KeyboardInterrupt:
         if cluster is not None:
             kill_workers(cluster)
@@ -152,19 +181,23 @@ def polish_one(task_ref: dict, U0: np.ndarray, index: int) -> StartResult:
     return res
 
 
-def _polish(client, task_ref, space, result, on_polish) -> list[StartResult]:
-    task = load(task_ref)
+def _polish(client, task, task_ref, space, result, on_polish) -> tuple[list, bool]:
+    """iLQR from each candidate's torques as Dask jobs: (results in candidate order,
+    interrupted). Ctrl+C keeps the ones that had finished."""
     futures = []
     for i, cand in enumerate(result.candidates):
         U0 = space.rollout(task, cand.command).U
         futures.append(client.submit(polish_one, task_ref, U0, i, pure=False, key=f"polish-{i}"))
-    out = []
-    for fut in futures:
-        r = fut.result()
-        out.append(r)
-        if on_polish is not None:
-            on_polish(r)
-    return out
+    out: list[StartResult] = []
+    try:
+        for fut in futures:
+            r = fut.result()
+            out.append(r)
+            if on_polish is not None:
+                on_polish(r)
+    except KeyboardInterrupt:
+        return out, True
+    return out, False
 
 
 def select(polished: list[StartResult], how: str = "goal") -> int | None:
