@@ -253,6 +253,10 @@ def test_a_search_space_decodes_and_costs_with_the_tasks_own_cost(cartpole):
     space = SearchSpace(cartpole)
     theta = space.nominal(cartpole)
     assert theta.shape == (8, 1) and np.allclose(theta[0], cartpole.x0[space.qi])
+    # the first knot is pinned at the start posture (equal bounds), the others are free
+    assert np.array_equal(space.lower[0], cartpole.x0[space.qi])
+    assert np.array_equal(space.upper[0], cartpole.x0[space.qi])
+    assert np.all(space.upper[1:] > space.lower[1:])
     cmd = space.decode(theta)
     assert cmd.shape == (16, 1)
     r = space.rollout(cartpole, cmd)

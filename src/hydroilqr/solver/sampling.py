@@ -12,7 +12,7 @@ seeded with ``settings.seed``, before any is evaluated; where and in how many ba
 sample). Noise is ε·σ with σ: [K, m] (``settings.noise`` times ``scale``: [m]) and ε of a
 1/f^β power spectrum along the knots (``colored_noise`` β; iCEM, Pinneri et al. 2020: β = 2
 gives smooth, temporally correlated plans, β = 0 white noise). Samples are clipped to
-``lower`` / ``upper``: [m] (e.g. effort or joint limits).
+``lower`` / ``upper``: [m] or [K, m] (e.g. effort or joint limits; equal bounds pin a knot).
 
 Methods (``settings.method``):
 
@@ -124,7 +124,7 @@ def search(
     ``decode(θ) -> command``; ``scale``: [m] the noise unit per input; ``settings``: any
     object with method, samples, iterations, noise, elites, elite_memory, colored_noise,
     smoothing, temperature, seed (``problem.config.SearchConfig``); ``lower``/``upper``: [m]
-    bounds on θ (None: unbounded); ``keep``: how many distinct best samples to return;
+    or [K, m] bounds on θ (None: unbounded); ``keep``: how many distinct best samples to return;
     ``on_iteration(info)`` after each iteration (info: the history entry and ``iteration``);
     returning True stops the search. Ctrl+C (KeyboardInterrupt) ends it with the best so far
     (``interrupted``)."""
@@ -132,8 +132,8 @@ def search(
         raise ValueError(f"method must be one of {METHODS}, got {settings.method!r}")
     nominal = np.asarray(nominal, float)
     rng = np.random.default_rng(int(settings.seed))
-    lo = np.full(nominal.shape[1], -np.inf) if lower is None else np.asarray(lower, float)
-    hi = np.full(nominal.shape[1], np.inf) if upper is None else np.asarray(upper, float)
+    lo = np.full(nominal.shape, -np.inf) if lower is None else np.asarray(lower, float)
+    hi = np.full(nominal.shape, np.inf) if upper is None else np.asarray(upper, float)
     sigma0 = settings.noise * np.broadcast_to(np.asarray(scale, float), nominal.shape).copy()
     st = _State(np.clip(nominal, lo, hi), sigma0.copy())
     best: list[Candidate] = []

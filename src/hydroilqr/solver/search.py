@@ -8,7 +8,8 @@ K knots per actuator of a spline of ``order`` over the horizon, in one of two sp
 - ``position``: the spline is the actuated joints' position targets at each state's time,
   Q_ref: [N+1, nu], tracked by playback's PD+ law (``model.pd.pd_rollout``: gains
   ``search.kp`` / ``kd``, gravity compensation as feed-forward); the torques are the
-  rollout's.
+  rollout's. The first knot is the start posture (pinned), the others stay within the
+  joint limits.
 
 A sample's cost is the task's own cost (terms included) of the task's own plant's rollout
 from its initial state; a rollout the plant cannot step costs inf. The nominal knots come
@@ -69,9 +70,14 @@ class SearchSpace:
             if len(self.qi) != dyn.nu:
                 raise ValueError("search.space position needs one 1-DoF joint per actuator")
             self.scale = np.ones(dyn.nu)
-            lo = dyn.plant.GetPositionLowerLimits()[self.qi]
-            hi = dyn.plant.GetPositionUpperLimits()[self.qi]
-            self.lower, self.upper = np.asarray(lo, float), np.asarray(hi, float)
+            lo = np.asarray(dyn.plant.GetPositionLowerLimits()[self.qi], float)
+            hi = np.asarray(dyn.plant.GetPositionUpperLimits()[self.qi], float)
+            # [K, nu]: the first knot is pinned at the start posture (a target away from it
+            # at t = 0 would be a step the PD+ law answers with a jolt); the others within
+            # the joint limits
+            q0 = np.asarray(task.x0[self.qi], float)
+            self.lower, self.upper = np.tile(lo, (cfg.knots, 1)), np.tile(hi, (cfg.knots, 1))
+            self.lower[0] = self.upper[0] = q0
 
     def nominal(self, task) -> np.ndarray:
         """θ0: [K, nu] from the task's initial guess: its controls at the knots' times
