@@ -284,3 +284,23 @@ def test_the_same_best_sample_with_one_and_two_dask_workers():
     assert np.array_equal(runs[0].result.costs, runs[1].result.costs)
     assert np.array_equal(runs[0].result.best.knots, runs[1].result.best.knots)
     assert np.array_equal(runs[0].solution.X, runs[1].solution.X)
+
+
+def test_select_by_goal_cost_or_transfer():
+    from hydroilqr.studies.search import PolishResult, select
+
+    class _Sol:
+        def __init__(self, cost):
+            self.final_cost = cost
+
+    def r(i, cost, met, moved=None):
+        out = PolishResult(index=i, solution=_Sol(cost), goal={"met": met})
+        out.transfer = None if moved is None else {"goal_met": moved}
+        return out
+
+    rs = [r(0, 5.0, False, False), r(1, 9.0, True, False), r(2, 7.0, True, True)]
+    assert select(rs, "goal") == 1  # the first that meets the goal, not the cheapest
+    assert select(rs, "cost") == 0
+    assert select(rs, "transfer") == 2  # the first whose playback meets it
+    assert select([r(0, 5.0, False), r(1, 3.0, False)], "goal") == 1  # none met: cheapest
+    assert select([r(0, math.inf, None)], "goal") is None

@@ -481,7 +481,7 @@ class MPCConfig:
 SEARCH_METHODS = ("predictive", "cem", "mppi")  # search.method
 SEARCH_SPACES = ("torque", "position")  # search.space
 SEARCH_ORDERS = (0, 1, 3)  # search.order: zero-order hold, linear, cubic
-SEARCH_SELECTS = ("goal", "cost")  # search.select
+SEARCH_SELECTS = ("goal", "cost", "transfer")  # search.select
 MAX_SEARCH_SAMPLES = 100_000  # samples of one search iteration
 
 
@@ -511,7 +511,9 @@ class SearchConfig:
     kd: float = 10.0  # position space: PD+ damping (N·m·s/rad or N·s/m)
     seed: int = 0
     polish: int = 1  # solve: iLQR from the best this-many distinct samples (0: search only)
-    select: str = "goal"  # goal: first polished plan meeting the goal, else lowest cost; cost
+    # goal: the first polished plan meeting the goal, else the lowest cost; cost: the lowest
+    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it
+    select: str = "goal"
     batches: int = 0  # evaluation batches per iteration (0: one per worker)
 
 

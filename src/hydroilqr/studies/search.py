@@ -9,8 +9,9 @@ the same samples, costs and best with any number of workers.
 
 ``polish(task_ref, candidates, ...)`` solves the task with iLQR from each candidate's
 torques (as Dask jobs too) and ``select`` picks among them: the first (lowest search cost)
-whose plan meets the task's goal, else the lowest final cost (``search.select: goal``), or
-the lowest final cost (``cost``).
+whose plan meets the task's goal, else the lowest final cost (``search.select: goal``); the
+lowest final cost (``cost``); the first whose PD+ playback at half speed on the finer
+simulation meets the goal, else as ``goal`` (``transfer``).
 
 ``throughput(task_ref, worker_counts, ...)`` measures samples per second with each number of
 workers side by side, and the fixed cost of a batch.
@@ -33,6 +34,7 @@ from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.cluster import kill_workers, open_client
 from hydroilqr.studies.multistart import StartResult, _close
+from hydroilqr.studies.robustness import played_back
 
 #: Per worker process: the task and search space of the last task reference it evaluated.
 _HELD: dict = {}
@@ -163,10 +165,25 @@ def run_search(
     return run
 
 
-def polish_one(task_ref: dict, U0: np.ndarray, index: int) -> StartResult:
-    """Runs on a worker: iLQR from the controls U0, the metrics and the goal. Never raises."""
+@dataclass
+class PolishResult(StartResult):
+    """A polished candidate; with ``select: transfer`` also its plan's playback
+    (``studies.robustness.played_back``: goal_met on the executed motion, resting_gap)."""
+
+    transfer: dict | None = None
+
+    def record(self) -> dict:
+        out = super().record()
+        if self.transfer is not None:
+            out["transfer"] = self.transfer
+        return out
+
+
+def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False):
+    """Runs on a worker: iLQR from the controls U0, the metrics and the goal, and with
+    ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
     t0 = time.perf_counter()
-    res = StartResult(index=index)
+    res = PolishResult(index=index)
     try:
         task = load(task_ref)
         with warnings.catch_warnings():
@@ -174,6 +191,8 @@ def polish_one(task_ref: dict, U0: np.ndarray, index: int) -> StartResult:
             res.solution = solve(task, U0=U0)
         res.metrics = metrics_mod.compute(task, res.solution)
         res.goal = evaluate_goal(task.config.goal, res.metrics)
+        if transfer:
+            res.transfer = played_back(task_ref, res.solution)
     except Exception as e:  # noqa: BLE001 - a failed polish is data; the others go on
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         res.error = f"{type(e).__name__}: {first}"[:300]
@@ -187,7 +206,10 @@ def _polish(client, task, task_ref, space, result, on_polish) -> tuple[list, boo
     futures = []
     for i, cand in enumerate(result.candidates):
         U0 = space.rollout(task, cand.command).U
-        futures.append(client.submit(polish_one, task_ref, U0, i, pure=False, key=f"polish-{i}"))
+        transfer = space.settings.select == "transfer"
+        futures.append(
+            client.submit(polish_one, task_ref, U0, i, transfer, pure=False, key=f"polish-{i}")
+        )
     out: list[StartResult] = []
     try:
         for fut in futures:
@@ -200,13 +222,19 @@ def _polish(client, task, task_ref, space, result, on_polish) -> tuple[list, boo
     return out, False
 
 
-def select(polished: list[StartResult], how: str = "goal") -> int | None:
-    """The chosen polished plan: ``goal``: the first (by search cost) whose goal is met,
-    else the lowest final cost; ``cost``: the lowest final cost. None if none finished."""
+def select(polished: list, how: str = "goal") -> int | None:
+    """The chosen polished plan, the candidates in order of search cost: ``goal``: the first
+    whose goal is met, else the lowest final cost; ``cost``: the lowest final cost;
+    ``transfer``: the first whose playback meets the goal, else as ``goal``. None if none
+    finished."""
     ok = [r for r in polished if math.isfinite(r.cost)]
     if not ok:
         return None
-    if how == "goal":
+    if how == "transfer":
+        moved = [r for r in ok if (getattr(r, "transfer", None) or {}).get("goal_met") is True]
+        if moved:
+            return moved[0].index
+    if how in ("goal", "transfer"):
         met = [r for r in ok if r.goal.get("met") is True]
         if met:
             return met[0].index
