@@ -146,6 +146,8 @@ def _throughput(task, args, extra: list[str]) -> int:
         console.print(
             f"  {r['workers']} worker(s): {r['samples_per_second']:.1f} samples/s "
             f"({r['samples_per_second'] / base:.2f}x), batch overhead "
-            f"{1e3 * r['batch_overhead_seconds']:.1f} ms"
+            f"{1e3 * r['batch_overhead_seconds']:.1f} ms, "
+            f"{1e3 * r['cpu_seconds_per_sample']:.1f} CPU ms per sample, each worker got "
+            f"{100 * r['cpu_share']:.0f}% of a core"
         )
     return 0

@@ -59,6 +59,13 @@ def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
     return [space.cost(task, c) for c in commands]
 
 
+def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
+    """``evaluate_batch`` and the worker's CPU seconds for it (``throughput``)."""
+    c0 = time.process_time()
+    costs = evaluate_batch(task_ref, commands)
+    return costs, time.process_time() - c0
+
+
 class DaskEvaluator:
     """``evaluate(commands) -> costs`` over a Dask client: ``batches`` batches per call (0:
     one per worker), gathered in order."""
@@ -246,8 +253,10 @@ def throughput(
 ) -> list[dict]:
     """Samples per second of the task's search rollouts with each number of local workers,
     side by side in one run: per count, a warm-up call (the workers build their plants),
-    then ``rounds`` calls of ``samples`` random samples in one batch per worker; and the
-    overhead of a batch: the time of an empty batch's round trip."""
+    then ``rounds`` calls of ``samples`` random samples in one batch per worker; the
+    overhead of a batch (an empty batch's round trip), the workers' CPU seconds per sample
+    and the share of a core each worker got (below 1: the machine is busy with other work,
+    and the rates say more about that than about the workers)."""
     task = load(task_ref)
     space = search_mod.SearchSpace(task)
     rng = np.random.default_rng(0)
@@ -263,9 +272,17 @@ def throughput(
         try:
             ev = DaskEvaluator(client, task_ref)
             ev(commands[: ev.workers])  # warm-up: each worker builds its plant
+            bounds = np.linspace(0, samples, ev.workers + 1).round().astype(int)
+            cpu = 0.0
             t0 = time.perf_counter()
             for _ in range(rounds):
-                ev(commands)
+                parts = client.gather(
+                    [
+                        client.submit(timed_batch, task_ref, commands[a:b], pure=False)
+                        for a, b in zip(bounds[:-1], bounds[1:])
+                    ]
+                )
+                cpu += sum(c for _, c in parts)
             seconds = time.perf_counter() - t0
             t1 = time.perf_counter()
             for _ in range(rounds):
@@ -280,6 +297,9 @@ def throughput(
                 "seconds": seconds,
                 "samples_per_second": samples * rounds / seconds,
                 "batch_overhead_seconds": overhead,
+                "cpu_seconds_per_sample": cpu / (samples * rounds),
+                # the share of its own core each worker got (1: an idle machine)
+                "cpu_share": cpu / (n * seconds),
             }
         )
     return out
