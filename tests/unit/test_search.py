@@ -304,3 +304,17 @@ def test_select_by_goal_cost_or_transfer():
     assert select(rs, "transfer") == 2  # the first whose playback meets it
     assert select([r(0, 5.0, False), r(1, 3.0, False)], "goal") == 1  # none met: cheapest
     assert select([r(0, math.inf, None)], "goal") is None
+
+
+def test_pusher_puck_searches_in_position_space_from_a_still_start():
+    """The built-in whose search: section solve runs: out of contact at the start, its
+    smoke-sized search (local evaluation) keeps the start posture as its first knot and
+    never ends above its nominal's cost."""
+    from hydroilqr.model.task import Task
+    from hydroilqr.solver.search import run_search
+
+    task = Task.load("pusher-puck", smoke=True)
+    assert task.config.search.space == "position" and task.config.goal
+    space, res = run_search(task)
+    assert np.array_equal(res.best.knots[0], task.x0[space.qi])
+    assert res.best.cost <= res.costs[0, 0] and np.isfinite(res.costs).all()
