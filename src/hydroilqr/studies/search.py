@@ -187,12 +187,16 @@ class PolishResult(StartResult):
 
 
 def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False):
-    """Runs on a worker: iLQR from the controls U0, the metrics and the goal, and with
-    ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
+    """Runs on a worker: iLQR from the controls U0 on the task as written (without its
+    ``continuation`` stages: a searched sample has already found what an approach stage
+    looks for, and a stage's own cost would pull it elsewhere), the metrics and the goal,
+    and with ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
     t0 = time.perf_counter()
     res = PolishResult(index=index)
     try:
         task = load(task_ref)
+        if task.config.continuation:  # the samples replace the stages (e.g. an approach)
+            task = task.with_overrides(["continuation=[]"])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             res.solution = solve(task, U0=U0)
