@@ -48,6 +48,7 @@ def commands() -> dict:
         results,
         robustness,
         schema,
+        search,
         solve,
         sweep,
         tasks,
@@ -56,6 +57,7 @@ def commands() -> dict:
     return {
         "tasks": tasks,
         "solve": solve,
+        "search": search,
         "check": check,
         "sweep": sweep,
         "playback": playback,

@@ -91,9 +91,18 @@ def run(args) -> int:
     if not args.resume:  # a resumed run starts elsewhere
         _warn_about_start(task)
     t0 = time.perf_counter()
-    sol, extra = _solve_many(task, args) if args.starts > 1 else (_solve(task, out, restart), {})
+    srun = None
+    if task.config.search is not None:  # a search across basins, then iLQR polish
+        srun = _search_then_polish(task, args)
+        sol, extra = srun.chosen_solution, {"search": srun.record()}
+    elif args.starts > 1:
+        sol, extra = _solve_many(task, args)
+    else:
+        sol, extra = _solve(task, out, restart), {}
     wall = time.perf_counter() - t0
-    if extra:  # multi-start: the best start's line, with its own solve's time
+    if srun is not None:
+        _print_outcome(sol, task, wall)
+    elif extra:  # multi-start: the best start's line, with its own solve's time
         ms = extra["multistart"]
         best = next(r for r in ms["results"] if r["index"] == ms["best"])
         console.print(f"all {args.starts} starts took {wall:.2f} s; the best start:")
@@ -106,7 +115,13 @@ def run(args) -> int:
         console.print(f"live view: {meshcat_instance().web_url()}")
     # An earlier solve's results are replaced only once this one's are complete: a failed or
     # killed run leaves them as they were (output/rundir.py).
-    summary = _write_results(task, sol, out, args, wall, extra)  # Ctrl+C: after the set
+    summary = _write_results(
+        task, sol, out, args, wall, extra, srun.result.costs if srun else None
+    )  # Ctrl+C: after the set
+    if srun is not None and srun.interrupted:
+        console.print(f"interrupted: {out} holds {_kept_at_interrupt(srun)}")
+        print_goal(summary["goal"], args.smoke, "the plan kept at Ctrl+C")
+        return 130
     if extra.get("multistart", {}).get("interrupted"):
         ms = extra["multistart"]
         console.print(
@@ -152,8 +167,15 @@ def _check_starts(task, args) -> None:
         )
     if args.starts > 1 and (args.resume or args.view):
         raise ConfigError("--starts does not combine with --resume or --view")
-    if args.starts == 1 and (args.scheduler or args.workers):
-        raise ConfigError("--scheduler and --workers go with --starts N (N > 1)")
+    if args.starts == 1 and (args.scheduler or args.workers) and task.config.search is None:
+        raise ConfigError(
+            "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
+        )
+    if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
+        raise ConfigError(
+            f"{task.name} has a search: section (the search's best samples are the starts): "
+            "--starts, --resume and --view do not combine with it"
+        )
 
 
 def _solve_many(task, args):
@@ -201,6 +223,45 @@ def _solve_many(task, args):
     }
     solution = next(r.solution for r in results if r.index == best)
     return solution, {"multistart": entry}
+
+
+def _search_then_polish(task, args):
+    """The task's sampling search on Dask, then iLQR from its best ``search.polish`` samples
+    (studies/search.py), the plan chosen by ``search.select``: a SearchRun."""
+    from hydroilqr.cli.search import print_search_line
+    from hydroilqr.output.progress import SearchProgress
+    from hydroilqr.studies.search import run_search
+
+    sc = task.config.search
+    where = args.scheduler or "a local Dask cluster"
+    console.print(
+        f"search: {sc.method} over {sc.knots} knots ({sc.space} space), {sc.samples} samples x "
+        f"{sc.iterations} iterations on {where}, then iLQR from the best {sc.polish}"
+    )
+    ref = {
+        "name": args.task_file or args.task,
+        "overrides": [*args.set, *_solver_overrides(args)],
+        "config": args.config,
+        "smoke": bool(args.smoke),
+    }
+
+    def polished(r) -> None:
+        console.print(f"  polish {r.index}: {start_line(r.record())}", soft_wrap=True)
+
+    t0 = time.perf_counter()
+    with SearchProgress(sc.iterations, console) as prog:
+        srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
+    print_search_line(srun, time.perf_counter() - t0)
+    if srun.polished:
+        chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"
+        console.print(f"select ({sc.select}): {chosen}")
+    return srun
+
+
+def _kept_at_interrupt(srun) -> str:
+    if srun.chosen is not None:
+        return f"the chosen plan of the {len(srun.polished)} polished before Ctrl+C"
+    return "the search's best sample found before Ctrl+C (not polished)"
 
 
 def start_line(rec: dict) -> str:
@@ -377,7 +438,7 @@ def _print_outcome(sol, task, wall: float) -> None:
         )
 
 
-def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict:
+def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_costs=None) -> dict:
     """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
     set's files and the playbacks of its plan are retired in the same commit."""
     from hydroilqr import metrics as metrics_mod
@@ -396,6 +457,7 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict
         wall_seconds=wall,
         command=command_line(args),
         extra_summary=extra,
+        search_costs=search_costs,
     )
     for line in metrics_mod.summary_lines(summary["metrics"]):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

@@ -51,6 +51,7 @@ from pydrake.multibody.tree import JointIndex
 from hydroilqr import metrics
 from hydroilqr.metrics.goals import judge
 from hydroilqr.model.contacts import touched_pairs
+from hydroilqr.model.pd import actuated_indices, pd_torque
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
 from hydroilqr.model.state import quat_conj, quat_mul
 from hydroilqr.model.task import Task
@@ -641,7 +642,9 @@ class _Controller:
             self.ref_u.append(self.ubar)
             self.next_update += st.update_period
         if tau >= self.next_ctrl - tol:
-            self.u = self.ubar - st.kp * (x[self.qi] - self.qbar) - st.kd * (x[self.vi] - self.vbar)
+            self.u = pd_torque(
+                self.ubar, x[self.qi], x[self.vi], self.qbar, self.vbar, st.kp, st.kd
+            )
             self._count_and_clip(tau)
 
     def _ilqr(self, tau: float, x: np.ndarray) -> None:
@@ -828,7 +831,7 @@ def _hold(truth: Dynamics, x, hold: Hold, qi, vi, limits, obj, st: PlaybackSetti
                 True,
             )
         if k % every == 0:
-            u = hold.u - st.kp * (x[qi] - hold.q) - st.kd * x[vi]
+            u = pd_torque(hold.u, x[qi], x[vi], hold.q, 0.0, st.kp, st.kd)
             controls += 1
             if st.clip_torques:
                 saturated += int(np.count_nonzero(np.abs(u) > limits))
@@ -859,7 +862,7 @@ def settle_plan(dyn: Dynamics, x_end: np.ndarray, obj: ObjectSpec, st: PlaybackS
     step would not be stable), everything else moves on under the planner's own contact
     model and time step, until the object rests (``st``'s rest_speed / rest_time) or
     rest_max seconds. Returns (states [M+1, nx] from x_end, rested)."""
-    qi, vi = _actuated_indices(dyn.plant)
+    qi, vi = actuated_indices(dyn.plant)
     x = np.array(x_end, dtype=float)
     q_hold = x[qi].copy()
     x[vi] = 0.0
@@ -882,19 +885,6 @@ def settle_plan(dyn: Dynamics, x_end: np.ndarray, obj: ObjectSpec, st: PlaybackS
         X.append(x.copy())
         still = still + 1 if _object_speed(x, obj) < st.rest_speed else 0
     return np.array(X), still >= need
-
-
-def _actuated_indices(plant) -> tuple[np.ndarray, np.ndarray]:
-    """Indices into x of the actuated joints' positions and velocities (any joint type)."""
-    qi, vi = [], []
-    for i in plant.GetJointActuatorIndices():
-        j = plant.get_joint_actuator(i).joint()
-        qi += range(j.position_start(), j.position_start() + j.num_positions())
-        vi += range(
-            plant.num_positions() + j.velocity_start(),
-            plant.num_positions() + j.velocity_start() + j.num_velocities(),
-        )
-    return np.array(qi, int), np.array(vi, int)
 
 
 def _pd_check(truth: Dynamics, x0, joints, v_indices, st: PlaybackSettings) -> dict:

@@ -39,7 +39,32 @@ def plot_convergence(sol, path: Path, title: str) -> None:
         label = "iteration (continuation stages, each on its own model)"
     ax.set_xlabel(label)
     ax.set_ylabel("cost")
-    ax.set_title(f"{title}: iLQR cost per iteration")
+    searched = sol.reason in ("search", "interrupted") and np.size(sol.K) == 0
+    ax.set_title(f"{title}: {'best sample cost' if searched else 'iLQR cost'} per iteration")
+    ax.grid(True, which="both", alpha=0.3)
+    savefig(fig, path)
+
+
+def plot_search(costs: np.ndarray, path: Path, title: str) -> None:
+    """search.png: every sample's cost per search iteration (dots; failed rollouts left out),
+    the iteration's median and the best cost so far. costs: [iterations, samples]."""
+    costs = np.asarray(costs, float)
+    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    its = np.arange(costs.shape[0])
+    finite = np.where(np.isfinite(costs), costs, np.nan)
+    for i in its:
+        ax.semilogy(
+            np.full(costs.shape[1], i), np.maximum(finite[i], 1e-300), ".", color="0.7", ms=2
+        )
+    if costs.size:
+        with np.errstate(all="ignore"):
+            ax.semilogy(its, np.nanmedian(finite, axis=1), "-", color="C1", label="median sample")
+            ax.semilogy(its, np.fmin.accumulate(np.nanmin(finite, axis=1)), "o-", ms=3,
+                        color="C0", label="best so far")  # fmt: skip
+        ax.legend(fontsize=8)
+    ax.set_xlabel("search iteration")
+    ax.set_ylabel("cost")
+    ax.set_title(f"{title}: sampling search")
     ax.grid(True, which="both", alpha=0.3)
     savefig(fig, path)
 

@@ -67,3 +67,36 @@ class ResolveProgress:
     def update(self, done: int, total: int, sol) -> None:
         info = f"it={sol.iterations} cost={sol.final_cost:.4g}"
         self.progress.update(self.id, completed=done, info=info)
+
+
+class SearchProgress:
+    """A progress bar over a sampling search's iterations with the best cost so far; use as
+    a context manager and pass ``update`` as the search's ``on_iteration`` callback."""
+
+    def __init__(self, total: int, console: Console | None = None):
+        self.progress = Progress(
+            TextColumn("[bold]search"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(),
+            TextColumn("left"),
+            TimeRemainingColumn(),
+            console=console,
+        )
+        self.total = total
+        self.id = None
+
+    def __enter__(self):
+        self.progress.__enter__()
+        self.id = self.progress.add_task("search", total=self.total, info="")
+        return self
+
+    def __exit__(self, *exc):
+        return self.progress.__exit__(*exc)
+
+    def update(self, info: dict) -> None:
+        text = f"best {info['best_cost']:.5g}, median {info['median']:.4g}"
+        if info.get("failed"):
+            text += f", {info['failed']} failed"
+        self.progress.update(self.id, completed=info["iteration"] + 1, info=text)

@@ -81,6 +81,7 @@ class deferred_interrupt:
 
 # Files and directories a solve (and playbacks of its solution) write into a run directory.
 SOLVE_FILES = ("summary.json", "solution.npz", "convergence.png", "replay.html", "checkpoint.npz")
+SOLVE_FILES += ("search.png", "search.npz")  # a sampling search's (search, or solve after one)
 
 
 def output_dir(out: str | Path, task_name: str | None = None, playback: bool = False) -> Path:

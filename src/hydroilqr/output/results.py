@@ -26,6 +26,7 @@ from hydroilqr.output.plots import (
     plot_convergence,
     plot_mpc,
     plot_playback,
+    plot_search,
     write_playback_replay,
     write_reference_csv,
 )
@@ -55,13 +56,16 @@ def write_solve(
     wall_seconds: float | None = None,
     command: str | None = None,
     extra_summary: dict | None = None,
+    search_costs: np.ndarray | None = None,
 ) -> dict:
     """summary.json, solution.npz, convergence.png, the metrics' plots and replay.html (unless
     ``replay`` is false) in ``out``, replacing the earlier solve's set and the playbacks of its
     plan (a receding run's checkpoint stays until the caller removes it); returns the summary
     dict. ``wall_seconds``: the solve's wall time as the caller measured it (setup included),
     recorded last; ``command``: the command line (``environment.command``); ``extra_summary``:
-    more top-level entries (e.g. ``multistart``)."""
+    more top-level entries (e.g. ``multistart``, ``search``); ``search_costs``: [iterations,
+    samples] a sampling search's sample costs, written as search.npz and plotted in
+    search.png."""
     out = Path(out)
     retire = [p.name for p in solve_outputs(out) if p.name != CHECKPOINT]
 
@@ -87,6 +91,9 @@ def write_solve(
             summary["wall_seconds"] = wall_seconds
         write_json(stage / "summary.json", summary)
         plot_convergence(sol, stage / "convergence.png", task.name)
+        if search_costs is not None:
+            atomic_savez(stage / "search.npz", costs=np.asarray(search_costs, float))
+            plot_search(search_costs, stage / "search.png", task.name)
         metrics_mod.plot(task, sol, stage)
         if replay:
             write_replay(task, sol.X, sol.t, stage / "replay.html", inputs=sol.U)

@@ -482,6 +482,45 @@ class MPCConfig:
     goal: dict[str, GoalCheck] = field(default_factory=dict)
 
 
+SEARCH_METHODS = ("predictive", "cem", "mppi")  # search.method
+SEARCH_SPACES = ("torque", "position")  # search.space
+SEARCH_ORDERS = (0, 1, 3)  # search.order: zero-order hold, linear, cubic
+SEARCH_SELECTS = ("goal", "cost", "transfer")  # search.select
+MAX_SEARCH_SAMPLES = 100_000  # samples of one search iteration
+
+
+@dataclass
+class SearchConfig:
+    """A sampling search over spline knots before iLQR (``hydroilqr search``, and ``solve``
+    on a task with a ``search:`` section; ``solver/sampling.py``, ``solver/search.py``)."""
+
+    method: str = "cem"  # predictive | cem (with iCEM's colored noise and elites kept) | mppi
+    samples: int = 64  # rollouts per iteration (the current mean among them)
+    iterations: int = 20
+    knots: int = 8  # spline knots per actuator over the horizon (1 to the task's steps)
+    order: int = 1  # spline order: 0 (zero-order hold), 1 (linear), 3 (cubic)
+    # torque: knots are the actuators' commands; position: joint position targets on the
+    # actuated joints, tracked by the PD+ law of playback (gains kp, kd) with gravity
+    # compensation as feed-forward
+    space: str = "torque"
+    # sampling standard deviation: in torque space a fraction of each actuator's effort limit
+    # (1 N·m or N without one); in position space in the joint's units (rad or m)
+    noise: float = 0.3
+    elites: int = 8  # cem: samples the mean and spread are refit to
+    elite_memory: float = 0.3  # cem: fraction of the elites kept into the next iteration
+    colored_noise: float = 2.0  # noise exponent β of a 1/f^β spectrum over the knots (0: white)
+    smoothing: float = 0.1  # cem: weight of the previous mean and spread in each refit
+    temperature: float = 0.1  # mppi: λ as a fraction of the iteration's cost spread
+    kp: float = 100.0  # position space: PD+ stiffness (N·m/rad or N/m)
+    kd: float = 10.0  # position space: PD+ damping (N·m·s/rad or N·s/m)
+    seed: int = 0
+    polish: int = 1  # solve: iLQR from the best this-many distinct samples (0: search only)
+    # goal: the first polished plan meeting the goal, else the lowest cost; cost: the lowest
+    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it
+    select: str = "goal"
+    batches: int = 0  # evaluation batches per iteration (0: one per worker)
+
+
 BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
 
 
@@ -569,6 +608,8 @@ class TaskConfig:
     # "real" system in playback (the keys --truth-set takes), e.g. {friction-30: {ball.friction:
     # 0.14}}; `playback --mismatch NAME` applies one, the results page plays back every one.
     mismatch: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # A sampling search before iLQR (SearchConfig); none: iLQR from the initial guess alone.
+    search: SearchConfig | None = None
     # Dotted overrides applied by --smoke (a tiny version of the task for tests and quick tries).
     smoke: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
@@ -1287,11 +1328,13 @@ def build_task(
         data = _merge(_without_other_length(data, extra), extra)
     items = _override_items(overrides)
 
-    def finish(d: dict[str, Any]) -> TaskConfig:
+    def finish(d: dict[str, Any], shrink: dict[str, Any] | None = None) -> TaskConfig:
         d = copy.deepcopy(d)
         _horizon_wins(d, items)
         for key, value in items:
             _set_dotted(d, key, cwd_path(key, value))
+        if shrink is not None:  # --smoke: a search section shrunk too (given keys win)
+            _shrink_search(d, {**shrink, **dict(items)})
         if path is not None:
             d.setdefault("name", path.stem)
         cfg = _build_dataclass(TaskConfig, d, "")
@@ -1301,10 +1344,11 @@ def build_task(
 
     if not smoke:
         return finish(data)
-    shrunk = _shrunk(data, _smoke_section(data, items))
+    section = _smoke_section(data, items)
+    shrunk = _shrunk(data, section)
     finish(data)  # the task's own mistakes, unprefixed, also those the smoke section hides
     try:
-        cfg = finish(shrunk)
+        cfg = finish(shrunk, section)
     except ConfigError as e:
         raise ConfigError(f"smoke: {e}") from None
     cfg.smoke_run = True
@@ -1344,6 +1388,22 @@ def _shrunk(data: dict[str, Any], shrink: dict[str, Any]) -> dict[str, Any]:
     except ConfigError as e:
         raise ConfigError(f"smoke: {e}") from None
     return shrunk
+
+
+#: What --smoke makes of a ``search:`` section (keys the smoke section sets itself win).
+SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1}
+
+
+def _shrink_search(shrunk: dict[str, Any], shrink: dict[str, Any]) -> None:
+    """A smoke-sized search: a few samples and iterations, at most 3 knots."""
+    search = shrunk.get("search")
+    if not isinstance(search, dict):
+        return
+    for key, value in SEARCH_SMOKE.items():
+        if f"search.{key}" not in shrink:
+            search[key] = value
+    if "search.knots" not in shrink and isinstance(search.get("knots", 8), int):
+        search["knots"] = min(search.get("knots", 8), 3)
 
 
 def task_from_dict(data: dict[str, Any], base_dir: str = ".") -> TaskConfig:
@@ -1519,6 +1579,7 @@ def validate(cfg: TaskConfig) -> None:
         _check_scene_object(o, f"scene[{i}]")
     _validate_cost(cfg.cost)
     _validate_receding_horizon(cfg.receding_horizon)
+    validate_search(cfg)
     if isinstance(cfg.initial_guess, PositionGuess):
         _validate_position_guess(cfg.initial_guess)
 
@@ -1992,3 +2053,45 @@ def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:
     else:
         out["num_steps"] = 20
     return out
+
+
+def validate_search(cfg: TaskConfig) -> None:
+    """ConfigError naming the first invalid ``search:`` setting (none: nothing to check)."""
+    sc = cfg.search
+    if sc is None:
+        return
+    if cfg.receding_horizon is not None:
+        raise ConfigError("search: a receding-horizon task cannot be searched (one horizon only)")
+    for key, value, choices in (
+        ("method", sc.method, SEARCH_METHODS),
+        ("space", sc.space, SEARCH_SPACES),
+        ("order", sc.order, SEARCH_ORDERS),
+        ("select", sc.select, SEARCH_SELECTS),
+    ):
+        if value not in choices:
+            raise ConfigError(
+                f"search.{key}: expected one of {', '.join(map(str, choices))}, got {value!r}"
+            )
+    steps = cfg.steps
+    for name, ok, rule in (
+        ("samples", 2 <= sc.samples <= MAX_SEARCH_SAMPLES, f"from 2 to {MAX_SEARCH_SAMPLES}"),
+        ("iterations", 1 <= sc.iterations <= 100_000, "from 1 to 100000"),
+        ("knots", 1 <= sc.knots <= steps, f"from 1 to the task's {steps} steps"),
+        ("elites", sc.elites >= 1, ">= 1 (at most search.samples are used)"),
+        ("seed", sc.seed >= 0, ">= 0"),
+        ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
+        ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
+    ):
+        if not ok:
+            raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")
+    for name, ok, rule in (
+        ("noise", 0 < sc.noise < math.inf, "a finite number > 0"),
+        ("elite_memory", 0 <= sc.elite_memory <= 1, "in [0, 1]"),
+        ("colored_noise", 0 <= sc.colored_noise <= 10, "in [0, 10]"),
+        ("smoothing", 0 <= sc.smoothing < 1, "in [0, 1)"),
+        ("temperature", 0 < sc.temperature < math.inf, "a finite number > 0"),
+        ("kp", 0 <= sc.kp < math.inf and (sc.kp > 0 or sc.space != "position"), "finite, > 0"),
+        ("kd", 0 <= sc.kd < math.inf, "a finite number >= 0"),
+    ):
+        if not ok:  # (NaN fails every comparison)
+            raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")

@@ -34,6 +34,10 @@ _CHOICES: dict[tuple[type, str], tuple[str, ...]] = {
     (c.RecedingHorizonConfig, "warm_start_tail"): c.WARM_START_TAILS,
     (c.MPCConfig, "warm_start_tail"): c.WARM_START_TAILS,
     (c.MPCConfig, "derivatives"): ("", *c.DERIVATIVES),
+    (c.SearchConfig, "method"): c.SEARCH_METHODS,
+    (c.SearchConfig, "space"): c.SEARCH_SPACES,
+    (c.SearchConfig, "select"): c.SEARCH_SELECTS,
+    (c.SearchConfig, "order"): c.SEARCH_ORDERS,
 }
 
 _SCALARS = {float: "number", int: "integer", bool: "boolean", str: "string"}

@@ -1,0 +1,309 @@
+"""A task's sampling search on Dask workers, then iLQR polish of its best samples.
+
+``run_search(task_ref, ...)`` runs ``solver.search.run_search`` with an evaluator that sends
+each iteration's samples in batches to Dask workers (``studies/cluster.py``: a local cluster
+by default, an existing scheduler by address). Each worker builds the task's plant once and
+holds it (``held``, by the task's reference) for every batch it gets; the samples themselves
+are drawn in this process from the search's one seeded generator, so the same seed gives
+the same samples, costs and best with any number of workers.
+
+``polish(task_ref, candidates, ...)`` solves the task with iLQR from each candidate's
+torques (as Dask jobs too) and ``select`` picks among them: the first (lowest search cost)
+whose plan meets the task's goal, else the lowest final cost (``search.select: goal``); the
+lowest final cost (``cost``); the first whose PD+ playback at half speed on the finer
+simulation meets the goal, else as ``goal`` (``transfer``).
+
+``throughput(task_ref, worker_counts, ...)`` measures samples per second with each number of
+workers side by side, and the fixed cost of a batch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hydroilqr import metrics as metrics_mod
+from hydroilqr.metrics.goals import evaluate as evaluate_goal
+from hydroilqr.model.task import Task
+from hydroilqr.solver import search as search_mod
+from hydroilqr.solver.api import solve
+from hydroilqr.studies.cluster import kill_workers, open_client
+from hydroilqr.studies.multistart import StartResult, _close
+from hydroilqr.studies.robustness import played_back
+
+#: Per worker process: the task and search space of the last task reference it evaluated.
+_HELD: dict = {}
+
+
+def held(task_ref: dict):
+    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}), built once per
+    process and kept (a new reference replaces it)."""
+    key = json.dumps(task_ref, sort_keys=True, default=str)
+    if key not in _HELD:
+        _HELD.clear()
+        task = Task.load(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        _HELD[key] = (task, search_mod.SearchSpace(task))
+    return _HELD[key]
+
+
+def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
+    """Runs on a worker: the costs of a batch of commands on its held plant."""
+    task, space = held(task_ref)
+    return [space.cost(task, c) for c in commands]
+
+
+def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
+    """``evaluate_batch`` and the worker's CPU seconds for it (``throughput``)."""
+    c0 = time.process_time()
+    costs = evaluate_batch(task_ref, commands)
+    return costs, time.process_time() - c0
+
+
+class DaskEvaluator:
+    """``evaluate(commands) -> costs`` over a Dask client: ``batches`` batches per call (0:
+    one per worker), gathered in order."""
+
+    def __init__(self, client, task_ref: dict, batches: int = 0):
+        self.client = client
+        self.task_ref = task_ref
+        self.workers = max(1, len(client.scheduler_info().get("workers", {})))
+        self.batches = batches or self.workers
+        self.calls = 0
+
+    def __call__(self, commands: list) -> list[float]:
+        n = max(1, min(self.batches, len(commands)))
+        bounds = np.linspace(0, len(commands), n + 1).round().astype(int)
+        futures = [
+            self.client.submit(
+                evaluate_batch,
+                self.task_ref,
+                commands[a:b],
+                pure=False,
+                key=f"search-{self.calls}-{i}",
+            )
+            for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))
+        ]
+        self.calls += 1
+        costs: list[float] = []
+        for part in self.client.gather(futures):
+            costs += part
+        return costs
+
+
+def load(task_ref: dict) -> Task:
+    return Task.load(task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"])
+
+
+@dataclass
+class SearchRun:
+    """A search's outcome: the space, the sampling result, the best sample as a Solution."""
+
+    space: object
+    result: object
+    solution: object
+    workers: int = 0
+    polished: list = field(default_factory=list)  # StartResult per candidate
+    chosen: int | None = None  # index into polished
+    polish_interrupted: bool = False  # Ctrl+C during the polish: the finished ones kept
+
+    @property
+    def interrupted(self) -> bool:
+        return bool(self.result.interrupted or self.polish_interrupted)
+
+    def record(self) -> dict:
+        """summary.json's ``search``: the search (``solver.search.record``), and the polish."""
+        out = search_mod.record(self.space, self.result)
+        out["workers"] = self.workers
+        if self.polished or self.polish_interrupted:
+            out["polish"] = {
+                "select": self.space.settings.select,
+                "chosen": self.chosen,
+                "interrupted": self.polish_interrupted,
+                "results": [r.record() for r in self.polished],
+            }
+        return out
+
+    @property
+    def chosen_solution(self):
+        """The chosen polished plan, else the search's best sample."""
+        if self.chosen is None:
+            return self.solution
+        return next(r.solution for r in self.polished if r.index == self.chosen)
+
+
+def run_search(
+    task_ref: dict,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    on_iteration=None,
+    polish: bool = False,
+    on_polish=None,
+) -> SearchRun:
+    """The task's search on Dask (and, with ``polish``, iLQR from its best
+    ``search.polish`` samples on the same workers); Ctrl+C keeps the best so far."""
+    task = load(task_ref)
+    client, cluster = open_client(scheduler, workers)
+    try:
+        ev = DaskEvaluator(
+            client, task_ref, task.config.search.batches if task.config.search else 0
+        )
+        space, result = search_mod.run_search(task, ev, on_iteration=on_iteration)
+        run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
+        if polish and not result.interrupted and space.settings.polish > 0:
+            run.polished, run.polish_interrupted = _polish(
+                client, task, task_ref, space, result, on_polish
+            )
+            run.chosen = select(run.polished, space.settings.select)
+        if run.interrupted and cluster is not None:
+            kill_workers(cluster)  # (their unfinished batches or solves are abandoned)
+    except KeyboardInterrupt:
+        if cluster is not None:
+            kill_workers(cluster)
+        raise
+    finally:
+        _close(client, cluster)
+    return run
+
+
+@dataclass
+class PolishResult(StartResult):
+    """A polished candidate; with ``select: transfer`` also its plan's playback
+    (``studies.robustness.played_back``: goal_met on the executed motion, resting_gap)."""
+
+    transfer: dict | None = None
+
+    def record(self) -> dict:
+        out = super().record()
+        if self.transfer is not None:
+            out["transfer"] = self.transfer
+        return out
+
+
+def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False):
+    """Runs on a worker: iLQR from the controls U0 on the task as written (without its
+    ``continuation`` stages: a searched sample has already found what an approach stage
+    looks for, and a stage's own cost would pull it elsewhere), the metrics and the goal,
+    and with ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
+    t0 = time.perf_counter()
+    res = PolishResult(index=index)
+    try:
+        task = load(task_ref)
+        if task.config.continuation:  # the samples replace the stages (e.g. an approach)
+            task = task.with_overrides(["continuation=[]"])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res.solution = solve(task, U0=U0)
+        res.metrics = metrics_mod.compute(task, res.solution)
+        res.goal = evaluate_goal(task.config.goal, res.metrics)
+        if transfer:
+            res.transfer = played_back(task_ref, res.solution)
+    except Exception as e:  # noqa: BLE001 - a failed polish is data; the others go on
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        res.error = f"{type(e).__name__}: {first}"[:300]
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def _polish(client, task, task_ref, space, result, on_polish) -> tuple[list, bool]:
+    """iLQR from each candidate's torques as Dask jobs: (results in candidate order,
+    interrupted). Ctrl+C keeps the ones that had finished."""
+    futures = []
+    for i, cand in enumerate(result.candidates):
+        U0 = space.rollout(task, cand.command).U
+        transfer = space.settings.select == "transfer"
+        futures.append(
+            client.submit(polish_one, task_ref, U0, i, transfer, pure=False, key=f"polish-{i}")
+        )
+    out: list[StartResult] = []
+    try:
+        for fut in futures:
+            r = fut.result()
+            out.append(r)
+            if on_polish is not None:
+                on_polish(r)
+    except KeyboardInterrupt:
+        return out, True
+    return out, False
+
+
+def select(polished: list, how: str = "goal") -> int | None:
+    """The chosen polished plan, the candidates in order of search cost: ``goal``: the first
+    whose goal is met, else the lowest final cost; ``cost``: the lowest final cost;
+    ``transfer``: the first whose playback meets the goal, else as ``goal``. None if none
+    finished."""
+    ok = [r for r in polished if math.isfinite(r.cost)]
+    if not ok:
+        return None
+    if how == "transfer":
+        moved = [r for r in ok if (getattr(r, "transfer", None) or {}).get("goal_met") is True]
+        if moved:
+            return moved[0].index
+    if how in ("goal", "transfer"):
+        met = [r for r in ok if r.goal.get("met") is True]
+        if met:
+            return met[0].index
+    return min(ok, key=lambda r: r.cost).index
+
+
+def throughput(
+    task_ref: dict, worker_counts=(1, 2), samples: int = 64, rounds: int = 3
+) -> list[dict]:
+    """Samples per second of the task's search rollouts with each number of local workers,
+    side by side in one run: per count, a warm-up call (the workers build their plants),
+    then ``rounds`` calls of ``samples`` random samples in one batch per worker; the
+    overhead of a batch (an empty batch's round trip), the workers' CPU seconds per sample
+    and the share of a core each worker got (below 1: the machine is busy with other work,
+    and the rates say more about that than about the workers)."""
+    task = load(task_ref)
+    space = search_mod.SearchSpace(task)
+    rng = np.random.default_rng(0)
+    nominal = space.nominal(task)
+    commands = [
+        space.decode(np.clip(nominal + 0.3 * space.scale * rng.standard_normal(nominal.shape),
+                             space.lower, space.upper))
+        for _ in range(samples)
+    ]  # fmt: skip
+    out = []
+    for n in worker_counts:
+        client, cluster = open_client(None, n)
+        try:
+            ev = DaskEvaluator(client, task_ref)
+            ev(commands[: ev.workers])  # warm-up: each worker builds its plant
+            bounds = np.linspace(0, samples, ev.workers + 1).round().astype(int)
+            cpu = 0.0
+            t0 = time.perf_counter()
+            for _ in range(rounds):
+                parts = client.gather(
+                    [
+                        client.submit(timed_batch, task_ref, commands[a:b], pure=False)
+                        for a, b in zip(bounds[:-1], bounds[1:])
+                    ]
+                )
+                cpu += sum(c for _, c in parts)
+            seconds = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            for _ in range(rounds):
+                client.gather([client.submit(evaluate_batch, task_ref, [], pure=False)])
+            overhead = (time.perf_counter() - t1) / rounds
+        finally:
+            _close(client, cluster)
+        out.append(
+            {
+                "workers": n,
+                "samples": samples * rounds,
+                "seconds": seconds,
+                "samples_per_second": samples * rounds / seconds,
+                "batch_overhead_seconds": overhead,
+                "cpu_seconds_per_sample": cpu / (samples * rounds),
+                # the share of its own core each worker got (1: an idle machine)
+                "cpu_share": cpu / (n * seconds),
+            }
+        )
+    return out

@@ -1,0 +1,68 @@
+"""`hydroilqr search` and `solve` on a task with a search: section: the result set, the polish,
+Ctrl+C keeping the best sample, one-line refusals."""
+
+from __future__ import annotations
+
+import json
+
+from hydroilqr.cli import main
+from tests.conftest import assert_one_line
+
+SMALL = ["--set", "num_steps=10", "--set", "search.samples=4", "--set", "search.knots=3"]
+
+
+def test_search_writes_a_result_set_with_its_history(tmp_path, capsys):
+    out = tmp_path / "run"
+    argv = ["search", "cartpole-wall", "--smoke", *SMALL, "--workers", "1", "--no-replay"]
+    assert main([*argv, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    s = summary["search"]
+    assert len(s["history"]) == 2 and s["samples_evaluated"] == 8
+    assert s["best_cost"] <= s["nominal_cost"] and summary["final_cost"] == s["best_cost"]
+    for name in ("search.png", "search.npz", "contacts.png", "solution.npz"):
+        assert (out / name).is_file(), name
+    assert "samples/s" in capsys.readouterr().out
+
+
+def test_solve_with_a_search_section_polishes_and_selects(tmp_path):
+    out = tmp_path / "run"
+    argv = ["solve", "cartpole-wall", "--smoke", *SMALL, "--set", "search.polish=2"]
+    assert main([*argv, "--workers", "2", "--no-replay", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())["search"]
+    polish = s["polish"]
+    assert [r["index"] for r in polish["results"]] == [0, 1] and polish["chosen"] in (0, 1)
+    chosen = polish["results"][polish["chosen"]]
+    assert chosen["final_cost"] <= s["best_cost"]  # iLQR from the sample lowers its cost
+
+
+def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch):
+    from hydroilqr.studies import search as studies_search
+
+    real = studies_search.DaskEvaluator.__call__
+
+    def interrupt_second(self, commands):
+        if self.calls == 1:
+            raise KeyboardInterrupt
+        return real(self, commands)
+
+    monkeypatch.setattr(studies_search.DaskEvaluator, "__call__", interrupt_second)
+    out = tmp_path / "run"
+    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5", "--workers", "1"]
+    assert main([*argv, "--no-replay", "--out", str(out)]) == 130
+    s = json.loads((out / "summary.json").read_text())["search"]
+    assert s["interrupted"] and len(s["history"]) == 1
+
+
+def test_bad_search_input_is_one_line(tmp_path, capsys):
+    rc = main(["search", "cartpole-wall", "--set", "search.samples=1"])
+    assert_one_line(rc, *capsys.readouterr(), "search.samples")
+    rc = main(["search", "cartpole-wall", "--workers", "0"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and err.count("\n") == 1 and "--workers" in err
+    rc = main(["search", "cartpole-wall", *SMALL, "--scheduler", "tcp://127.0.0.1:9"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and "Traceback" not in err and err.strip().count("\n") == 0
+    assert "--scheduler tcp://127.0.0.1:9" in err
+    rc = main(["solve", "cartpole-wall", "--set", "search.method=cem", "--starts", "2"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and "search: section" in err

@@ -1,0 +1,320 @@
+"""The sampling search: splines, colored noise, each method against a known optimum,
+seeding, the PD+ law shared with playback, the search settings' refusals, Dask workers."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from hydroilqr.problem.config import ConfigError, SearchConfig, load_task
+from hydroilqr.solver import sampling, splines
+
+# ---------------------------------------------------------------------------- splines
+
+
+@pytest.mark.parametrize("order", [0, 1, 3])
+def test_a_spline_passes_through_its_knots(order):
+    rng = np.random.default_rng(1)
+    K, T = 6, 1.2
+    knots = rng.standard_normal((K, 2))
+    t = splines.knot_times(K, T, order)
+    assert np.allclose(splines.evaluate(knots, t, T, order), knots)
+
+
+def test_spline_orders_between_the_knots():
+    T, knots = 1.0, np.array([[0.0], [1.0], [4.0], [9.0]])  # at t = 0, 1/3, 2/3, 1 (orders 1, 3)
+    t = np.linspace(0, T, 61)
+    zero = splines.evaluate(knots, t, T, 0)
+    assert set(np.unique(zero)) <= {0.0, 1.0, 4.0, 9.0}  # held values
+    assert zero[np.searchsorted(t, 0.3)][0] == 1.0  # knot 1 holds on [1/4, 1/2)
+    linear = splines.evaluate(knots, [1 / 6], T, 1)
+    assert linear[0, 0] == pytest.approx(0.5)  # halfway between knots 0 and 1
+    # cubic: a linear function of t is reproduced exactly (finite-difference slopes)
+    line = np.array([[0.0], [1.0], [2.0], [3.0]])
+    assert np.allclose(splines.evaluate(line, t, T, 3)[:, 0], 3 * t)
+    one = splines.evaluate(np.array([[2.5]]), t, T, 3)
+    assert np.all(one == 2.5)  # one knot: a constant
+
+
+def test_spline_basis_rows_sum_to_one():
+    for order in (0, 1, 3):
+        W = splines.basis(7, np.linspace(0, 2.0, 50), 2.0, order)
+        assert np.allclose(W.sum(axis=1), 1.0)
+
+
+# ---------------------------------------------------------------------------- noise
+
+
+def test_colored_noise_has_unit_variance_and_correlates_neighbours():
+    rng = np.random.default_rng(0)
+    white = sampling.colored_noise(rng, 0.0, (4000, 8))
+    red = sampling.colored_noise(rng, 2.0, (4000, 8))
+    assert np.allclose(red.var(axis=0), 1.0, atol=0.1)
+    assert abs(np.corrcoef(white[:, 2], white[:, 3])[0, 1]) < 0.1
+    assert np.corrcoef(red[:, 2], red[:, 3])[0, 1] > 0.5  # temporally correlated
+
+
+# ---------------------------------------------------------------------------- a known optimum
+
+DT, N = 0.1, 30
+A = np.array([[1.0, DT], [0.0, 1.0]])
+B = np.array([0.0, DT])
+X0 = np.array([1.0, 0.0])
+Q, QF, R = np.diag([1.0, 0.1]), np.diag([100.0, 10.0]), 0.01
+
+
+def _maps():
+    """X_k = Phi_k x0 + Gam_k U for the double integrator."""
+    Phi, Gam = np.zeros((N + 1, 2, 2)), np.zeros((N + 1, 2, N))
+    Phi[0] = np.eye(2)
+    for k in range(N):
+        Phi[k + 1] = A @ Phi[k]
+        Gam[k + 1] = A @ Gam[k]
+        Gam[k + 1][:, k] += B
+    return Phi, Gam
+
+
+PHI, GAM = _maps()
+
+
+def lq_cost(U) -> float:
+    U = np.asarray(U, float).reshape(N)
+    X = PHI @ X0 + GAM @ U
+    return float(sum(X[k] @ Q @ X[k] for k in range(N)) + X[N] @ QF @ X[N] + R * U @ U)
+
+
+def lq_optimum(W):
+    """The least-squares optimum over knots θ with U = W θ, and its cost."""
+    rows, rhs = [], []
+    for k in range(N + 1):
+        L = np.linalg.cholesky(QF if k == N else Q).T
+        rows.append(L @ GAM[k] @ W)
+        rhs.append(-L @ PHI[k] @ X0)
+    rows.append(math.sqrt(R) * W)
+    rhs.append(np.zeros(N))
+    theta, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
+    return theta, lq_cost(W @ theta)
+
+
+@pytest.mark.parametrize("method", sampling.METHODS)
+@pytest.mark.parametrize("order", [0, 1, 3])
+def test_each_method_approaches_the_least_squares_optimum(method, order):
+    """A linear system with a quadratic cost over a spline of K knots: the optimum in knot
+    space is a least-squares problem. Each sampler closes at least 95% of the gap between
+    the nominal (zero controls) and that optimum."""
+    K = 6
+    W = splines.basis(K, DT * np.arange(N), N * DT, order)
+    _, best = lq_optimum(W)
+    start = lq_cost(np.zeros(N))
+    cfg = SearchConfig(method=method, samples=32, iterations=60, knots=K, noise=1.0, elites=6)
+    r = sampling.search(
+        lambda cs: [lq_cost(c) for c in cs], lambda th: W @ th, np.zeros((K, 1)), np.ones(1), cfg
+    )
+    assert r.best.cost >= best - 1e-9  # no sample beats the optimum
+    assert (r.best.cost - best) / (start - best) < 0.05
+    assert np.all(np.diff(r.best_costs) <= 0)  # the best never gets worse
+    assert r.costs.shape == (60, 32) and r.costs[0, 0] == start  # sample 0: the nominal
+
+
+def test_the_same_seed_gives_the_same_samples_whatever_the_batches():
+    W = splines.basis(5, DT * np.arange(N), N * DT, 1)
+    cfg = SearchConfig(method="cem", samples=12, iterations=4, knots=5, noise=1.0, elites=3)
+    seen = {}
+
+    def batched(n):
+        def evaluate(cs):
+            seen.setdefault(n, []).extend(np.asarray(c).tobytes() for c in cs)
+            out = []
+            for part in np.array_split(np.arange(len(cs)), n):  # like n workers' batches
+                out += [lq_cost(cs[i]) for i in part]
+            return out
+
+        return evaluate
+
+    runs = [
+        sampling.search(batched(n), lambda th: W @ th, np.zeros((5, 1)), np.ones(1), cfg)
+        for n in (1, 3)
+    ]
+    assert seen[1] == seen[3]
+    assert np.array_equal(runs[0].costs, runs[1].costs)
+    assert np.array_equal(runs[0].best.knots, runs[1].best.knots)
+    other = sampling.search(
+        batched(1),
+        lambda th: W @ th,
+        np.zeros((5, 1)),
+        np.ones(1),
+        dataclasses.replace(cfg, seed=1),
+    )
+    assert not np.array_equal(other.costs, runs[0].costs)
+
+
+def test_failed_rollouts_cost_inf_and_ctrl_c_keeps_the_best():
+    W = splines.basis(4, DT * np.arange(N), N * DT, 1)
+    cfg = SearchConfig(method="predictive", samples=8, iterations=50, knots=4, noise=1.0)
+    calls = []
+
+    def evaluate(cs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return [math.nan if i == 1 else lq_cost(c) for i, c in enumerate(cs)]
+
+    r = sampling.search(evaluate, lambda th: W @ th, np.zeros((4, 1)), np.ones(1), cfg, keep=3)
+    assert r.interrupted and len(r.history) == 2
+    assert np.isinf(r.costs[:, 1]).all()
+    assert len(r.candidates) == 3 and r.candidates[0] is r.best
+    assert [c.cost for c in r.candidates] == sorted(c.cost for c in r.candidates)
+
+
+def test_samples_stay_within_the_bounds():
+    W = splines.basis(4, DT * np.arange(N), N * DT, 0)
+    cfg = SearchConfig(method="mppi", samples=16, iterations=3, knots=4, noise=5.0)
+    got = []
+
+    def evaluate(cs):
+        got.extend(cs)
+        return [lq_cost(c) for c in cs]
+
+    sampling.search(evaluate, lambda th: W @ th, np.zeros((4, 1)), np.ones(1), cfg, [-0.5], [0.5])
+    assert np.abs(np.array(got)).max() <= 0.5
+
+
+# ---------------------------------------------------------------------------- settings
+
+
+@pytest.mark.parametrize(
+    "override, words",
+    [
+        ("search.samples=1", "search.samples"),
+        ("search.knots=0", "search.knots"),
+        ("search.knots=100000", "search.knots"),
+        ("search.method=random", "search.method"),
+        ("search.space=velocity", "search.space"),
+        ("search.order=2", "search.order"),
+        ("search.noise=nan", "search.noise"),
+        ("search.noise=inf", "search.noise"),
+        ("search.noise=0", "search.noise"),
+        ("search.noise=-1", "search.noise"),
+        ("search.elites=0", "search.elites"),
+        ("search.temperature=0", "search.temperature"),
+        ("search.select=robustly", "search.select"),
+        ("search.seed=-1", "search.seed"),
+    ],
+)
+def test_bad_search_settings_are_refused_in_one_line(override, words):
+    with pytest.raises(ConfigError) as e:
+        load_task("cartpole-wall", [override])
+    assert str(e.value).startswith(words) and "\n" not in str(e.value)
+
+
+def test_search_settings_load_and_smoke_shrinks_them():
+    cfg = load_task("cartpole-wall", ["search.method=mppi", "search.knots=12"])
+    assert cfg.search.method == "mppi" and cfg.search.knots == 12
+    assert load_task("cartpole-wall").search is None
+    small = load_task("cartpole-wall", ["search.method=cem"], smoke=True).search
+    assert small.samples < cfg.search.samples and small.knots <= 3
+
+
+# ---------------------------------------------------------------------------- plants
+
+
+@pytest.fixture(scope="module")
+def cartpole():
+    from hydroilqr.model.task import Task
+
+    return Task.load("cartpole-wall", ["num_steps=15", "search.space=position"])
+
+
+def test_pd_rollout_is_playbacks_law(cartpole):
+    """A position-space rollout applies, at every step, the PD+ law that playback executes
+    (one function: model.pd.pd_torque), with gravity compensation as feed-forward, clipped
+    to the effort limits."""
+    from hydroilqr.control import playback
+    from hydroilqr.model import pd
+
+    assert playback.pd_torque is pd.pd_torque
+    dyn = cartpole.dynamics
+    qi, vi = pd.actuated_indices(dyn.plant)
+    Q_ref = cartpole.x0[qi] + 0.2 * np.sin(np.linspace(0, 3, 16))[:, None]
+    X, U = pd.pd_rollout(dyn, cartpole.x0, Q_ref, kp=50.0, kd=5.0)
+    for k in range(15):
+        x = X[k]
+        v_ref = (Q_ref[k + 1] - Q_ref[k]) / dyn.dt
+        tau = dyn.gravity_compensation(x) - 50.0 * (x[qi] - Q_ref[k]) - 5.0 * (x[vi] - v_ref)
+        assert np.array_equal(U[k], dyn.clip_to_limits(tau))
+        assert np.array_equal(X[k + 1], dyn.step(x, U[k]))
+    assert np.max(np.abs(X[-1, qi] - Q_ref[-1])) < np.max(np.abs(X[0, qi] - Q_ref[-1]))
+
+
+def test_a_search_space_decodes_and_costs_with_the_tasks_own_cost(cartpole):
+    from hydroilqr.solver.search import SearchSpace, run_search
+
+    space = SearchSpace(cartpole)
+    theta = space.nominal(cartpole)
+    assert theta.shape == (8, 1) and np.allclose(theta[0], cartpole.x0[space.qi])
+    # the first knot is pinned at the start posture (equal bounds), the others are free
+    assert np.array_equal(space.lower[0], cartpole.x0[space.qi])
+    assert np.array_equal(space.upper[0], cartpole.x0[space.qi])
+    assert np.all(space.upper[1:] > space.lower[1:])
+    cmd = space.decode(theta)
+    assert cmd.shape == (16, 1)
+    r = space.rollout(cartpole, cmd)
+    assert r.cost == pytest.approx(cartpole.cost.total(r.X, r.U))
+    torque = SearchSpace(cartpole, SearchConfig(space="torque", knots=3, order=0))
+    assert torque.decode(torque.nominal(cartpole)).shape == (15, 1)
+    small = SearchConfig(space="torque", samples=6, iterations=2, knots=3, elites=2)
+    space2, res = run_search(cartpole, settings=small)
+    assert res.best.cost <= res.costs[0, 0] and res.costs.shape == (2, 6)
+
+
+def test_the_same_best_sample_with_one_and_two_dask_workers():
+    """Samples drawn centrally, evaluated in batches on workers that hold their plant: the
+    same costs and best sample with 1 and 2 workers for one seed."""
+    from hydroilqr.studies.search import run_search
+
+    ref = {
+        "name": "cartpole-wall",
+        "overrides": ["num_steps=10", "search.samples=6", "search.iterations=2", "search.knots=3"],
+        "config": None,
+        "smoke": False,
+    }
+    runs = [run_search(ref, workers=n) for n in (1, 2)]
+    assert [r.workers for r in runs] == [1, 2]
+    assert np.array_equal(runs[0].result.costs, runs[1].result.costs)
+    assert np.array_equal(runs[0].result.best.knots, runs[1].result.best.knots)
+    assert np.array_equal(runs[0].solution.X, runs[1].solution.X)
+
+
+def test_select_by_goal_cost_or_transfer():
+    from hydroilqr.studies.search import PolishResult, select
+
+    class _Sol:
+        def __init__(self, cost):
+            self.final_cost = cost
+
+    def r(i, cost, met, moved=None):
+        out = PolishResult(index=i, solution=_Sol(cost), goal={"met": met})
+        out.transfer = None if moved is None else {"goal_met": moved}
+        return out
+
+    rs = [r(0, 5.0, False, False), r(1, 9.0, True, False), r(2, 7.0, True, True)]
+    assert select(rs, "goal") == 1  # the first that meets the goal, not the cheapest
+    assert select(rs, "cost") == 0
+    assert select(rs, "transfer") == 2  # the first whose playback meets it
+    assert select([r(0, 5.0, False), r(1, 3.0, False)], "goal") == 1  # none met: cheapest
+    assert select([r(0, math.inf, None)], "goal") is None
+
+
+def test_pusher_puck_searches_in_position_space_from_a_still_start():
+    """The built-in whose search: section solve runs: out of contact at the start, its
+    smoke-sized search (local evaluation) keeps the start posture as its first knot and
+    never ends above its nominal's cost."""
+    from hydroilqr.model.task import Task
+    from hydroilqr.solver.search import run_search
+
+    task = Task.load("pusher-puck", smoke=True)
+    assert task.config.search.space == "position" and task.config.goal
+    space, res = run_search(task)
+    assert np.array_equal(res.best.knots[0], task.x0[space.qi])
+    assert res.best.cost <= res.costs[0, 0] and np.isfinite(res.costs).all()
