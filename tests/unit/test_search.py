@@ -3,12 +3,15 @@ seeding, the PD+ law shared with playback, the search settings' refusals, Dask w
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from hydroilqr.problem.config import ConfigError, SearchConfig, load_task
 from hydroilqr.solver import sampling, splines
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 # ---------------------------------------------------------------------------- splines
 
@@ -307,13 +310,13 @@ def test_select_by_goal_cost_or_transfer():
 
 
 def test_pusher_puck_searches_in_position_space_from_a_still_start():
-    """The built-in whose search: section solve runs: out of contact at the start, its
+    """The example whose search: section solve runs: out of contact at the start, its
     smoke-sized search (local evaluation) keeps the start posture as its first knot and
     never ends above its nominal's cost."""
     from hydroilqr.model.task import Task
     from hydroilqr.solver.search import run_search
 
-    task = Task.load("pusher-puck", smoke=True)
+    task = Task.load(str(EXAMPLES / "pusher-puck.yaml"), smoke=True)
     assert task.config.search.space == "position" and task.config.goal
     space, res = run_search(task)
     assert np.array_equal(res.best.knots[0], task.x0[space.qi])
