@@ -33,10 +33,10 @@ from typing import NamedTuple
 import numpy as np
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
-from pydrake.multibody.tree import BodyIndex
 
 from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.derivatives import Linearizer
+from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import (
@@ -151,14 +151,13 @@ def _check_iteration(settings: MPCConfig) -> None:
 def _check_pushes(settings: MPCConfig, plant, h: float) -> None:
     """Each push: on a movable body of ``plant``, of positive duration, within the run, its
     start and length whole steps of the simulated robot (``h`` s), as it is applied."""
-    welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
+    labels = body_labels(plant)
+    welded = {labels[int(b.index())] for b in plant.GetBodiesWeldedTo(plant.world_body())}
     for p in settings.pushes:
-        if not plant.HasBodyNamed(p.body) or p.body in welded:
-            names = [plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())]
-            movable = sorted(set(names) - welded)
-            raise ConfigError(
-                f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
-            )
+        try:
+            find_body(plant, p.body, "--push", exclude=welded)
+        except ConfigError as e:
+            raise ConfigError(str(e).replace("no body named", "no movable body named")) from None
         if not p.duration > 0:
             raise ConfigError(f"--push-duration: must be positive, got {p.duration:g}")
         if not 0 <= p.time < settings.duration:
@@ -728,7 +727,7 @@ class Truth:
         forces = []
         for push in pushes:  # several at once add up
             try:
-                body = self.plant.GetBodyByName(push.body)
+                body = find_body(self.plant, push.body, "--push")
             except RuntimeError:
                 raise ConfigError(f"--push: no body named {push.body!r}") from None
             f = ExternallyAppliedSpatialForce()

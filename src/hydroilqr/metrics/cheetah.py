@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.io.figures import pyplot, savefig
-from hydroilqr.metrics.common import contact_pairs
+from hydroilqr.metrics.common import contact_pairs, floating_block, floating_name
 from hydroilqr.metrics.contacts import state_step
 from hydroilqr.metrics.registry import Metric, Report, register
 from hydroilqr.model.contacts import runs
@@ -91,10 +91,8 @@ def _params(task) -> dict:
 
 def _blocks(task, body: str):
     layout = task.dynamics.layout
-    try:
-        return layout.primitives[f"{body}.position"], layout.primitives[f"{body}.velocity"]
-    except KeyError:
-        raise ConfigError(f"metric_params.body: no floating body named {body!r}") from None
+    pos = floating_block(task, body, "body")
+    return pos, layout.primitives[f"{floating_name(pos)}.velocity"]
 
 
 def forward_velocity(task, sol) -> tuple[np.ndarray, np.ndarray]:

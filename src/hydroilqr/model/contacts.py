@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
+from hydroilqr.model.names import body_labels
+
 
 def _normal_force_hydro(info) -> float:
     """Normal force of a hydroelastic contact: the force along the area-weighted mean normal
@@ -125,7 +127,8 @@ def tracked_bodies(task) -> set[str]:
             joints.append(j.index())
     if not joints:
         return set()
-    return {plant.get_body(b).name() for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
+    labels = body_labels(plant)
+    return {labels[int(b)] for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
 
 
 def tracked_objects(task) -> set[str]:
@@ -145,15 +148,16 @@ def tracked_objects(task) -> set[str]:
             robot.add(b)
             b = parent[b]
     robot |= {b.index() for b in plant.GetBodiesWeldedTo(plant.world_body())}
-    names = {plant.get_body(b).name() for b in robot}
-    return tracked_bodies(task) - names
+    labels = body_labels(plant)
+    return tracked_bodies(task) - {labels[int(b)] for b in robot}
 
 
 def fixed_bodies(task) -> set[str]:
     """The world and the bodies welded to it (the ground, a table, a wall): touching them
     moves nothing the robot could push."""
     plant = task.dynamics.plant
-    return {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
+    labels = body_labels(plant)
+    return {labels[int(b.index())] for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
 
 
 #: What to do when no moving body touches a tracked object along the initial guess (solve's

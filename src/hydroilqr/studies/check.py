@@ -38,6 +38,7 @@ from hydroilqr.model.contacts import (
 )
 from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
+from hydroilqr.model.names import body_labels
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
 
@@ -201,7 +202,8 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("continuation")
 
     plant = dyn.plant
-    free = [plant.get_body(i).name() for i in plant.GetFloatingBaseBodies()]
+    labels = body_labels(plant)
+    free = [labels[int(i)] for i in plant.GetFloatingBaseBodies()]
     out["floating_bodies"] = sorted(free)
     done("floating_bodies")
 
