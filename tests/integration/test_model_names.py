@@ -24,22 +24,22 @@ NUDGE = {
             "name": "ground",
             "shape": "box",
             "size": [4, 4, 0.2],
-            "xyz": [0, 0.25, -3.3],
+            "xyz": [0, 0.25, -3.2],
             "compliance": "compliant",
             "hydroelastic_modulus": 1.0e6,
         }
     ],  # fmt: skip
     "plant": {"time_step": 0.01},
     "num_steps": 10,
-    "initial_state": {"base_link.position": [0.12, 0.25, -3.17]},
+    "initial_state": {"base_link.position": [0.12, 0.25, -3.07]},
     "cost": {
         "Q": {"shoulder": 0.1, "elbow": 0.1},
         "R": 0.01,
         "Qf": {"base_link.position": 1000.0},
-        "nominal": {"base_link.position": [0.32, 0.25, -3.17]},
+        "nominal": {"base_link.position": [0.32, 0.25, -3.07]},
     },
     "metrics": ["default", "object"],
-    "metric_params": {"object": "cube::base_link", "object_target": [0.32, 0.25, -3.17]},
+    "metric_params": {"object": "cube::base_link", "object_target": [0.32, 0.25, -3.07]},
 }
 
 

@@ -46,7 +46,7 @@ from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
-from pydrake.multibody.tree import JointIndex
+from pydrake.multibody.tree import BodyIndex, JointIndex
 
 from hydroilqr import metrics
 from hydroilqr.metrics.goals import judge
@@ -543,6 +543,11 @@ def playback(
     m = _metrics(result, qi, vi, limits, clock.vscale, ctl.saturated, ctl.controls, plan.X[-1])
     result.metrics = m
     _add_warnings(result, truth, plan, joint_names, vi, settings)
+    unusable = _unusable_rest(task, result)
+    if unusable:  # no resting gap against an extension that never settles or falls away
+        m["object"].update(resting_gap=None, no_resting_gap=unusable)
+        m[_gap_key("resting_gap", obj.unit)] = None
+        m["warnings"].append(f"no resting gap: {unusable}")
     if result.metrics["saturated_fraction"] > SATURATION_WARNING:
         result.metrics["warnings"].append(_saturation_warning(result.metrics, ctl, settings))
     result.wall_seconds = time.perf_counter() - wall0
@@ -1006,6 +1011,64 @@ def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     """Rotation angle (rad) between quaternions (wxyz). [..., 4] -> [...]."""
     e = quat_mul(quat_conj(qb), qa)
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
+
+
+def scene_box(task, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) corners [3] of the scene: every body's origin at x0 and every scene object
+    (its pose ± its half extent; a half space counts its origin)."""
+    dyn = task.dynamics
+    plant, ctx = dyn.plant, dyn.plant_context
+    plant.SetPositionsAndVelocities(ctx, x0)
+    points = [
+        np.asarray(plant.EvalBodyPoseInWorld(ctx, plant.get_body(BodyIndex(i))).translation())
+        for i in range(plant.num_bodies())
+    ]
+    for o in task.config.scene:
+        half = {"box": np.asarray(o.size, float) / 2, "sphere": np.full(3, o.radius)}.get(
+            o.shape, np.array([o.radius, o.radius, o.length / 2]) if o.shape == "cylinder" else 0
+        )
+        points += [np.asarray(o.xyz, float) - half, np.asarray(o.xyz, float) + half]
+    P = np.array(points)
+    return P.min(axis=0), P.max(axis=0)
+
+
+def left_scene(box: tuple[np.ndarray, np.ndarray], p: np.ndarray) -> bool:
+    """``p`` [3] lies farther outside the scene ``box`` than the box's diagonal (at least
+    1 m): a body that fell through the ground or flew off."""
+    low, high = box
+    outside = np.linalg.norm(np.maximum(0.0, np.maximum(low - p, p - high)))
+    return bool(outside > max(1.0, float(np.linalg.norm(high - low))))
+
+
+def _unusable_rest(task, r: PlaybackResult) -> str:
+    """Why the resting gap would measure an artefact ('' if it does not): the planning
+    model's extension did not come to rest, or it or the playback carried the object out of
+    the scene (a floating object). A joint object (a passive joint) has no scene to leave."""
+    h, ob = r.hold, r.metrics["object"]
+    if h is None or ob.get("resting_gap") is None:
+        return ""
+    where = ""
+    if r.obj.kind == "floating":
+        box = scene_box(task, r.X[0])
+        for side, key in (("the planning model's extension", "planned_resting"),
+                          ("the playback", "actual_resting")):  # fmt: skip
+            p = np.asarray(ob[key], float)
+            if left_scene(box, p):
+                where = f"{side} carried the object out of the scene (to {_xyz(p)} m)"
+                break
+    if where:
+        return f"{where}; the plan's end is the measure (final gap)"
+    if not h.rested_plan:
+        return (
+            f"the planning model's extension did not come to rest within "
+            f"{r.settings.rest_max:g} s "
+            "(--rest-max); the plan's end is the measure (final gap)"
+        )
+    return ""
+
+
+def _xyz(p: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:.3g}" for v in p) + "]"
 
 
 def _gap_key(name: str, unit: str) -> str:
