@@ -73,6 +73,7 @@ def test_shared_body_names_are_scoped_and_the_cube_is_the_tracked_object(nudge):
     assert tracked_objects(nudge) == {"cube::base_link"}
     assert {"world", "Acrobot::base_link"} <= fixed_bodies(nudge)
     f = check_task(nudge, rollout_steps=5)
+    assert f["cost_pull"] is None  # its guess is zeros: nothing for the cost to pull
     warned = [w for w in f["warnings"] if "touches only what is fixed to the world" in w]
     assert warned and "cube::base_link" in warned[0], f["warnings"]
     assert any("cube::base_link" in str(p) for p in f["pairs"])  # the table names the model

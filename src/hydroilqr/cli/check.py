@@ -276,6 +276,14 @@ def _simulation(r: dict) -> None:
         )
     else:
         console.print(f"  no contact {along}")
+    pull = r.get("cost_pull")
+    if pull:
+        names = ", ".join(r.get("tracked_objects") or [])
+        console.print(
+            f"  the cost brings the robot to {names}: with the guess's commands scaled by "
+            f"{pull['scale']:g} (the control cost R pulls them towards 0, as the solver's "
+            f"first steps do) the rollout touches {', '.join('/'.join(p) for p in pull['pairs'])}"
+        )
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
         stages = "".join(

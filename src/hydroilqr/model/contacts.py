@@ -180,6 +180,38 @@ def touches_moving(pairs: list[dict], tracked: set[str], fixed: set[str]) -> boo
     return False
 
 
+#: Scales of the guess's commands tried by ``cost_pull_contact``: halfway to, and at, the
+#: commands the control cost alone prefers (zero).
+PULL_SCALES = (0.5, 0.0)
+
+
+def cost_pull_contact(task, U: np.ndarray) -> dict | None:
+    """Whether the cost itself moves the robot to a tracked object when the guess's rollout
+    (controls U: [N, nu]) touches none: the control cost R·u² pulls the commands towards 0,
+    so the solver's first steps take the guess's commands towards 0 whatever contact there is
+    (an arm held up by gravity-compensating torques sags onto the ball below it). Returns
+    {scale, pairs} of the first scale of PULL_SCALES whose rollout has a moving body touch a
+    tracked object (pairs: those touching it), or None (no R, or no such touch)."""
+    tracked, fixed = tracked_objects(task), fixed_bodies(task)
+    U = np.asarray(U, float)
+    if not tracked or not np.any(np.asarray(task.cost.r) > 0) or not np.any(U):
+        return None
+    for s in PULL_SCALES:
+        try:
+            X = task.dynamics.rollout(task.x0, s * U)
+        except Exception:  # (a rollout that fails: no evidence either way)
+            continue
+        pairs = touched_pairs(task, X)
+        if touches_moving(pairs, tracked, fixed):
+            hits = [
+                p
+                for p in pairs
+                if set(p["bodies"]) & tracked and not set(p["bodies"]) <= fixed | tracked
+            ]
+            return {"scale": s, "pairs": [p["pair"] for p in hits]}
+    return None
+
+
 def touches_tracked(task, X: np.ndarray) -> bool:
     """Some state of X: [T, nx] has a tracked body touching a body that moves (not the world
     or what is welded to it, such as the ground)."""

@@ -29,6 +29,7 @@ from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.terms import terms_on_guess
 from hydroilqr.model.contacts import (
     NO_CONTACT_REMEDY,
+    cost_pull_contact,
     fixed_bodies,
     no_contact_remedy,
     touched_pairs,
@@ -281,6 +282,8 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     w = _start_warning(pairs, out["max_speed"])
     if w:
         warn(w)
+    if out.get("cost_pull"):  # the cost itself brings the robot to the object
+        return _rollout_more_warnings(out, warn)
     w = _untracked_contact_warning(
         out["touched_pairs"],
         set(out["tracked_objects"]),
@@ -289,6 +292,10 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     )
     if w:
         warn(w)
+    _rollout_more_warnings(out, warn)
+
+
+def _rollout_more_warnings(out: dict, warn) -> None:
     if out["contact_faces"] > 500:
         warn(
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "
@@ -465,10 +472,15 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
+    touched = touched_pairs(task, Xc)
+    pull = None
+    if tracked and not touches_moving(touched, tracked, fixed_bodies(task)):
+        pull = cost_pull_contact(task, task.initial_guess(task.steps)[: len(Xc) - 1])
     out.update(
         {
+            "cost_pull": pull,
             "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),
-            "touched_pairs": touched_pairs(task, Xc),
+            "touched_pairs": touched,
             "contact_rollout_steps": len(Xc) - 1,
             "tracked_bodies": sorted(tracked_bodies(task)),
             "tracked_objects": sorted(tracked),
