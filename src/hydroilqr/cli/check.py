@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
-from hydroilqr.problem.config import MPCConfig
+from hydroilqr.problem.config import ConfigError, MPCConfig
 
 HELP = "validate a task and report its layout and contacts"
 
@@ -17,6 +18,12 @@ PAIRS_SHOWN = 40  # rows of the candidate-pair table
 
 def setup(p) -> None:
     add_task_args(p)
+    p.add_argument(
+        "--replay",
+        metavar="FILE.html",
+        help="also write a 3-D replay of the initial guess rolled out over the task's horizon "
+        "(what a solve starts from) to FILE.html",
+    )
 
 
 #: Columns that hold names a user copies into a task file: never cut short with "…" in a
@@ -35,6 +42,7 @@ def _table(title: str, columns) -> Table:
 
 
 def run(args) -> int:
+    _replay_path(args.replay)
     task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
     from hydroilqr.studies.check import check_task
 
@@ -45,7 +53,27 @@ def run(args) -> int:
         validate_task(Task.load(task_name_from_args(args), list(args.set or []), args.config, True))
     _check_mpc_section(task)
     check_task(task, on_section=print_section)
+    if args.replay:
+        _write_guess_replay(task, Path(args.replay))
     return 0
+
+
+def _replay_path(value: str | None) -> None:
+    """A --replay FILE.html whose directory exists (checked before any work)."""
+    if value is None:
+        return
+    path = Path(value)
+    if path.suffix != ".html" or not path.parent.is_dir():
+        raise ConfigError(f"--replay {value}: expected FILE.html in an existing directory")
+
+
+def _write_guess_replay(task, path: Path) -> None:
+    from hydroilqr.output.replay import write_replay
+    from hydroilqr.studies.check import guess_trajectory
+
+    t, X, U = guess_trajectory(task)
+    write_replay(task, X, t, path, inputs=U)
+    console.print(f"wrote {path} (the initial guess's rollout, {len(U)} steps, {t[-1]:g} s)")
 
 
 def _check_mpc_section(task) -> None:

@@ -495,6 +495,14 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     )
 
 
+def guess_trajectory(task) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t: [N+1] s, X: [N+1, nx], U: [N, nu]): the task's initial guess rolled out from x0
+    over its whole horizon (a receding-horizon task: all its steps), as a solve starts."""
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
+    return task.config.plant.time_step * np.arange(len(X)), X, U
+
+
 def _contact_rollout(task, X: np.ndarray) -> np.ndarray:
     """The states along which contact with the tracked objects is judged: the whole initial
     guess of a single solve, as the solve itself sees it (``X``, the timed rollout's first
