@@ -134,3 +134,28 @@ def test_contacts_plot_labels_name_the_model_of_a_shared_body():
     label = pair_label(("Box", "ground"), ("cube::base_link", "world"))
     assert label == "Box (cube::base_link) / ground"
     assert pair_label(("tip", "wall"), ("pole", "world")) == "tip / wall"
+
+
+def test_printed_numbers_carry_their_units(nudge):
+    """Issue 54, item 9: final errors per Qf block and check's max |v| with their units."""
+    from hydroilqr.metrics import final_error_units, summary_lines
+    from hydroilqr.metrics.common import block_unit
+    from hydroilqr.studies.check import check_task
+
+    dyn = nudge.dynamics
+    units = {
+        "shoulder": " rad",
+        "elbow.v": " rad/s",
+        "cube::base_link.position": " m",
+        "base_link.velocity.z": " m/s",
+        "base_link.angular_velocity": " rad/s",
+        "base_link.orientation": " (2 sin(θ/2))",
+    }
+    assert {k: block_unit(dyn, k) for k in units} == units
+    mixed = _task(blocks={"both": ["shoulder", "base_link.position.x"]})
+    assert block_unit(mixed.dynamics, "both") == " (mixed units)"
+    m = {"final_error": {"base_link.position": 0.2, "shoulder": 0.01}}
+    line = summary_lines(m, final_error_units(nudge, m))[-1]
+    assert line.endswith("base_link.position=0.2 m, shoulder=0.01 rad"), line
+    f = check_task(nudge, rollout_steps=5)
+    assert f["max_speed_unit"] in ("m/s", "rad/s") and f["max_speed_coordinate"]

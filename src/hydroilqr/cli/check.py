@@ -291,7 +291,7 @@ def _simulation(r: dict) -> None:
     )
     console.print(
         f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {rollout} ok, "
-        f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
+        f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}" + _speed_unit(r)
     )
     if r.get("position_guess"):
         _position_guess(r["position_guess"])
@@ -322,6 +322,12 @@ def _simulation(r: dict) -> None:
             f"  cost term {t['name']} ({t['type']}): {err}, cost {t['cost']:.4g} "
             f"(weight {_weight(t.get('weight'))}{stages})"
         )
+
+
+def _speed_unit(r: dict) -> str:
+    """' rad/s (elbow.v)': the unit and the coordinate of check's largest velocity."""
+    unit, name = r.get("max_speed_unit", ""), r.get("max_speed_coordinate", "")
+    return (f" {unit}" if unit else "") + (f" ({name})" if name else "")
 
 
 def _weight(w) -> str:

@@ -236,8 +236,11 @@ def _print_result(data: dict, wall_seconds: float) -> None:
         f"{_fmt(ob['progress_ratio'])}{rest}",
         soft_wrap=True,
     )
+    joints = data.get("joint_tracking") or {}
+    worst = max(joints, key=lambda k: joints[k]["rms_error"], default=None)
+    which = f" {joints[worst]['unit']} ({worst})".replace("  ", " ") if worst else ""
     console.print(
-        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
+        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}{which}; "
         f"saturated commands {100 * data['saturated_fraction']:.1f}%"
     )
 

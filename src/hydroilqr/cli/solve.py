@@ -397,7 +397,8 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict
         command=command_line(args),
         extra_summary=extra,
     )
-    for line in metrics_mod.summary_lines(summary["metrics"]):
+    units = metrics_mod.final_error_units(task, summary["metrics"])
+    for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]

@@ -5,6 +5,7 @@ the contact timeline)."""
 from __future__ import annotations
 
 import numpy as np
+from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.metrics.contacts import contact_metrics, plot_contacts
 from hydroilqr.metrics.registry import Metric, register
@@ -72,6 +73,57 @@ def floating_block(task, name: str, param: str):
 def floating_name(block) -> str:
     """The floating body's label of its position block (``floating_block``)."""
     return block.name[: -len(".position")]
+
+
+#: Units of a joint's (position, velocity) coordinates by Drake joint type, one entry per
+#: coordinate where they differ (a floating body: quaternion, then position).
+_JOINT_UNITS = {
+    "revolute": (["rad"], ["rad/s"]),
+    "prismatic": (["m"], ["m/s"]),
+    "quaternion_floating": (["", "", "", "", "m", "m", "m"], ["rad/s"] * 3 + ["m/s"] * 3),
+    "planar": (["m", "m", "rad"], ["m/s", "m/s", "rad/s"]),
+}
+
+
+def coordinate_units(dyn) -> list[str]:
+    """The unit of each coordinate of x: [nx] ('' where it has none: a quaternion, a joint
+    type without a table entry)."""
+    units = [""] * dyn.nx
+    plant = dyn.plant
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        q_units, v_units = _JOINT_UNITS.get(j.type_name(), ([], []))
+        for k, u in enumerate(q_units[: j.num_positions()]):
+            units[j.position_start() + k] = u
+        for k, u in enumerate(v_units[: j.num_velocities()]):
+            units[dyn.nq + j.velocity_start() + k] = u
+    return units
+
+
+def block_unit(dyn, name: str) -> str:
+    """The unit of a state block's coordinates: ' m', ' rad/s', ... (with its space), ''
+    for a quaternion's error (2 sin(θ/2), no unit) and ' (mixed units)' for a group that
+    mixes them."""
+    block = dyn.layout.block(name)
+    if block.kind == "quaternion":
+        return " (2 sin(θ/2))"
+    units = {coordinate_units(dyn)[i] for i in block.coords}
+    if len(units) == 1:
+        u = units.pop()
+        return f" {u}" if u else ""
+    return " (mixed units)"
+
+
+def coordinate_name(layout, i: int) -> str:
+    """The name of coordinate i of x: a one-coordinate block or component, else the block
+    that holds it with its index."""
+    for b in list(layout.primitives.values()) + list(layout.components.values()):
+        if b.coords == (i,):
+            return b.name
+    for b in layout.primitives.values():
+        if i in b.coords:
+            return f"{b.name}[{b.coords.index(i)}]"
+    return f"x[{i}]"
 
 
 def body_order(task) -> list[str]:

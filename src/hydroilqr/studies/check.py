@@ -26,6 +26,7 @@ import numpy as np
 
 from hydroilqr import metrics
 from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.common import coordinate_name, coordinate_units
 from hydroilqr.metrics.terms import terms_on_guess
 from hydroilqr.model.contacts import (
     NO_CONTACT_REMEDY,
@@ -469,6 +470,7 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
+    fastest = dyn.nq + int(np.argmax(np.max(np.abs(X[:, dyn.nq :]), axis=0))) if dyn.nv else 0
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
@@ -489,6 +491,8 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
             "rollout_steps": N,
             "task_steps": task.steps,
             "max_speed": speed,
+            "max_speed_coordinate": coordinate_name(dyn.layout, fastest) if dyn.nv else "",
+            "max_speed_unit": coordinate_units(dyn)[fastest] if dyn.nv else "",
             "step_ms": step_ms,
             "rollout_ms_per_step": rollout_ms,
         }
