@@ -213,3 +213,31 @@ def test_a_solve_of_zero_iterations_says_the_plan_is_the_guess(tmp_path, capsys)
               "--out", str(tmp_path / "run")])  # fmt: skip
     out = capsys.readouterr().out
     assert "the plan is the initial guess itself" in out and "local minimum" not in out
+
+
+def test_check_tables_keep_every_column_at_80_columns_and_pipes_keep_sentences_whole(
+    capsys, monkeypatch
+):
+    """Issue 54, item 12: a table wider than the terminal becomes one line per row (rich
+    squeezed the pairs table's kinds / model / distance columns to nothing at 80 columns);
+    piped, a warning is one line however long (it wrapped near 160 characters)."""
+    import subprocess
+    import sys
+
+    from hydroilqr.cli.common import console
+
+    monkeypatch.setattr(console, "width", 80)
+    assert cli.main(["check", "kinova-forward"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("  bracelet_link_collision ("))
+    assert "/ ball_collision (ball): kinds rigid/compliant, contact model hydroelastic" in line
+    assert "distance at x0 [m] 0.0" in line
+    monkeypatch.undo()
+    piped = subprocess.run(
+        [sys.executable, "-m", "hydroilqr", "check", "kinova-forward", "--set", "cost.R=0"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    (warning,) = [ln for ln in piped.splitlines() if ln.startswith("warning:")]
+    assert len(warning) > 160 and warning.rstrip().endswith('"From no contact to contact")')

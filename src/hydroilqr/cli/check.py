@@ -6,6 +6,8 @@ import dataclasses
 import math
 from pathlib import Path
 
+from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
@@ -33,12 +35,28 @@ NAME_COLUMNS = {"block", "actuator", "joint", "geometry", "body", "A", "B"}
 
 def _table(title: str, columns) -> Table:
     t = Table(title=title, title_justify="left")
-    for col in columns:
+    for col in columns:  # (escaped: "hint [m]" is no markup)
         if col in NAME_COLUMNS:
-            t.add_column(col, no_wrap=True, overflow="fold")
+            t.add_column(escape(col), no_wrap=True, overflow="fold")
         else:
-            t.add_column(col, overflow="fold")
+            t.add_column(escape(col), overflow="fold")
     return t
+
+
+def _emit(t: Table) -> None:
+    """The table, or where it does not fit the terminal (80 columns: rich would squeeze
+    columns to nothing), one line per row: ``NAME: column value, ...``, nothing dropped."""
+    width = Measurement.get(console, console.options.update(max_width=10_000), t).maximum
+    if width <= console.width:
+        console.print(t)
+        return
+    console.print(t.title)
+    headers = [str(c.header).replace("\\[", "[") for c in t.columns]
+    lead = 2 if headers[:2] == ["A", "B"] else 1  # a pair: "A / B: ..."
+    for cells in zip(*(list(c.cells) for c in t.columns)):
+        name = " / ".join(str(c) for c in cells[:lead])
+        rest = ", ".join(f"{h} {v}" for h, v in zip(headers[lead:], cells[lead:]) if str(v))
+        console.print(f"  {name}: {rest}", soft_wrap=True, markup=False)
 
 
 def run(args) -> int:
@@ -165,7 +183,7 @@ def _blocks(r: dict) -> None:
             span,
             str(vals if len(vals) > 1 else vals[0]),
         )
-    console.print(t)
+    _emit(t)
 
 
 def _actuators(r: dict) -> None:
@@ -182,7 +200,7 @@ def _actuators(r: dict) -> None:
             f"{a['gear_ratio']:.3g}",
             f"{a['reflected_inertia']:.3g}",
         )
-    console.print(t)
+    _emit(t)
 
 
 def _geometries(r: dict) -> None:
@@ -200,7 +218,7 @@ def _geometries(r: dict) -> None:
             "" if g["friction"] is None else f"{g['friction']:g}",
             _damping(g, sap),
         )
-    console.print(t)
+    _emit(t)
     if sap:
         console.print(
             "damping: sap uses relaxation times (a pair's τ is the sum of its two geometries'); "
@@ -233,7 +251,7 @@ def _pairs(r: dict) -> None:
     for p in pairs[:PAIRS_SHOWN]:
         d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
         t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)
-    console.print(t)
+    _emit(t)
     if len(pairs) > PAIRS_SHOWN:
         console.print(f"  ... and {len(pairs) - PAIRS_SHOWN} more pairs")
     for o in r["no_contact_with"]:
