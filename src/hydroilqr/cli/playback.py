@@ -221,15 +221,13 @@ def _print_result(data: dict, wall_seconds: float) -> None:
             f"{ob['rest']['actual']['hold_s']:.2f} s of hold)"
         )
     if ob.get("no_resting_gap"):  # the warning says why; the plan's end is the headline
-        rest = "; no resting gap (see the warning)"
-    if ob.get("kind") == "joint" and rest:
+        head, rest = final, "; no resting gap (see the warning)"
+    elif ob.get("kind") == "joint" and rest:
         # a joint of the robot without a motor: the hold (PD+ on the actuated joints) cannot
         # hold it, so where it ends after the plan is no measure of the plan
         head, rest = final, f"; after the plan, unheld (no motor): {rest}"
-    elif not ob.get("no_resting_gap"):
-        head, rest = (f"{rest}, {final}" if rest else final), ""
     else:
-        head = final
+        head, rest = (f"{rest}, {final}" if rest else final), ""
     console.print(
         f"{data['truth_steps']} truth steps in {wall_seconds:.2f} s; object {ob['name']}: "
         f"{head}, max deviation {ob['max_deviation']:.4g}{unit}, progress ratio "
