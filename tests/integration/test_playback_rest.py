@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task, solve
-from hydroilqr.control.playback import PlaybackSettings, left_scene, playback, scene_box
+from hydroilqr.control.playback import PlaybackSettings, playback
+from hydroilqr.model.scene import left_scene, scene_box
 from tests.integration.test_model_names import NUDGE
 
 

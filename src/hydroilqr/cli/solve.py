@@ -458,6 +458,12 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict) -> dict
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
+    if not args.no_replay:
+        from hydroilqr.output.replay import camera_note
+
+        note = camera_note(task)
+        if note:
+            console.print(note, soft_wrap=True, markup=False)
     return summary
 
 

@@ -46,12 +46,13 @@ from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
-from pydrake.multibody.tree import BodyIndex, JointIndex
+from pydrake.multibody.tree import JointIndex
 
 from hydroilqr import metrics
 from hydroilqr.metrics.goals import judge
 from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
+from hydroilqr.model.scene import left_scene, scene_box
 from hydroilqr.model.state import quat_conj, quat_mul
 from hydroilqr.model.task import Task
 from hydroilqr.problem.config import (
@@ -1011,33 +1012,6 @@ def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     """Rotation angle (rad) between quaternions (wxyz). [..., 4] -> [...]."""
     e = quat_mul(quat_conj(qb), qa)
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
-
-
-def scene_box(task, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) corners [3] of the scene: every body's origin at x0 and every scene object
-    (its pose ± its half extent; a half space counts its origin)."""
-    dyn = task.dynamics
-    plant, ctx = dyn.plant, dyn.plant_context
-    plant.SetPositionsAndVelocities(ctx, x0)
-    points = [
-        np.asarray(plant.EvalBodyPoseInWorld(ctx, plant.get_body(BodyIndex(i))).translation())
-        for i in range(plant.num_bodies())
-    ]
-    for o in task.config.scene:
-        half = {"box": np.asarray(o.size, float) / 2, "sphere": np.full(3, o.radius)}.get(
-            o.shape, np.array([o.radius, o.radius, o.length / 2]) if o.shape == "cylinder" else 0
-        )
-        points += [np.asarray(o.xyz, float) - half, np.asarray(o.xyz, float) + half]
-    P = np.array(points)
-    return P.min(axis=0), P.max(axis=0)
-
-
-def left_scene(box: tuple[np.ndarray, np.ndarray], p: np.ndarray) -> bool:
-    """``p`` [3] lies farther outside the scene ``box`` than the box's diagonal (at least
-    1 m): a body that fell through the ground or flew off."""
-    low, high = box
-    outside = np.linalg.norm(np.maximum(0.0, np.maximum(low - p, p - high)))
-    return bool(outside > max(1.0, float(np.linalg.norm(high - low))))
 
 
 def _unusable_rest(task, r: PlaybackResult) -> str:
