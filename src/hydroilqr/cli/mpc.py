@@ -196,6 +196,17 @@ def _simulate(loop):
 def _print_summary(data: dict, settings, task) -> None:
     from hydroilqr import metrics
 
+    fp = data.get("first_plan") or {}
+    if fp:  # before the clock started
+        stages = fp["continuation_stages"]
+        console.print(
+            f"first plan (before the clock starts): from the {fp['from']}"
+            + (f" through {stages} continuation stage(s)" if stages else "")
+            + f", status {fp['status']} after {fp['iterations']} of up to "
+            f"{fp['max_iterations']} iterations, cost {fp['cost']:.6g}, {fp['seconds']:.2f} s",
+            soft_wrap=True,
+        )
+
     s = data["solve_seconds"]
     console.print(
         f"rate {data['achieved_rate_hz']:.1f} Hz, solve p50 {1e3 * s['p50']:.1f} ms, "

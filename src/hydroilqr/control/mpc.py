@@ -36,6 +36,7 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 
 from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.derivatives import Linearizer
+from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
@@ -301,6 +302,8 @@ class MPCResult:
     restarts: int = 0  # updates that started from an mpc.candidates entry
     # [T, nu] the inputs the controller asked for, before the effort limits clipped them (U)
     U_commanded: np.ndarray | None = None
+    # how the first plan (before the clock starts) was made: its start, stages, outcome
+    first_plan: dict = field(default_factory=dict)
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -357,6 +360,7 @@ class MPCResult:
             "plan_overrides": list(self.settings.plan_overrides),
             "plant_time_step_s": float(self.t[1] - self.t[0]) if len(self.t) > 1 else None,
             "warm_start_plan": self.settings.warm_start_plan,
+            "first_plan": self.first_plan,
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
                 for p in self.settings.pushes
@@ -862,12 +866,14 @@ class ClosedLoop:
         self.failures, self.k = 0, 0
         self.plan, self.t_plan = None, 0.0
         self.failure, self.interrupted = "", False
+        self.first_info: dict = {}
 
     def first_plan(self) -> None:
         """The first plan, solved to convergence before the clock starts (as a robot plans
         before it moves), seeded by the task's continuation if any (not over a given
         warm-start plan), with the derivative settings this run uses."""
         ctrl, solver, x = self.ctrl, self.ctrl.solver, self.x
+        t0 = time.perf_counter()
         stages = ctrl.task.stages() if ctrl.U_ref is None else []  # the planner's
         for stage in stages:
             s_stage = dataclasses.replace(
@@ -884,6 +890,18 @@ class ClosedLoop:
         self.plan, ok = ctrl.update(x, 0.0, solver.max_iterations, full=True)
         if self.plan is None:
             raise SimulationError("mpc: the first plan failed")
+        given = self.settings.warm_start_plan
+        self.first_info = {
+            "from": f"warm_start_plan {given}"
+            if given
+            else f"initial_guess {describe_guess(ctrl.task.config.initial_guess)}",
+            "continuation_stages": len(stages),
+            "iterations": int(self.plan.iterations),
+            "max_iterations": int(solver.max_iterations),
+            "status": self.plan.status,
+            "cost": float(self.plan.final_cost),
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
 
     def advance(self, n: int, plan: Solution, t_plan: float) -> None:
         """Simulates up to n steps under ``plan``'s policy (measured at ``t_plan``)."""
@@ -1021,4 +1039,5 @@ class ClosedLoop:
             self.truth.saturated / max(1, self.truth.commands),
             ctrl.restarts,
             np.array(self.U_asked[: len(self.U)]),
+            self.first_info,
         )
