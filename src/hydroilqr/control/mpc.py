@@ -730,10 +730,7 @@ class Truth:
             return
         forces = []
         for push in pushes:  # several at once add up
-            try:
-                body = find_body(self.plant, push.body, "--push")
-            except RuntimeError:
-                raise ConfigError(f"--push: no body named {push.body!r}") from None
+            body = find_body(self.plant, push.body, "--push")  # (checked before the run)
             f = ExternallyAppliedSpatialForce()
             f.body_index = body.index()
             f.p_BoBq_B = np.zeros(3)

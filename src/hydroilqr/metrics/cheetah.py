@@ -423,7 +423,10 @@ def _check_names(task, p: dict) -> None:
     names = {n for n, _ in task.dynamics.geometry_names().values()}
     for n in p["feet"] + [p["body_collision"], *p["ground"]]:
         if n not in names:
-            raise ConfigError(f"metric_params: no collision geometry named {n!r}")
+            raise ConfigError(
+                f"metric_params: no collision geometry named {n!r} "
+                f"(known: {', '.join(sorted(names))})"
+            )
 
 
 def validate(task) -> None:

@@ -82,7 +82,11 @@ def validate_flight(task) -> None:
     names = task.dynamics.geometry_names().values()
     for f in _feet(task):
         if not any(_matches(n, b, [f]) for n, b in names):
-            raise ConfigError(f"metric_params.foot: no collision geometry or body {f!r}")
+            known = sorted({n for n, _ in names} | {b for _, b in names})
+            raise ConfigError(
+                f"metric_params.foot: no collision geometry or body {f!r} "
+                f"(known: {', '.join(known)})"
+            )
 
 
 register(
