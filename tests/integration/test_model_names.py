@@ -105,6 +105,10 @@ def test_model_scoped_names_work_in_every_section(nudge):
             assert friction.static_friction() == pytest.approx(0.4)
         if body == "Acrobot::base_link":
             assert friction.static_friction() == pytest.approx(0.3)
+    task = _task(
+        cost__R={"Acrobot::elbow": 0.02}, actuators={"Acrobot::elbow": {"effort_limit": 5}}
+    )
+    assert task.cost.r.tolist() == [0.02] and task.dynamics._effort_limits().tolist() == [5.0]
     scene = copy.deepcopy(NUDGE["scene"])
     scene[0]["no_contact_with"] = ["cube::base_link"]
     _task(scene=scene)

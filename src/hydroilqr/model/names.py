@@ -84,4 +84,25 @@ def find_body(plant, name, key: str, exclude: set | None = None):
     return hits[0]
 
 
+def actuator_names(plant) -> dict[str, object]:
+    """Every name of each joint actuator -> the actuator: its label (``MODEL::NAME`` where
+    two models share the name), ``MODEL::NAME`` always, and the bare name where it is
+    unique; in the plant's actuator order (labels first)."""
+    acts = [plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()]
+    items = [(plant.GetModelInstanceName(a.model_instance()), a.name()) for a in acts]
+    labels = scoped_names(items)
+    out: dict[str, object] = dict(zip(labels, acts))
+    for (model, name), a in zip(items, acts):
+        out.setdefault(f"{model}{SCOPE}{name}", a)
+        if sum(n == name for _, n in items) == 1:
+            out.setdefault(name, a)
+    return out
+
+
+def actuator_labels(plant) -> list[str]:
+    """The actuators' labels in the plant's order (``actuator_names``)."""
+    acts = [plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()]
+    return scoped_names([(plant.GetModelInstanceName(a.model_instance()), a.name()) for a in acts])
+
+
 __all__ = ["bare", "body_label", "body_labels", "find_body", "scoped_names"]

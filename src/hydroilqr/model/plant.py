@@ -44,7 +44,15 @@ from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, Multibod
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
-from hydroilqr.model.names import SCOPE, bare, body_labels, full_body_name, scoped_names
+from hydroilqr.model.names import (
+    SCOPE,
+    actuator_labels,
+    actuator_names,
+    bare,
+    body_labels,
+    full_body_name,
+    scoped_names,
+)
 from hydroilqr.model.state import StateLayout
 from hydroilqr.problem.config import (
     ActuatorConfig,
@@ -504,15 +512,12 @@ def apply_actuators(task: TaskConfig, plant) -> None:
     ones."""
     if not task.actuators:
         return
-    acts = {}
-    for i in plant.GetJointActuatorIndices():
-        a = plant.get_joint_actuator(i)
-        acts[a.name()] = a
-
+    acts = actuator_names(plant)  # labels, MODEL::NAME, unique bare names
     for name, cfg in task.actuators.items():
         a = acts.get(name)
         if a is None:
-            raise ConfigError(f"actuators.{name}: {unknown_key(name, list(acts), 'actuator')}")
+            known = actuator_labels(plant)
+            raise ConfigError(f"actuators.{name}: {unknown_key(name, known, 'actuator')}")
         if cfg.effort_limit is not None:
             a.set_effort_limit(float(cfg.effort_limit))
         if cfg.rotor_inertia is not None:

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
-from hydroilqr.model.names import SCOPE, bare, body_labels
+from hydroilqr.model.names import SCOPE, actuator_labels, actuator_names, bare, body_labels
 from hydroilqr.problem.config import ConfigError
 
 
@@ -127,6 +127,7 @@ class StateLayout:
         # Other names of a block: MODEL::NAME..., and the bare name of a scoped block that
         # no other block has (``from_plant``).
         self.aliases: dict[str, str] = {}
+        self.actuator_aliases: dict[str, str] = {}  # any name of an actuator -> its label
 
     @staticmethod
     def from_plant(plant) -> StateLayout:
@@ -198,9 +199,14 @@ class StateLayout:
                             Block(f"{name}.{j.position_suffix(i)}", (q0 + i,), (v0 + i,)),
                             Block(f"{name}.{j.velocity_suffix(i)}", (nq + v0 + i,), (nv + v0 + i,)),
                         ]
-        actuators = [plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()]
-        layout = StateLayout(nq, nv, blocks, actuators, components)
+        layout = StateLayout(nq, nv, blocks, actuator_labels(plant), components)
         layout.aliases = _aliases(prefixes, [b.name for b in blocks + components])
+        index = {int(a.index()): k for k, a in enumerate(
+            plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()
+        )}  # fmt: skip
+        layout.actuator_aliases = {
+            n: layout.actuators[index[int(a.index())]] for n, a in actuator_names(plant).items()
+        }
         return layout
 
     # ---------------------------------------------------------------------------- names
