@@ -222,6 +222,10 @@ def _print_result(data: dict, wall_seconds: float) -> None:
         )
     if ob.get("no_resting_gap"):  # the warning says why; the plan's end is the headline
         head, rest = final, "; no resting gap (see the warning)"
+    elif ob.get("resting_gap_caveat"):  # against an extension still moving: secondary
+        unheld = "after the plan, unheld (no motor): " if ob.get("kind") == "joint" else ""
+        head = final
+        rest = f"; {unheld}{rest}, against the plan's extension still moving (see the warning)"
     elif ob.get("kind") == "joint" and rest:
         # a joint of the robot without a motor: the hold (PD+ on the actuated joints) cannot
         # hold it, so where it ends after the plan is no measure of the plan
