@@ -187,3 +187,57 @@ def test_check_does_not_read_an_mpc_warm_start_plan_that_a_later_solve_writes(tm
     section = {"warm_start_plan": "run"}  # (relative to the task file: not solved yet)
     path.write_text(yaml.safe_dump({"extends": "cartpole-wall", "mpc": section}))
     assert cli.main(["check", str(path)]) == 0
+
+
+def test_check_replay_writes_the_guess_rollout(tmp_path, capsys):
+    """`check --replay FILE.html` shows the initial guess without a solve (issue 54, item 10):
+    the replay of the guess's rollout over the whole horizon; a bad path is one line, exit 2,
+    before any work."""
+    from hydroilqr.studies.check import guess_trajectory
+
+    path = write_case(tmp_path, edit(initial_guess="gravity_compensation"))
+    out = tmp_path / "guess.html"
+    assert cli.main(["check", str(path), "--replay", str(out)]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+    assert out.stat().st_size > 10_000 and "meshcat" in out.read_text().lower()
+    t, X, U = guess_trajectory(Task.from_yaml(path))
+    assert len(t) == len(X) == len(U) + 1 == 6 and t[-1] == pytest.approx(0.1)
+    rc = cli.main(["check", str(path), "--replay", str(tmp_path / "no" / "guess.html")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "--replay")
+
+
+def test_a_solve_of_zero_iterations_says_the_plan_is_the_guess(tmp_path, capsys):
+    path = write_case(tmp_path, edit())
+    cli.main(["solve", "--task-file", str(path), "--max-iterations", "0", "--no-replay",
+              "--out", str(tmp_path / "run")])  # fmt: skip
+    out = capsys.readouterr().out
+    assert "the plan is the initial guess itself" in out and "local minimum" not in out
+
+
+def test_check_tables_keep_every_column_at_80_columns_and_pipes_keep_sentences_whole(
+    capsys, monkeypatch
+):
+    """Issue 54, item 12: a table wider than the terminal becomes one line per row (rich
+    squeezed the pairs table's kinds / model / distance columns to nothing at 80 columns);
+    piped, a warning is one line however long (it wrapped near 160 characters)."""
+    import subprocess
+    import sys
+
+    from hydroilqr.cli.common import console
+
+    monkeypatch.setattr(console, "width", 80)
+    assert cli.main(["check", "kinova-forward"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("  bracelet_link_collision ("))
+    assert "/ ball_collision (ball): kinds rigid/compliant, contact model hydroelastic" in line
+    assert "distance at x0 [m] 0.0" in line
+    monkeypatch.undo()
+    piped = subprocess.run(
+        [sys.executable, "-m", "hydroilqr", "check", "kinova-forward", "--set", "cost.R=0"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    (warning,) = [ln for ln in piped.splitlines() if ln.startswith("warning:")]
+    assert len(warning) > 160 and warning.rstrip().endswith('"From no contact to contact")')

@@ -94,3 +94,27 @@ def test_gait_report_section_links_the_gait_diagram(tmp_path):
     assert "[gait.png](results/cheetah-trot-1.0/gait.png)" in section.markdown
     assert (tmp_path / "results" / "cheetah-trot-1.0" / "gait.png").exists()
     assert results.metric_reports([], ctx) == []
+
+
+def test_results_is_dated_estimated_and_leaves_the_repositorys_page_alone(tmp_path):
+    """Issue 54, item 11: the page carries its date and wall time; an estimate from the
+    shipped page; the default --out is not docs/."""
+    import argparse
+    from datetime import datetime
+
+    from hydroilqr.cli import results as cli_results
+
+    results.generate(["cartpole-wall"], out=tmp_path, smoke=True)
+    page = json.loads((tmp_path / "results.json").read_text())
+    assert datetime.fromisoformat(page["environment"]["date"]).tzinfo is not None
+    assert page["wall_seconds"] > 0
+    assert f"date {page['environment']['date']}" in (tmp_path / "results.md").read_text()
+    page["sections"]["solves"][0]["solve_seconds"] = 120.0
+    (tmp_path / "results.json").write_text(json.dumps(page))
+    said = results.estimate(["cartpole-wall"], False, tmp_path / "results.json")
+    assert said.startswith(f"about {page['wall_seconds']:.0f} s") or "2 min" in said
+    assert "2 min" in results.estimate(["cartpole-wall", "x"], False, tmp_path / "results.json")
+    assert results.estimate(["cartpole-wall"], False, tmp_path / "none.json") == ""
+    p = argparse.ArgumentParser()
+    cli_results.setup(p)
+    assert p.parse_args([]).out == "runs/results"

@@ -164,3 +164,23 @@ def test_one_worker_runs_one_solve_at_a_time_and_each_solves_threads_are_stated(
     spans = sorted((r["started"], r["finished"]) for r in runs)
     assert all(a[1] <= b[0] for a, b in zip(spans, spans[1:]))  # one after another
     assert report["threads_per_solve"] == {"c": num_threads(0)}
+
+
+def test_the_spread_of_each_check_shows_how_close_the_runs_came():
+    """Issue 54, item 6: "3 of 3" with one run 1.3 mm inside a 20 mm limit says so."""
+    from hydroilqr.metrics.goals import evaluate
+    from hydroilqr.problem.config import GoalCheck
+    from hydroilqr.studies.robustness import spread_lines
+
+    goal = {"target_error_m": GoalCheck(max=0.02)}
+    runs = []
+    for k, v in enumerate([0.004, 0.0187, 0.009], start=1):
+        g = evaluate(goal, {"target_error_m": v})
+        runs.append(_run(k, g["met"], []))
+        runs[-1].checks = g["checks"]
+    s = summarize("t", runs)
+    spread = s["check_spread"]["target_error_m"]
+    assert (spread["min"], spread["median"], spread["max"]) == (0.004, 0.009, 0.0187)
+    assert spread["worst"] == 0.0187 and abs(spread["worst_slack"] - 0.0013) < 1e-12
+    (line,) = spread_lines({"tasks": [s]})
+    assert "min 0.004, median 0.009, max 0.0187; worst 0.0187 against <= 0.02" in line

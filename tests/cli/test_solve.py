@@ -375,3 +375,24 @@ def test_a_lock_file_that_links_outside_is_never_followed(tmp_path, capsys, kind
         assert outside.read_text() == "precious"
     rc = cli.main(["playback", str(out)])
     assert rc == 2 and "not a lock file hydroilqr made" in capsys.readouterr().err
+
+
+def test_check_robust_resolves_perturbed_guesses_and_reports_the_spread(tmp_path, capsys):
+    """Issue 54, item 13: `solve --check-robust K` says whether a result sits on a knife
+    edge: K more solves from last-bit perturbed guesses, the goal's pass rate and each
+    check's spread, also in summary.json."""
+    path = write_case(tmp_path, edit(goal={"final_error.angles": {"max": 10.0}}))
+    out = tmp_path / "run"
+    argv = ["solve", "--task-file", str(path), "--no-replay", "--out", str(out)]
+    assert cli.main([*argv, "--check-robust", "2"]) == 0
+    printed = capsys.readouterr().out
+    assert "check-robust: goal met in" in printed and "final_error.angles: min" in printed
+    cr = json.loads((out / "summary.json").read_text())["check_robust"]
+    assert cr["runs"] == 2 and len(cr["results"]) == 2 and cr["noise"] == 1e-9
+    values = [r["values"]["final_error.angles"] for r in cr["results"]]
+    s = cr["check_spread"]["final_error.angles"]
+    assert (s["min"], s["max"]) == (min(values), max(values))
+    assert cr["goal_met"] == sum(v <= 10.0 for v in values)
+    rc = cli.main([*argv, "--check-robust", "2", "--starts", "2"])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "--check-robust")

@@ -76,3 +76,17 @@ def test_check_names_the_contact_model_of_each_pair():
     filtered = post.replace("compliance: rigid}", "compliance: rigid, no_contact_with: [tip]}")
     kinds, _ = models([*rigid, filtered])
     assert kinds == ["hydroelastic"]  # only the post's pair with the tip
+
+
+def test_no_contact_warning_knows_when_the_cost_brings_the_arm_to_the_ball():
+    """kinova-forward's guess holds the arm 17 mm above the ball (no contact), but its control
+    cost pulls the gravity-compensating torques down and the arm sags onto the ball: no
+    no-contact alarm (issue 54, item 8). Without a control cost nothing pulls: the alarm."""
+    f = _check(Task.load("kinova-forward"))
+    assert not [w for w in f["warnings"] if "no gradient reaches it" in w], f["warnings"]
+    pull = f["cost_pull"]
+    assert pull and pull["scale"] in (0.5, 0.0)
+    assert all("ball_collision" in p for p in pull["pairs"]) and pull["pairs"]
+    f = _check(Task.load("kinova-forward", ["cost.R=0"]))
+    assert f["cost_pull"] is None
+    assert [w for w in f["warnings"] if "no gradient reaches it" in w], f["warnings"]

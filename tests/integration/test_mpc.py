@@ -407,8 +407,10 @@ def test_mpc_plot_shows_position_blocks_not_velocity_groups_with_units():
 
     cartpole = [("cart_position", "m"), ("pole_angle", "rad")]
     assert plotted_blocks(Task.load("cartpole-wall")) == cartpole
-    # arm_v (joint velocities, weighted in Q) has no "velocit" in its name
-    assert plotted_blocks(Task.load("kinova-forward")) == [("ball_position", "m")]
+    # arm_v (joint velocities, weighted in Q) has no "velocit" in its name; the ball is the
+    # metrics' object (plotted first, by its metric_params name), its group ball_position the
+    # same coordinates (shown once)
+    assert plotted_blocks(Task.load("kinova-forward")) == [("ball.position", "m")]
 
 
 def test_the_simulated_robot_steps_on_its_own_time_step():

@@ -88,3 +88,21 @@ def test_bad_goals_are_refused_on_load(override, message):
 def test_goal_on_a_nested_metric_from_the_command_line():
     t = Task.load("cheetah-trot-1.0", ["goal.duty_factor.FL.min=0.2"], smoke=True)
     assert t.config.goal["duty_factor.FL"].min == 0.2
+
+
+def test_each_check_records_its_slack_to_the_nearest_bound():
+    """How far inside its nearest bound a value is (negative beyond it), in its units: what
+    robustness's per-check spread reports (issue 54, item 6)."""
+    goal = {
+        "err": GoalCheck(max=0.02),
+        "band": GoalCheck(min=1.0, max=3.0),
+        "d": GoalCheck(above="lat", margin=0.2),
+    }
+    res = evaluate(goal, {"err": 0.0187, "band": 2.5, "d": 0.5, "lat": 0.1})
+    slack = {c["metric"]: c["slack"] for c in res["checks"]}
+    assert slack["err"] == pytest.approx(0.0013)
+    assert slack["band"] == pytest.approx(0.5)  # nearer the max
+    assert slack["d"] == pytest.approx(0.2)
+    assert evaluate(goal, {"err": 0.03, "band": 0.5, "d": 0.2, "lat": 0.1})["checks"][0][
+        "slack"
+    ] == pytest.approx(-0.01)

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
+from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
-from hydroilqr.problem.config import MPCConfig
+from hydroilqr.problem.config import ConfigError, MPCConfig
 
 HELP = "validate a task and report its layout and contacts"
 
@@ -17,6 +20,12 @@ PAIRS_SHOWN = 40  # rows of the candidate-pair table
 
 def setup(p) -> None:
     add_task_args(p)
+    p.add_argument(
+        "--replay",
+        metavar="FILE.html",
+        help="also write a 3-D replay of the initial guess rolled out over the task's horizon "
+        "(what a solve starts from) to FILE.html",
+    )
 
 
 #: Columns that hold names a user copies into a task file: never cut short with "…" in a
@@ -26,15 +35,32 @@ NAME_COLUMNS = {"block", "actuator", "joint", "geometry", "body", "A", "B"}
 
 def _table(title: str, columns) -> Table:
     t = Table(title=title, title_justify="left")
-    for col in columns:
+    for col in columns:  # (escaped: "hint [m]" is no markup)
         if col in NAME_COLUMNS:
-            t.add_column(col, no_wrap=True, overflow="fold")
+            t.add_column(escape(col), no_wrap=True, overflow="fold")
         else:
-            t.add_column(col, overflow="fold")
+            t.add_column(escape(col), overflow="fold")
     return t
 
 
+def _emit(t: Table) -> None:
+    """The table, or where it does not fit the terminal (80 columns: rich would squeeze
+    columns to nothing), one line per row: ``NAME: column value, ...``, nothing dropped."""
+    width = Measurement.get(console, console.options.update(max_width=10_000), t).maximum
+    if width <= console.width:
+        console.print(t)
+        return
+    console.print(t.title)
+    headers = [str(c.header).replace("\\[", "[") for c in t.columns]
+    lead = 2 if headers[:2] == ["A", "B"] else 1  # a pair: "A / B: ..."
+    for cells in zip(*(list(c.cells) for c in t.columns)):
+        name = " / ".join(str(c) for c in cells[:lead])
+        rest = ", ".join(f"{h} {v}" for h, v in zip(headers[lead:], cells[lead:]) if str(v))
+        console.print(f"  {name}: {rest}", soft_wrap=True, markup=False)
+
+
 def run(args) -> int:
+    _replay_path(args.replay)
     task = load_task_from_args(args)  # (bad input is refused before Drake is loaded)
     from hydroilqr.studies.check import check_task
 
@@ -45,7 +71,27 @@ def run(args) -> int:
         validate_task(Task.load(task_name_from_args(args), list(args.set or []), args.config, True))
     _check_mpc_section(task)
     check_task(task, on_section=print_section)
+    if args.replay:
+        _write_guess_replay(task, Path(args.replay))
     return 0
+
+
+def _replay_path(value: str | None) -> None:
+    """A --replay FILE.html whose directory exists (checked before any work)."""
+    if value is None:
+        return
+    path = Path(value)
+    if path.suffix != ".html" or not path.parent.is_dir():
+        raise ConfigError(f"--replay {value}: expected FILE.html in an existing directory")
+
+
+def _write_guess_replay(task, path: Path) -> None:
+    from hydroilqr.output.replay import write_replay
+    from hydroilqr.studies.check import guess_trajectory
+
+    t, X, U = guess_trajectory(task)
+    write_replay(task, X, t, path, inputs=U)
+    console.print(f"wrote {path} (the initial guess's rollout, {len(U)} steps, {t[-1]:g} s)")
 
 
 def _check_mpc_section(task) -> None:
@@ -139,7 +185,7 @@ def _blocks(r: dict) -> None:
             span,
             str(vals if len(vals) > 1 else vals[0]),
         )
-    console.print(t)
+    _emit(t)
 
 
 def _actuators(r: dict) -> None:
@@ -156,7 +202,7 @@ def _actuators(r: dict) -> None:
             f"{a['gear_ratio']:.3g}",
             f"{a['reflected_inertia']:.3g}",
         )
-    console.print(t)
+    _emit(t)
 
 
 def _geometries(r: dict) -> None:
@@ -174,7 +220,7 @@ def _geometries(r: dict) -> None:
             "" if g["friction"] is None else f"{g['friction']:g}",
             _damping(g, sap),
         )
-    console.print(t)
+    _emit(t)
     if sap:
         console.print(
             "damping: sap uses relaxation times (a pair's τ is the sum of its two geometries'); "
@@ -207,7 +253,7 @@ def _pairs(r: dict) -> None:
     for p in pairs[:PAIRS_SHOWN]:
         d = "n/a" if p["distance"] is None else f"{p['distance']:.4g}"
         t.add_row(p["a"], p["b"], p["kinds"], p["model"], d)
-    console.print(t)
+    _emit(t)
     if len(pairs) > PAIRS_SHOWN:
         console.print(f"  ... and {len(pairs) - PAIRS_SHOWN} more pairs")
     for o in r["no_contact_with"]:
@@ -324,7 +370,7 @@ def _simulation(r: dict) -> None:
     )
     console.print(
         f"[bold]simulation[/bold]: one step ok ({r['step_ms']:.2f} ms); {rollout} ok, "
-        f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}"
+        f"{r['rollout_ms_per_step']:.2f} ms/step, max |v| = {r['max_speed']:.3g}" + _speed_unit(r)
     )
     if r.get("position_guess"):
         _position_guess(r["position_guess"])
@@ -339,6 +385,14 @@ def _simulation(r: dict) -> None:
         console.print(f"  no contact {along}")
     _bases(r.get("bases") or {})
     _step_cost(r.get("step_cost") or {})
+    pull = r.get("cost_pull")
+    if pull:
+        names = ", ".join(r.get("tracked_objects") or [])
+        console.print(
+            f"  the cost brings the robot to {names}: with the guess's commands scaled by "
+            f"{pull['scale']:g} (the control cost R pulls them towards 0, as the solver's "
+            f"first steps do) the rollout touches {', '.join('/'.join(p) for p in pull['pairs'])}"
+        )
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
         stages = "".join(
@@ -349,6 +403,12 @@ def _simulation(r: dict) -> None:
             f"  cost term {t['name']} ({t['type']}): {err}, cost {t['cost']:.4g} "
             f"(weight {_weight(t.get('weight'))}{stages})"
         )
+
+
+def _speed_unit(r: dict) -> str:
+    """' rad/s (elbow.v)': the unit and the coordinate of check's largest velocity."""
+    unit, name = r.get("max_speed_unit", ""), r.get("max_speed_coordinate", "")
+    return (f" {unit}" if unit else "") + (f" ({name})" if name else "")
 
 
 def _weight(w) -> str:

@@ -12,9 +12,20 @@ from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, load_task
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.
-console = Console(stderr=False, highlight=False, width=None if sys.stdout.isatty() else 160)
+# Piped: tables at 160 columns, prose unbroken (a log or a grep sees each sentence whole).
+console = Console(
+    stderr=False,
+    highlight=False,
+    width=None if sys.stdout.isatty() else 160,
+    soft_wrap=not sys.stdout.isatty(),
+)
 # Warnings go to stderr, so they stay visible when a run's report on stdout is piped or kept.
-err_console = Console(stderr=True, highlight=False, width=None if sys.stderr.isatty() else 160)
+err_console = Console(
+    stderr=True,
+    highlight=False,
+    width=None if sys.stderr.isatty() else 160,
+    soft_wrap=not sys.stderr.isatty(),
+)
 
 
 def warn(message: str) -> None:

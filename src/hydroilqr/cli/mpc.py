@@ -109,7 +109,7 @@ def run(args) -> int:
     if res.failure and len(res.U) == 0:  # nothing to keep: an earlier run's files stay
         raise SimulationError(f"the controlled plant failed at {res.failure} (no step completed)")
     data = write_mpc(task, res, out, replay=not args.no_replay, command=command_line(args))
-    _print_summary(data, settings)
+    _print_summary(data, settings, task)
     console.print(
         f"wrote {out}/mpc.json, mpc.npz, mpc.png" + ("" if args.no_replay else ", mpc.html")
     )
@@ -193,8 +193,19 @@ def _simulate(loop):
         return loop.run(lambda k, n: prog.update(bar, completed=k / n))
 
 
-def _print_summary(data: dict, settings) -> None:
+def _print_summary(data: dict, settings, task) -> None:
     from hydroilqr import metrics
+
+    fp = data.get("first_plan") or {}
+    if fp:  # before the clock started
+        stages = fp["continuation_stages"]
+        console.print(
+            f"first plan (before the clock starts): from the {fp['from']}"
+            + (f" through {stages} continuation stage(s)" if stages else "")
+            + f", status {fp['status']} after {fp['iterations']} of up to "
+            f"{fp['max_iterations']} iterations, cost {fp['cost']:.6g}, {fp['seconds']:.2f} s",
+            soft_wrap=True,
+        )
 
     s = data["solve_seconds"]
     console.print(
@@ -224,5 +235,6 @@ def _print_summary(data: dict, settings) -> None:
             f"{100 * data['saturated_fraction']:.0f}% of the commands hit the effort limits "
             "(clipped): the plant could not apply what the controller asked"
         )
-    for line in metrics.summary_lines(data["metrics"]):
+    units = metrics.final_error_units(task, data["metrics"])
+    for line in metrics.summary_lines(data["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

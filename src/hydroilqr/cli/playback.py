@@ -220,7 +220,13 @@ def _print_result(data: dict, wall_seconds: float) -> None:
             f"resting gap {ob['resting_gap']:.4g}{unit} ({rested} after "
             f"{ob['rest']['actual']['hold_s']:.2f} s of hold)"
         )
-    if ob.get("kind") == "joint" and rest:
+    if ob.get("no_resting_gap"):  # the warning says why; the plan's end is the headline
+        head, rest = final, "; no resting gap (see the warning)"
+    elif ob.get("resting_gap_caveat"):  # against an extension still moving: secondary
+        unheld = "after the plan, unheld (no motor): " if ob.get("kind") == "joint" else ""
+        head = final
+        rest = f"; {unheld}{rest}, against the plan's extension still moving (see the warning)"
+    elif ob.get("kind") == "joint" and rest:
         # a joint of the robot without a motor: the hold (PD+ on the actuated joints) cannot
         # hold it, so where it ends after the plan is no measure of the plan
         head, rest = final, f"; after the plan, unheld (no motor): {rest}"
@@ -232,8 +238,11 @@ def _print_result(data: dict, wall_seconds: float) -> None:
         f"{_fmt(ob['progress_ratio'])}{rest}",
         soft_wrap=True,
     )
+    joints = data.get("joint_tracking") or {}
+    worst = max(joints, key=lambda k: joints[k]["rms_error"], default=None)
+    which = f" {joints[worst]['unit']} ({worst})".replace("  ", " ") if worst else ""
     console.print(
-        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}; "
+        f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}{which}; "
         f"saturated commands {100 * data['saturated_fraction']:.1f}%"
     )
 

@@ -103,7 +103,7 @@ def run(args) -> int:
     if len({r["label"] for r in refs}) != len(refs):
         raise ConfigError("a task is named twice")
     out = output_dir(args.out)  # created, locked and proven writable before any solve
-    from hydroilqr.studies.robustness import run_robustness, table
+    from hydroilqr.studies.robustness import run_robustness, spread_lines, table
 
     where = args.scheduler or "a local Dask cluster"
     console.print(
@@ -139,6 +139,9 @@ def run(args) -> int:
     path = atomic_write(out / "robustness.json", json.dumps(report, indent=1) + "\n")
     console.print(table(report))
     console.print(_concurrency(report))
+    spread = spread_lines(report)
+    if spread:
+        console.print("each goal check over the runs (its units):\n" + "\n".join(spread))
     if args.smoke:
         console.print("smoke-sized runs: the pass rates above are not judged")
     console.print(f"wrote {path}")

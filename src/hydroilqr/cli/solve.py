@@ -78,6 +78,15 @@ def setup(p) -> None:
     p.add_argument(
         "--workers", type=int, help="multi-start: local worker processes (default: cores)"
     )
+    p.add_argument(
+        "--check-robust",
+        type=int,
+        default=0,
+        metavar="K",
+        help="after the solve, K more solves here from the guess perturbed by a relative 1e-9 "
+        "(last-bit sized, as `robustness`): the goal's pass rate and each check's spread, a "
+        "hint of a result on a knife edge (K times the solve's time)",
+    )
 
 
 def run(args) -> int:
@@ -100,15 +109,15 @@ def run(args) -> int:
     else:
         sol, extra = _solve(task, out, restart), {}
     wall = time.perf_counter() - t0
-    if srun is not None:
-        _print_outcome(sol, task, wall)
-    elif extra:  # multi-start: the best start's line, with its own solve's time
+    if extra.get("multistart"):  # multi-start: the best start's line, with its own solve's time
         ms = extra["multistart"]
         best = next(r for r in ms["results"] if r["index"] == ms["best"])
         console.print(f"all {args.starts} starts took {wall:.2f} s; the best start:")
         _print_outcome(sol, task, best["seconds"])
     else:
         _print_outcome(sol, task, wall)
+    if args.check_robust and sol.reason != "interrupted":
+        extra["check_robust"] = _check_robust(task, args)
     if args.view:
         from hydroilqr.output.replay import meshcat_instance
 
@@ -176,6 +185,53 @@ def _check_starts(task, args) -> None:
             f"{task.name} has a search: section (the search's best samples are the starts): "
             "--starts, --resume and --view do not combine with it"
         )
+    if not 0 <= args.check_robust <= MAX_STARTS:
+        raise ConfigError(
+            f"--check-robust: must be from 0 to {MAX_STARTS}, got {args.check_robust}"
+        )
+    if args.check_robust and (
+        args.starts > 1
+        or args.resume
+        or task.config.receding_horizon is not None
+        or task.config.search is not None
+    ):
+        raise ConfigError(
+            "--check-robust re-solves a single solve's guess: not with --starts, --resume, "
+            "a receding-horizon task or a search: section (hydroilqr robustness runs those)"
+        )
+
+
+def _check_robust(task, args) -> dict:
+    """K solves from the guess perturbed by a relative 1e-9 (robustness's runs 1..K, seed 0,
+    in this process): the goal's pass rate and each check's spread, printed and returned for
+    summary.json's ``check_robust``."""
+    from hydroilqr.studies.robustness import DEFAULT_NOISE, solve_run, spread_lines, summarize
+
+    ref = {
+        "label": task.name,
+        "name": args.task_file or args.task,
+        "overrides": [*args.set, *_solver_overrides(args)],
+        "config": args.config,
+        "smoke": bool(args.smoke),
+    }
+    k = args.check_robust
+    console.print(f"check-robust: {k} more solves from the guess perturbed by {DEFAULT_NOISE:g}")
+    runs = []
+    for i in range(1, k + 1):
+        runs.append(solve_run(ref, i, 0, DEFAULT_NOISE))
+        console.print(f"  run {i}: {start_line(runs[-1].record())}", soft_wrap=True)
+    s = summarize(task.name, runs)
+    costs = sorted(r.final_cost for r in runs if r.final_cost is not None)
+    goal = f"goal met in {s['goal_met']} of {k}" if s["goal_declared"] else "no goal"
+    cost = (
+        f"; cost best {costs[0]:.6g} / median {costs[len(costs) // 2]:.6g} / worst {costs[-1]:.6g}"
+        if costs
+        else ""
+    )
+    console.print(f"check-robust: {goal}{cost}", soft_wrap=True)
+    for line in spread_lines({"tasks": [s]}):
+        console.print(line, soft_wrap=True)
+    return {"noise": DEFAULT_NOISE, "seed": 0, **s}
 
 
 def _solve_many(task, args):
@@ -459,11 +515,18 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
         extra_summary=extra,
         search_costs=search_costs,
     )
-    for line in metrics_mod.summary_lines(summary["metrics"]):
+    units = metrics_mod.final_error_units(task, summary["metrics"])
+    for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
+    if not args.no_replay:
+        from hydroilqr.output.replay import camera_note
+
+        note = camera_note(task)
+        if note:
+            console.print(note, soft_wrap=True, markup=False)
     return summary
 
 

@@ -158,10 +158,12 @@ def describe(row: dict, param_keys: list[str]) -> str:
         extra = f", overlap {row['max_overlap_m'] * 1000:.2f} mm"
         if row.get("tunnelled"):
             extra += " [red]tunnelled[/red]"
-    conv = "converged" if row.get("converged") else f"not converged (stop test {row.get('reason')})"
+    status = row.get("solve_status") or ("converged" if row.get("converged") else "stopped")
     return (
-        f"{vals}: cost {row['final_cost']:.5g}{extra}, {row['iterations']} it {conv}, "
-        f"{row['wall_seconds']:.1f} s on {row.get('worker')}"
+        f"{vals}: cost {row['final_cost']:.5g}{extra}, status {status} after "
+        f"{row['iterations']} iterations (stop test: {row.get('reason')}), "
+        f"{row['wall_seconds']:.1f} s on worker {row.get('worker')}"
+        + ("" if row.get("goal_met") is None else f", goal {'PASS' if row['goal_met'] else 'FAIL'}")
     )
 
 

@@ -33,10 +33,11 @@ from typing import NamedTuple
 import numpy as np
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
-from pydrake.multibody.tree import BodyIndex
 
 from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.derivatives import Linearizer
+from hydroilqr.model.guess import describe as describe_guess
+from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
 from hydroilqr.problem.config import (
@@ -156,14 +157,13 @@ def _check_iteration(settings: MPCConfig) -> None:
 def _check_pushes(settings: MPCConfig, plant, h: float) -> None:
     """Each push: on a movable body of ``plant``, of positive duration, within the run, its
     start and length whole steps of the simulated robot (``h`` s), as it is applied."""
-    welded = {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())}
+    labels = body_labels(plant)
+    welded = {labels[int(b.index())] for b in plant.GetBodiesWeldedTo(plant.world_body())}
     for p in settings.pushes:
-        if not plant.HasBodyNamed(p.body) or p.body in welded:
-            names = [plant.get_body(BodyIndex(b)).name() for b in range(plant.num_bodies())]
-            movable = sorted(set(names) - welded)
-            raise ConfigError(
-                f"--push: no movable body named {p.body!r} (bodies: {', '.join(movable)})"
-            )
+        try:
+            find_body(plant, p.body, "--push", exclude=welded)
+        except ConfigError as e:
+            raise ConfigError(str(e).replace("no body named", "no movable body named")) from None
         if not p.duration > 0:
             raise ConfigError(f"--push-duration: must be positive, got {p.duration:g}")
         if not 0 <= p.time < settings.duration:
@@ -317,6 +317,8 @@ class MPCResult:
     restarts: int = 0  # updates that started from an mpc.candidates entry
     # [T, nu] the inputs the controller asked for, before the effort limits clipped them (U)
     U_commanded: np.ndarray | None = None
+    # how the first plan (before the clock starts) was made: its start, stages, outcome
+    first_plan: dict = field(default_factory=dict)
 
     def stats(self) -> dict:
         s = np.array(self.solve_seconds) if self.solve_seconds else np.zeros(1)
@@ -373,6 +375,7 @@ class MPCResult:
             "plan_overrides": list(self.settings.plan_overrides),
             "plant_time_step_s": float(self.t[1] - self.t[0]) if len(self.t) > 1 else None,
             "warm_start_plan": self.settings.warm_start_plan,
+            "first_plan": self.first_plan,
             "pushes": [
                 {"time": p.time, "body": p.body, "force": p.force.tolist(), "duration": p.duration}
                 for p in self.settings.pushes
@@ -742,10 +745,7 @@ class Truth:
             return
         forces = []
         for push in pushes:  # several at once add up
-            try:
-                body = self.plant.GetBodyByName(push.body)
-            except RuntimeError:
-                raise ConfigError(f"--push: no body named {push.body!r}") from None
+            body = find_body(self.plant, push.body, "--push")  # (checked before the run)
             f = ExternallyAppliedSpatialForce()
             f.body_index = body.index()
             f.p_BoBq_B = np.zeros(3)
@@ -878,12 +878,14 @@ class ClosedLoop:
         self.failures, self.k = 0, 0
         self.plan, self.t_plan = None, 0.0
         self.failure, self.interrupted = "", False
+        self.first_info: dict = {}
 
     def first_plan(self) -> None:
         """The first plan, solved to convergence before the clock starts (as a robot plans
         before it moves), seeded by the task's continuation if any (not over a given
         warm-start plan), with the derivative settings this run uses."""
         ctrl, solver, x = self.ctrl, self.ctrl.solver, self.x
+        t0 = time.perf_counter()
         stages = ctrl.task.stages() if ctrl.U_ref is None else []  # the planner's
         for stage in stages:
             s_stage = dataclasses.replace(
@@ -900,6 +902,18 @@ class ClosedLoop:
         self.plan, ok = ctrl.update(x, 0.0, solver.max_iterations, full=True)
         if self.plan is None:
             raise SimulationError("mpc: the first plan failed")
+        given = self.settings.warm_start_plan
+        self.first_info = {
+            "from": f"warm_start_plan {given}"
+            if given
+            else f"initial_guess {describe_guess(ctrl.task.config.initial_guess)}",
+            "continuation_stages": len(stages),
+            "iterations": int(self.plan.iterations),
+            "max_iterations": int(solver.max_iterations),
+            "status": self.plan.status,
+            "cost": float(self.plan.final_cost),
+            "seconds": round(time.perf_counter() - t0, 3),
+        }
 
     def advance(self, n: int, plan: Solution, t_plan: float) -> None:
         """Simulates up to n steps under ``plan``'s policy (measured at ``t_plan``)."""
@@ -1037,4 +1051,5 @@ class ClosedLoop:
             self.truth.saturated / max(1, self.truth.commands),
             ctrl.restarts,
             np.array(self.U_asked[: len(self.U)]),
+            self.first_info,
         )

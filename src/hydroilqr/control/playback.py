@@ -53,6 +53,7 @@ from hydroilqr.metrics.goals import judge
 from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.pd import actuated_indices, pd_torque
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
+from hydroilqr.model.scene import left_scene, scene_box
 from hydroilqr.model.state import quat_conj, quat_mul
 from hydroilqr.model.task import Task
 from hydroilqr.problem.config import (
@@ -544,6 +545,14 @@ def playback(
     m = _metrics(result, qi, vi, limits, clock.vscale, ctl.saturated, ctl.controls, plan.X[-1])
     result.metrics = m
     _add_warnings(result, truth, plan, joint_names, vi, settings)
+    caveat, drop = _rest_caveat(task, result)
+    if drop:  # no resting gap against an object gone out of the scene
+        m["object"].update(resting_gap=None, no_resting_gap=caveat)
+        m[_gap_key("resting_gap", obj.unit)] = None
+        m["warnings"].append(f"no resting gap: {caveat}")
+    elif caveat:  # a gap against an extension still moving: kept, not the headline
+        m["object"]["resting_gap_caveat"] = caveat
+        m["warnings"].append(f"resting gap not the measure: {caveat}")
     if result.metrics["saturated_fraction"] > SATURATION_WARNING:
         result.metrics["warnings"].append(_saturation_warning(result.metrics, ctl, settings))
     result.wall_seconds = time.perf_counter() - wall0
@@ -996,6 +1005,40 @@ def _angle_between(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     """Rotation angle (rad) between quaternions (wxyz). [..., 4] -> [...]."""
     e = quat_mul(quat_conj(qb), qa)
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
+
+
+def _rest_caveat(task, r: PlaybackResult) -> tuple[str, bool]:
+    """Why the resting gap would measure an artefact, and whether to drop it: ('', False)
+    when both sides rest in the scene; (why, True) when the planning model's extension or
+    the playback carried a floating object out of the scene (a joint object has no scene to
+    leave); (why, False) when the extension did not come to rest (the gap is kept as data,
+    against where the extension was at --rest-max, but is no headline)."""
+    h, ob = r.hold, r.metrics["object"]
+    if h is None or ob.get("resting_gap") is None:
+        return "", False
+    where = ""
+    if r.obj.kind == "floating":
+        box = scene_box(task, r.X[0])
+        for side, key in (("the planning model's extension", "planned_resting"),
+                          ("the playback", "actual_resting")):  # fmt: skip
+            p = np.asarray(ob[key], float)
+            if left_scene(box, p):
+                where = f"{side} carried the object out of the scene (to {_xyz(p)} m)"
+                break
+    if where:
+        return f"{where}; the plan's end is the measure (final gap)", True
+    if not h.rested_plan:
+        return (
+            f"the planning model's extension did not come to rest within "
+            f"{r.settings.rest_max:g} s (--rest-max), so the resting gap compares with where "
+            "it was then; the plan's end is the measure (final gap)",
+            False,
+        )
+    return "", False
+
+
+def _xyz(p: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:.3g}" for v in p) + "]"
 
 
 def _gap_key(name: str, unit: str) -> str:

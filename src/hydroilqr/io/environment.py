@@ -10,6 +10,7 @@ import importlib.metadata as md
 import os
 import platform
 import subprocess
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy
@@ -95,6 +96,8 @@ def environment(command: str | None = None) -> dict:
         feats = {}
     simd = [k for k in ("AVX2", "FMA3", "AVX512F", "AVX512_SKX", "ASIMD") if feats.get(k)]
     return {
+        # when the result was written (UTC): a page or a summary says how old it is
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "code": code_version(),
         "python": platform.python_version(),
         "drake": version("drake"),

@@ -21,6 +21,7 @@ from __future__ import annotations
 from hydroilqr.metrics import cartpole, cheetah, flight, kinova, objects, terms  # noqa: F401
 from hydroilqr.metrics.common import (  # noqa: F401
     beyond_limits,
+    block_unit,
     command_limit_ratio,
     contact_pairs,
     default_metrics,
@@ -89,9 +90,15 @@ def terminal_value(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
 
-def summary_lines(m: dict) -> list[str]:
+def final_error_units(task, m: dict) -> dict[str, str]:
+    """Block name -> unit (``block_unit``) of each final error in metrics ``m``."""
+    return {k: block_unit(task.dynamics, k) for k in m.get("final_error") or {}}
+
+
+def summary_lines(m: dict, units: dict | None = None) -> list[str]:
     """Console lines for a metrics dict: its scalars and arrays, then the final error per Qf
-    block."""
+    block (``units``: block name -> its unit with a leading space, ``block_unit``)."""
+    units = units or {}
     fmt = terminal_value
     shown = {k: v for k, v in m.items() if not isinstance(v, (dict, list))}
     lines = ["metrics: " + ", ".join(f"{k}={fmt(v)}" for k, v in shown.items())]
@@ -106,6 +113,6 @@ def summary_lines(m: dict) -> list[str]:
     if m.get("final_error"):
         lines.append(
             "final error |x_N - x_nom| per Qf block: "
-            + ", ".join(f"{k}={fmt(v)}" for k, v in m["final_error"].items())
+            + ", ".join(f"{k}={fmt(v)}{units.get(k, '')}" for k, v in m["final_error"].items())
         )
     return lines

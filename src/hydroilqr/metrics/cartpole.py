@@ -48,7 +48,7 @@ def validate(task) -> None:
         raise ConfigError(f"metric_params.angle_block: expected a state block name, got {name!r}")
     dyn.layout.block(name, "metric_params.angle_block")
     for n in _pair(task):
-        geometry_ids(dyn, n)
+        geometry_ids(dyn, n, "contact_pair")
 
 
 def cartpole_wall(task, sol) -> dict:

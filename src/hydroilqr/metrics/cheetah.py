@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.io.figures import pyplot, savefig
-from hydroilqr.metrics.common import contact_pairs
+from hydroilqr.metrics.common import contact_pairs, floating_block, floating_name
 from hydroilqr.metrics.contacts import state_step
 from hydroilqr.metrics.registry import Metric, Report, register
 from hydroilqr.model.contacts import runs
@@ -91,10 +91,8 @@ def _params(task) -> dict:
 
 def _blocks(task, body: str):
     layout = task.dynamics.layout
-    try:
-        return layout.primitives[f"{body}.position"], layout.primitives[f"{body}.velocity"]
-    except KeyError:
-        raise ConfigError(f"metric_params.body: no floating body named {body!r}") from None
+    pos = floating_block(task, body, "body")
+    return pos, layout.primitives[f"{floating_name(pos)}.velocity"]
 
 
 def forward_velocity(task, sol) -> tuple[np.ndarray, np.ndarray]:
@@ -425,7 +423,10 @@ def _check_names(task, p: dict) -> None:
     names = {n for n, _ in task.dynamics.geometry_names().values()}
     for n in p["feet"] + [p["body_collision"], *p["ground"]]:
         if n not in names:
-            raise ConfigError(f"metric_params: no collision geometry named {n!r}")
+            raise ConfigError(
+                f"metric_params: no collision geometry named {n!r} "
+                f"(known: {', '.join(sorted(names))})"
+            )
 
 
 def validate(task) -> None:

@@ -5,10 +5,12 @@ the contact timeline)."""
 from __future__ import annotations
 
 import numpy as np
-from pydrake.multibody.tree import BodyIndex
+from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.metrics.contacts import contact_metrics, plot_contacts
 from hydroilqr.metrics.registry import Metric, register
+from hydroilqr.model.names import body_labels
+from hydroilqr.model.plant import named_geometries
 from hydroilqr.problem.config import ConfigError
 
 # ------------------------------------------------------------------------------------------
@@ -16,12 +18,11 @@ from hydroilqr.problem.config import ConfigError
 # ------------------------------------------------------------------------------------------
 
 
-def geometry_ids(dyn, name: str) -> list:
-    """Collision geometry ids whose collision name or body name is ``name``."""
-    ids = [g for g, (n, b) in dyn.geometry_names().items() if name in (n, b)]
-    if not ids:
-        raise ConfigError(f"metric_params: no collision geometry or body named {name!r}")
-    return ids
+def geometry_ids(dyn, name: str, param: str = "") -> list:
+    """Collision geometry ids a name gives: a collision name or a body (labelled, MODEL::NAME
+    or bare, as ``geometry:`` keys), or ``BODY/GEOMETRY``."""
+    where = f"metric_params.{param}" if param else "metric_params"
+    return named_geometries(name, dyn.geometry_names(), where)
 
 
 def signed_distance(dyn, x: np.ndarray, ids_a: list, ids_b: list) -> float:
@@ -55,19 +56,81 @@ def max_contact_faces(task, sol) -> int:
 
 
 def floating_block(task, name: str, param: str):
-    """The position block of floating body ``name`` (ConfigError naming ``param`` if none)."""
+    """The position block of floating body ``name`` (its label, ``MODEL::NAME`` or its bare
+    name; ConfigError naming ``param`` and the floating bodies if none)."""
     layout = task.dynamics.layout
-    key = f"{name}.position"
-    if not isinstance(name, str) or key not in layout.primitives:
-        raise ConfigError(f"metric_params.{param}: no floating body named {name!r}")
+    key = f"{name}.position" if isinstance(name, str) else None
+    key = layout.aliases.get(key, key)
+    if key not in layout.primitives:
+        known = [n[: -len(".position")] for n in layout.primitives if n.endswith(".position")]
+        raise ConfigError(
+            f"metric_params.{param}: no floating body named {name!r} "
+            f"(floating bodies: {', '.join(known) or 'none'})"
+        )
     return layout.primitives[key]
+
+
+def floating_name(block) -> str:
+    """The floating body's label of its position block (``floating_block``)."""
+    return block.name[: -len(".position")]
+
+
+#: Units of a joint's (position, velocity) coordinates by Drake joint type, one entry per
+#: coordinate where they differ (a floating body: quaternion, then position).
+_JOINT_UNITS = {
+    "revolute": (["rad"], ["rad/s"]),
+    "prismatic": (["m"], ["m/s"]),
+    "quaternion_floating": (["", "", "", "", "m", "m", "m"], ["rad/s"] * 3 + ["m/s"] * 3),
+    "planar": (["m", "m", "rad"], ["m/s", "m/s", "rad/s"]),
+}
+
+
+def coordinate_units(dyn) -> list[str]:
+    """The unit of each coordinate of x: [nx] ('' where it has none: a quaternion, a joint
+    type without a table entry)."""
+    units = [""] * dyn.nx
+    plant = dyn.plant
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        q_units, v_units = _JOINT_UNITS.get(j.type_name(), ([], []))
+        for k, u in enumerate(q_units[: j.num_positions()]):
+            units[j.position_start() + k] = u
+        for k, u in enumerate(v_units[: j.num_velocities()]):
+            units[dyn.nq + j.velocity_start() + k] = u
+    return units
+
+
+def block_unit(dyn, name: str) -> str:
+    """The unit of a state block's coordinates: ' m', ' rad/s', ... (with its space), ''
+    for a quaternion's error (2 sin(θ/2), no unit) and ' (mixed units)' for a group that
+    mixes them."""
+    block = dyn.layout.block(name)
+    if block.kind == "quaternion":
+        return " (2 sin(θ/2))"
+    units = {coordinate_units(dyn)[i] for i in block.coords}
+    if len(units) == 1:
+        u = units.pop()
+        return f" {u}" if u else ""
+    return " (mixed units)"
+
+
+def coordinate_name(layout, i: int) -> str:
+    """The name of coordinate i of x: a one-coordinate block or component, else the block
+    that holds it with its index."""
+    for b in list(layout.primitives.values()) + list(layout.components.values()):
+        if b.coords == (i,):
+            return b.name
+    for b in layout.primitives.values():
+        if i in b.coords:
+            return f"{b.name}[{b.coords.index(i)}]"
+    return f"x[{i}]"
 
 
 def body_order(task) -> list[str]:
     """The plant's body names in index order."""
 
-    plant = task.dynamics.plant
-    return [plant.get_body(BodyIndex(i)).name() for i in range(plant.num_bodies())]
+    labels = body_labels(task.dynamics.plant)
+    return [labels[i] for i in range(task.dynamics.plant.num_bodies())]
 
 
 # ------------------------------------------------------------------------------------------

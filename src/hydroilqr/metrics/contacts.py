@@ -25,6 +25,7 @@ import numpy as np
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.model.contacts import runs, timeline
+from hydroilqr.model.names import SCOPE
 
 _cache: dict = {}
 
@@ -64,6 +65,14 @@ def state_step(task, sol) -> float:
     return float(t[1] - t[0]) if len(t) > 1 else task.config.plant.time_step
 
 
+def pair_label(pair, bodies) -> str:
+    """``A / B`` of a pair of geometries, each with its body where that body's name is scoped
+    by its model (two models share the name: ``Box (cube::base_link)``)."""
+    return " / ".join(
+        f"{g} ({b})" if SCOPE in b and SCOPE not in g else g for g, b in zip(pair, bodies)
+    )
+
+
 def plot_contacts(task, sol, out) -> None:
     plt = pyplot()
     pairs, on, _ = _cached(task, sol)
@@ -74,7 +83,7 @@ def plot_contacts(task, sol, out) -> None:
     for j in range(P):
         bars = [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in runs(on[:, j])]
         ax.broken_barh(bars, (P - 1 - j - 0.35, 0.7), color=f"C{j % 10}")
-    ax.set_yticks([P - 1 - j for j in range(P)], [f"{a} / {b}" for (a, b), _ in pairs])
+    ax.set_yticks([P - 1 - j for j in range(P)], [pair_label(k, b) for k, b in pairs])
     ax.tick_params(axis="y", labelsize=7)
     ax.set_ylim(-0.6, max(P, 1) - 0.4)
     ax.set_xlim(t[0], t[-1] + dt)

@@ -25,6 +25,7 @@ import numpy as np
 from hydroilqr.metrics.contacts import _cached, state_step
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.model.contacts import runs
+from hydroilqr.model.names import find_body
 from hydroilqr.problem.config import ConfigError
 
 
@@ -51,7 +52,7 @@ def flight_metrics(task, sol) -> dict:
     flights = [(a, b) for a, b in runs(~touching) if a > first]
     lengths = [(b - a + 1) * dt for a, b in flights]
     plant = task.dynamics.plant
-    body = plant.GetBodyByName(task.config.metric_params["base"])
+    body = find_body(plant, task.config.metric_params["base"], "metric_params.base")
     ctx = task.dynamics.plant_context
 
     def position(x):
@@ -77,13 +78,15 @@ def validate_flight(task) -> None:
             "metric_params: the flight metric needs foot (collision names or bodies) and base "
             "(a body name)"
         )
-    plant = task.dynamics.plant
-    if not plant.HasBodyNamed(params["base"]):
-        raise ConfigError(f"metric_params.base: unknown body {params['base']!r}")
+    find_body(task.dynamics.plant, params["base"], "metric_params.base")
     names = task.dynamics.geometry_names().values()
     for f in _feet(task):
         if not any(_matches(n, b, [f]) for n, b in names):
-            raise ConfigError(f"metric_params.foot: no collision geometry or body {f!r}")
+            known = sorted({n for n, _ in names} | {b for _, b in names})
+            raise ConfigError(
+                f"metric_params.foot: no collision geometry or body {f!r} "
+                f"(known: {', '.join(known)})"
+            )
 
 
 register(

@@ -63,6 +63,8 @@ def evaluate_check(name: str, check: GoalCheck, metrics: dict) -> dict:
         why = "not reported by this run" if raw is None else f"not a finite number ({raw!r})"
         return {**record, "passed": False, "why": why}
     failures = []
+    slack = [value - check.min] if check.min is not None else []
+    slack += [check.max - value] if check.max is not None else []
     if check.min is not None and not value >= check.min:
         failures.append(f"{value:.4g} < {check.min:g}")
     if check.max is not None and not value <= check.max:
@@ -75,12 +77,15 @@ def evaluate_check(name: str, check: GoalCheck, metrics: dict) -> dict:
             failures.append(f"{other} not reported")
             continue
         record[other] = ref
+        slack.append(sign * (value - ref) - check.margin)
         if not sign * (value - ref) > check.margin:
             bound = f"{ref:.4g}"
             if check.margin:
                 bound += f" {'+' if sign > 0 else '-'} {check.margin:g}"
             failures.append(f"{value:.4g} {'<=' if sign > 0 else '>='} {other} {bound}")
     record["passed"] = not failures
+    # how far inside its nearest bound the value is (negative: beyond it), in its units
+    record["slack"] = float(min(slack)) if slack else None
     if failures:
         record["why"] = "; ".join(failures)
     return record

@@ -21,7 +21,9 @@ Values (``<b>`` is the body's name):
   ``contact_steps``: the number of such states per body; ``max_robot_<b>_faces``: most
   contact polygons between those bodies and the body at one state.
 
-Plot: ``<b>.png``, the body's x, y, z against time with the targets dashed.
+Plot: ``<b>.png`` (``<b>`` as ``metric_params`` names it): the body's x, y and z against time,
+one panel each at its own scale, with the target dashed on the counted axes, and the distance
+to the target (counted axes) in cm.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import numpy as np
 
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.io.files import file_name
-from hydroilqr.metrics.common import body_order, contact_pairs, floating_block
+from hydroilqr.metrics.common import body_order, contact_pairs, floating_block, floating_name
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.problem.config import ConfigError
 
@@ -79,8 +81,8 @@ def validate_kinova(task) -> None:
 def track(task, sol):
     """(body name, P: [T, 3] its position, targets: [T, 3], axis weights: [3] (>0: counted))."""
     p = task.config.metric_params
-    name = object_name(p)
-    block = floating_block(task, name, "object" if "object" in p else "ball")
+    block = floating_block(task, object_name(p), "object" if "object" in p else "ball")
+    name = floating_name(block)
     idx = list(block.coords)
     P = np.asarray(sol.X)[:, idx]
     tgt = _target(p)
@@ -146,21 +148,39 @@ def object_metrics(task, sol) -> dict:
     return {**values, f"max_robot_{name}_faces": faces}
 
 
+def _span(ax, values, least: float) -> None:
+    """Y limits around ``values`` at least ``least`` wide, without an offset: millimetres of
+    numerical drift do not fill a panel, and the ticks read as positions."""
+    lo = min(float(np.min(v)) for v in values)
+    hi = max(float(np.max(v)) for v in values)
+    mid, half = (lo + hi) / 2, max(hi - lo, least) / 2 * 1.1
+    ax.set_ylim(mid - half, mid + half)
+    ax.ticklabel_format(axis="y", useOffset=False)
+
+
 def plot_object(task, sol, out: Path) -> None:
+    """One panel per axis (each at its own scale: a 0.2 m push shows beside a body 3 m below
+    the origin), the target dashed on the axes counted, and the distance to the target."""
     plt = pyplot()
     name, P, targets, w = track(task, sol)
     t = np.asarray(sol.t)
-    fig, ax = plt.subplots(figsize=(6.2, 3.4))
-    for i, (axis, color) in enumerate(zip("xyz", ("C0", "C1", "C2"))):
-        ax.plot(t, P[:, i], color=color, label=f"{name} {axis}")
+    fig, axes = plt.subplots(4, 1, figsize=(6.2, 6.4), sharex=True)
+    for i, (axis, ax) in enumerate(zip("xyz", axes)):
+        ax.plot(t, P[:, i], color=f"C{i}", label=axis)
         if w[i] > 0:
-            ax.plot(t, targets[:, i], "--", color=color, lw=1, label=f"target {axis}")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel(f"{name} centre [m]")
-    ax.set_title(f"{task.name}: {name} position")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # inside, it hid a target
-    savefig(fig, Path(out) / file_name(name))
+            ax.plot(t, targets[:, i], "--", color="k", lw=1, label="target")
+        ax.set_ylabel(f"{axis} [m]")
+        _span(ax, [P[:, i], targets[:, i] if w[i] > 0 else P[:1, i]], 0.01)
+        ax.legend(fontsize=7, loc="best")
+    err = np.linalg.norm(np.where(w > 0, P - targets, 0.0), axis=1)
+    axes[3].plot(t, err * 100.0, color="C3")
+    axes[3].set_ylabel("to target [cm]")
+    _span(axes[3], [err * 100.0, [0.0]], 1.0)
+    axes[3].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(f"{task.name}: {name} position (origin of the body)")
+    savefig(fig, Path(out) / plot_files(task.config.metric_params)[0])
 
 
 def plot_files(params: dict) -> tuple[str, ...]:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
+from hydroilqr.model.names import body_labels
+
 
 def _normal_force_hydro(info) -> float:
     """Normal force of a hydroelastic contact: the force along the area-weighted mean normal
@@ -125,7 +127,8 @@ def tracked_bodies(task) -> set[str]:
             joints.append(j.index())
     if not joints:
         return set()
-    return {plant.get_body(b).name() for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
+    labels = body_labels(plant)
+    return {labels[int(b)] for b in plant.GetBodiesKinematicallyAffectedBy(joints)}
 
 
 def tracked_objects(task) -> set[str]:
@@ -145,15 +148,16 @@ def tracked_objects(task) -> set[str]:
             robot.add(b)
             b = parent[b]
     robot |= {b.index() for b in plant.GetBodiesWeldedTo(plant.world_body())}
-    names = {plant.get_body(b).name() for b in robot}
-    return tracked_bodies(task) - names
+    labels = body_labels(plant)
+    return tracked_bodies(task) - {labels[int(b)] for b in robot}
 
 
 def fixed_bodies(task) -> set[str]:
     """The world and the bodies welded to it (the ground, a table, a wall): touching them
     moves nothing the robot could push."""
     plant = task.dynamics.plant
-    return {b.name() for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
+    labels = body_labels(plant)
+    return {labels[int(b.index())] for b in plant.GetBodiesWeldedTo(plant.world_body())} | {"world"}
 
 
 #: What to do when no moving body touches a tracked object along the initial guess (solve's
@@ -174,6 +178,38 @@ def touches_moving(pairs: list[dict], tracked: set[str], fixed: set[str]) -> boo
         ):
             return True
     return False
+
+
+#: Scales of the guess's commands tried by ``cost_pull_contact``: halfway to, and at, the
+#: commands the control cost alone prefers (zero).
+PULL_SCALES = (0.5, 0.0)
+
+
+def cost_pull_contact(task, U: np.ndarray) -> dict | None:
+    """Whether the cost itself moves the robot to a tracked object when the guess's rollout
+    (controls U: [N, nu]) touches none: the control cost R·u² pulls the commands towards 0,
+    so the solver's first steps take the guess's commands towards 0 whatever contact there is
+    (an arm held up by gravity-compensating torques sags onto the ball below it). Returns
+    {scale, pairs} of the first scale of PULL_SCALES whose rollout has a moving body touch a
+    tracked object (pairs: those touching it), or None (no R, or no such touch)."""
+    tracked, fixed = tracked_objects(task), fixed_bodies(task)
+    U = np.asarray(U, float)
+    if not tracked or not np.any(np.asarray(task.cost.r) > 0) or not np.any(U):
+        return None
+    for s in PULL_SCALES:
+        try:
+            X = task.dynamics.rollout(task.x0, s * U)
+        except Exception:  # (a rollout that fails: no evidence either way)
+            continue
+        pairs = touched_pairs(task, X)
+        if touches_moving(pairs, tracked, fixed):
+            hits = [
+                p
+                for p in pairs
+                if set(p["bodies"]) & tracked and not set(p["bodies"]) <= fixed | tracked
+            ]
+            return {"scale": s, "pairs": [p["pair"] for p in hits]}
+    return None
 
 
 def touches_tracked(task, X: np.ndarray) -> bool:

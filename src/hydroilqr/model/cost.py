@@ -131,6 +131,7 @@ class QuadraticCost:
         if isinstance(R, dict):
             r = np.zeros(nu)
             for name, w in R.items():
+                name = getattr(layout, "actuator_aliases", {}).get(name, name)
                 if name not in layout.actuators:
                     raise ConfigError(
                         f"cost.R.{name}: unknown actuator (known: {', '.join(layout.actuators)})"

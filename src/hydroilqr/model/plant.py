@@ -43,6 +43,15 @@ from pydrake.multibody.plant import AddMultibodyPlant, CoulombFriction, Multibod
 from pydrake.multibody.tree import BodyIndex
 from pydrake.systems.framework import DiagramBuilder
 
+from hydroilqr.model.names import (
+    SCOPE,
+    actuator_labels,
+    actuator_names,
+    bare,
+    body_labels,
+    full_body_name,
+    scoped_names,
+)
 from hydroilqr.model.state import StateLayout
 from hydroilqr.problem.config import (
     ActuatorConfig,
@@ -217,20 +226,44 @@ def _shape(o: SceneObject):
     return HalfSpace()
 
 
+class GeometryNames(dict):
+    """GeometryId value -> (collision label, body label): the names shown, scoped by the model
+    where two models share them (``model/names.py``); ``full`` holds (MODEL::GEOMETRY,
+    MODEL::BODY) per id, so a key may always name the model."""
+
+    full: dict
+
+
+def _name_matches(label: str, full: str, key: str) -> bool:
+    return key in (label, full) or (SCOPE not in key and bare(label) == key)
+
+
 def geometry_hits(key: str, geoms: dict) -> list:
     """Geometries a ``geometry:`` key names: a body (all its collision geometries), every
-    collision geometry of that name (e.g. all fingertips), or one ``BODY/GEOMETRY``. A key that
-    is a body name and also a collision name elsewhere is an error (which was meant?)."""
+    collision geometry of that name (e.g. all fingertips), or one ``BODY/GEOMETRY``; each name
+    as labelled, as ``MODEL::NAME``, or bare. A key that names bodies of several models, or a
+    body and also a collision name elsewhere, is an error (which was meant?)."""
+    full = getattr(geoms, "full", None) or dict(geoms)
+
+    def by(field: int, name: str) -> list:
+        return [g for g, v in geoms.items() if _name_matches(v[field], full[g][field], name)]
+
     if "/" in key:
         body, name = key.split("/", 1)
-        return [g for g, (n, b) in geoms.items() if n == name and b == body]
-    by_body = [g for g, (n, b) in geoms.items() if b == key]
-    by_name = [g for g, (n, b) in geoms.items() if n == key]
+        inside = set(by(1, body))
+        return [g for g in by(0, name) if g in inside]
+    by_body, by_name = by(1, key), by(0, key)
     where = sorted({geoms[g][1] for g in by_body + by_name})
+    bodies = sorted({geoms[g][1] for g in by_body})
+    if len(bodies) > 1:
+        raise ConfigError(
+            f"geometry.{key}: ambiguous, it names the bodies {', '.join(bodies)}; write one "
+            "of them (MODEL::NAME)"
+        )
     if by_body and len(where) > 1:
         raise ConfigError(
             f"geometry.{key}: ambiguous, it names geometry on bodies {', '.join(where)}; "
-            f"write BODY/{key} (e.g. {where[0]}/{key})"
+            f"write BODY/{bare(key)} (e.g. {where[0]}/{bare(key)})"
         )
     return by_body or by_name
 
@@ -246,16 +279,27 @@ def named_geometries(key: str, geoms: dict, where: str) -> list:
     return hits
 
 
-def collision_geometries(plant, scene_graph) -> dict[int, tuple[str, str]]:
-    """GeometryId value -> (collision name without model scope, body name)."""
+def collision_geometries(plant, scene_graph) -> GeometryNames:
+    """GeometryId value -> (collision label, body label): names without their model scope,
+    scoped (``MODEL::NAME``) where two models share one (``model/names.py``)."""
     inspector = scene_graph.model_inspector()
-    out = {}
+    bodies = body_labels(plant)
+    ids, items, full = [], [], {}
     for gid in inspector.GetAllGeometryIds():
         if inspector.GetProximityProperties(gid) is None:
             continue
         body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
-        name = inspector.GetName(gid).split("::")[-1]
-        out[gid] = (name, body.name() if body is not None else "world")
+        name = inspector.GetName(gid).split(SCOPE)[-1]
+        world = body is None or body.index() == plant.world_body().index()
+        model = "" if world else plant.GetModelInstanceName(body.model_instance())
+        ids.append((gid, "world" if world else bodies[int(body.index())]))
+        items.append((model, name))
+        full[gid] = (
+            name if world else f"{model}{SCOPE}{name}",
+            "world" if world else full_body_name(plant, body),
+        )
+    out = GeometryNames({g: (label, b) for (g, b), label in zip(ids, scoped_names(items))})
+    out.full = full
     return out
 
 
@@ -490,15 +534,12 @@ def apply_actuators(task: TaskConfig, plant) -> None:
     ones."""
     if not task.actuators:
         return
-    acts = {}
-    for i in plant.GetJointActuatorIndices():
-        a = plant.get_joint_actuator(i)
-        acts[a.name()] = a
-
+    acts = actuator_names(plant)  # labels, MODEL::NAME, unique bare names
     for name, cfg in task.actuators.items():
         a = acts.get(name)
         if a is None:
-            raise ConfigError(f"actuators.{name}: {unknown_key(name, list(acts), 'actuator')}")
+            known = actuator_labels(plant)
+            raise ConfigError(f"actuators.{name}: {unknown_key(name, known, 'actuator')}")
         if cfg.effort_limit is not None:
             a.set_effort_limit(float(cfg.effort_limit))
         if cfg.rotor_inertia is not None:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
+from hydroilqr.model.names import SCOPE, actuator_labels, actuator_names, bare, body_labels
 from hydroilqr.problem.config import ConfigError
 
 
@@ -85,6 +86,24 @@ def left_mul_matrix(a: np.ndarray) -> np.ndarray:
     )
 
 
+def _aliases(prefixes: list[tuple[str, str, str]], names: list[str]) -> dict[str, str]:
+    """Other names -> block name: ``MODEL::BARE...`` for every block, and ``BARE...`` for a
+    scoped block where no other block has that bare name. ``prefixes``: (the name a joint's
+    blocks start with, its model, its bare name)."""
+    full: dict[str, str] = {}
+    loose: dict[str, list[str]] = {}
+    for prefix, model, short in prefixes:
+        for n in names:
+            if n == prefix or n.startswith(prefix + "."):
+                rest = n[len(prefix) :]
+                full[f"{model}{SCOPE}{short}{rest}"] = n
+                if prefix != short:
+                    loose.setdefault(f"{short}{rest}", []).append(n)
+    out = {k: v for k, v in full.items() if k not in names}
+    out.update({k: v[0] for k, v in loose.items() if len(v) == 1 and k not in names})
+    return out
+
+
 class StateLayout:
     """The state's named blocks. Built from a finalized MultibodyPlant by ``from_plant``."""
 
@@ -105,6 +124,10 @@ class StateLayout:
         self.groups: dict[str, Block] = {}
         self.actuators = list(actuators)
         self.quaternions = [b for b in primitives if b.kind == "quaternion"]
+        # Other names of a block: MODEL::NAME..., and the bare name of a scoped block that
+        # no other block has (``from_plant``).
+        self.aliases: dict[str, str] = {}
+        self.actuator_aliases: dict[str, str] = {}  # any name of an actuator -> its label
 
     @staticmethod
     def from_plant(plant) -> StateLayout:
@@ -114,10 +137,17 @@ class StateLayout:
         joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
         joints = [j for j in joints if j.num_positions() > 0 or j.num_velocities() > 0]
         names = [j.name() for j in joints]
+        bodies = body_labels(plant)
+        prefixes = []  # (name used, model, bare name) per joint, for the aliases
         for j in joints:
             name = j.name()
+            model = plant.GetModelInstanceName(j.model_instance())
             if names.count(name) > 1:
-                name = f"{plant.GetModelInstanceName(j.model_instance())}::{name}"
+                name = f"{model}{SCOPE}{name}"
+            if j.type_name() == "quaternion_floating":  # named by its body's label
+                label = bodies[int(j.child_body().index())]
+                name = label if SCOPE in label else name
+            prefixes.append((name, model, bare(name)))
             q0, nqj = j.position_start(), j.num_positions()
             v0, nvj = j.velocity_start(), j.num_velocities()
             if j.type_name() == "quaternion_floating":
@@ -169,8 +199,15 @@ class StateLayout:
                             Block(f"{name}.{j.position_suffix(i)}", (q0 + i,), (v0 + i,)),
                             Block(f"{name}.{j.velocity_suffix(i)}", (nq + v0 + i,), (nv + v0 + i,)),
                         ]
-        actuators = [plant.get_joint_actuator(i).name() for i in plant.GetJointActuatorIndices()]
-        return StateLayout(nq, nv, blocks, actuators, components)
+        layout = StateLayout(nq, nv, blocks, actuator_labels(plant), components)
+        layout.aliases = _aliases(prefixes, [b.name for b in blocks + components])
+        index = {int(a.index()): k for k, a in enumerate(
+            plant.get_joint_actuator(i) for i in plant.GetJointActuatorIndices()
+        )}  # fmt: skip
+        layout.actuator_aliases = {
+            n: layout.actuators[index[int(a.index())]] for n, a in actuator_names(plant).items()
+        }
+        return layout
 
     # ---------------------------------------------------------------------------- names
     def add_groups(self, groups: dict[str, list[str]]) -> None:
@@ -179,6 +216,7 @@ class StateLayout:
                 raise ConfigError(f"blocks.{gname}: name clashes with a joint/body block")
             parts = []
             for m in members:
+                m = self.aliases.get(m, m)
                 part = self.primitives.get(m) or self.components.get(m)
                 if part is None:
                     raise ConfigError(
@@ -197,6 +235,7 @@ class StateLayout:
             )
 
     def block(self, name: str, key: str = "") -> Block:
+        name = self.aliases.get(name, name) if isinstance(name, str) else name
         if name in self.groups:
             return self.groups[name]
         if name in self.primitives:

@@ -15,6 +15,7 @@ from hydroilqr.control.playback import PlaybackResult
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.model.plant import position_unit
 from hydroilqr.output.replay import write_replay
+from hydroilqr.problem.errors import ConfigError
 
 plt = pyplot()
 
@@ -70,10 +71,12 @@ def plot_search(costs: np.ndarray, path: Path, title: str) -> None:
 
 
 def plotted_blocks(task) -> list[tuple[str, str]]:
-    """(name, unit) of the (at most 4) weighted position blocks of the running cost that
-    mpc.png plots: euclidean blocks whose coordinates all lie in q (a velocity group such as
-    the Kinova's ``arm_v`` is left out whatever its name). The unit: "m" or "rad" when every
-    coordinate is a prismatic/revolute joint's or a floating body's position, else ""."""
+    """(name, unit) of the (at most 4) position blocks mpc.png plots: the object the metrics
+    follow (``metric_params.object``/``ball``) first, then the blocks weighted in the running
+    or terminal cost (a pushed cube weighted only in Qf included), euclidean with every
+    coordinate in q (a velocity group such as the Kinova's ``arm_v`` is left out whatever its
+    name), each set of coordinates once. The unit: "m" or "rad" when every coordinate is a
+    prismatic/revolute joint's or a floating body's position, else ""."""
     layout, plant = task.dynamics.layout, task.dynamics.plant
     joints = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
 
@@ -86,29 +89,52 @@ def plotted_blocks(task) -> list[tuple[str, str]]:
         }
         return units.pop() if len(units) == 1 else ""
 
-    return [
-        (n, unit(layout.block(n).coords))
-        for n, w in task.config.cost.Q.items()
-        if np.any(np.asarray(w, float) > 0)
-        and layout.block(n).kind == "euclidean"
-        and all(c < layout.nq for c in layout.block(n).coords)
-    ][:4]
+    cost = task.config.cost
+    params = task.config.metric_params
+    obj = params.get("object", params.get("ball"))
+    names = [f"{obj}.position"] if isinstance(obj, str) else []
+    names += [
+        n for w in (cost.Q, cost.Qf) for n, v in w.items() if np.any(np.asarray(v, float) > 0)
+    ]
+    out, seen = [], set()
+    for n in names:
+        try:
+            b = layout.block(n)
+        except ConfigError:  # (an object that is not a floating body: not plotted)
+            continue
+        if b.kind == "euclidean" and all(c < layout.nq for c in b.coords) and b.coords not in seen:
+            seen.add(b.coords)
+            out.append((n, unit(b.coords)))
+    return out[:4]
 
 
 def plot_mpc(task, res: MPCResult, path: Path) -> None:
     layout = task.dynamics.layout
     blocks = plotted_blocks(task)
-    fig, axes = plt.subplots(len(blocks) + 1, 1, figsize=(7, 2.0 * (len(blocks) + 1)), sharex=True)
+    n = len(blocks) + 2  # the blocks, the commands, the solve times
+    fig, axes = plt.subplots(n, 1, figsize=(7, 2.0 * n), sharex=True)
     axes = np.atleast_1d(axes)
     xn = task.cost.nominal(res.t)
+    params = task.config.metric_params
+    obj = f"{params.get('object', params.get('ball'))}.position"
     for ax, (name, unit) in zip(axes, blocks):
         b = layout.block(name)
+        # the object from where it starts: centimetres of travel, not its height in the room
+        x0 = res.X[0] if name == obj else np.zeros(res.X.shape[1])
         for j, c in enumerate(b.coords):
             lab = f"{name}[{j}]" if len(b.coords) > 1 else name
-            (line,) = ax.plot(res.t, res.X[:, c], label=lab)
+            (line,) = ax.plot(res.t, res.X[:, c] - x0[c], label=lab)
             # the nominal in its coordinate's colour: several share a panel (a ball's x, y, z)
-            ax.plot(res.t, xn[:, c], "--", color=line.get_color(), lw=0.8, label=f"{lab} nominal")
-        ax.set_ylabel(f"{name} [{unit}]" if unit else f"{name}\n(model units)")
+            ax.plot(
+                res.t,
+                xn[:, c] - x0[c],
+                "--",
+                color=line.get_color(),
+                lw=0.8,
+                label=f"{lab} nominal",
+            )
+        what = f"{name} − start" if name == obj else name
+        ax.set_ylabel(f"{what} [{unit}]" if unit else f"{what}\n(model units)")
     for i, p in enumerate(res.settings.pushes):
         for ax in axes:
             ax.axvspan(
@@ -118,6 +144,7 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
                 alpha=0.15,
                 label="push" if i == 0 else None,
             )
+    _plot_commands(axes[-2], task, res)
     for ax in axes[:-1]:  # beside the panel: a legend inside hid a target line
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     ax = axes[-1]
@@ -134,6 +161,16 @@ def plot_mpc(task, res: MPCResult, path: Path) -> None:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))
     axes[0].set_title(f"{task.name}: closed-loop MPC at {res.settings.rate:g} Hz")
     savefig(fig, path)
+
+
+def _plot_commands(ax, task, res: MPCResult) -> None:
+    """The controller's commands per actuator (before the effort limits clip them), stepped."""
+    U = res.U_commanded if res.U_commanded is not None and len(res.U_commanded) else res.U
+    names = task.dynamics.layout.actuators
+    for i in range(U.shape[1] if U.ndim == 2 else 0):
+        label = names[i] if i < len(names) and U.shape[1] <= 8 else None
+        ax.step(res.t[: len(U)], U[:, i], where="post", lw=0.9, label=label)
+    ax.set_ylabel("commands\n[N·m or N]")
 
 
 def write_reference_csv(r: PlaybackResult, path: Path) -> None:

@@ -18,6 +18,7 @@ from pydrake.geometry import Meshcat, MeshcatParams
 
 from hydroilqr.io.files import atomic_write
 from hydroilqr.model.plant import build_diagram
+from hydroilqr.model.scene import view_box
 
 _MESHCAT = None
 
@@ -49,11 +50,33 @@ def _drake_info_held_back():
 
 
 def camera_for(task):
-    """A camera pose that frames the task (or the task file's ``metric_params.camera``)."""
+    """A camera pose (position, target), each [3]: the task file's ``metric_params.camera``,
+    else aimed at the centre of the bodies at the start (and the scene objects smaller than
+    a ground, ``model.scene.view_box``), from the front (-y) and a little above, far enough
+    back to frame them."""
     cam = task.config.metric_params.get("camera")
     if cam:
         return np.asarray(cam["position"], float), np.asarray(cam["target"], float)
-    return np.array([0.0, -3.0, 1.0]), np.array([0.0, 0.0, 0.3])
+    low, high = view_box(task, task.x0)
+    target = (low + high) / 2
+    distance = max(1.5, 1.8 * float(np.linalg.norm(high - low)))
+    direction = np.array([0.0, -1.0, 0.35]) / np.linalg.norm([0.0, -1.0, 0.35])
+    return target + distance * direction, target
+
+
+def camera_note(task) -> str:
+    """A line saying where the replay's camera looks when the task does not set it ('' when
+    it does)."""
+    if task.config.metric_params.get("camera"):
+        return ""
+    pos, target = camera_for(task)
+    fmt = ", ".join
+    return (
+        f"replay camera: aimed at [{fmt(f'{v:.3g}' for v in target)}] (the bodies at the "
+        f"start) from [{fmt(f'{v:.3g}' for v in pos)}]; metric_params.camera: "
+        "{position: [x, y, z], target: [x, y, z]} sets it (hydroilqr replay RUN rewrites a "
+        "run's replay.html)"
+    )
 
 
 def write_replay(

@@ -81,6 +81,12 @@ def _guess_rollout(sol: Solution, task) -> np.ndarray:
 
 
 def _no_progress(sol: Solution, task, costs: str) -> str:
+    if sol.iterations == 0 and sol.reason == "max_iterations":
+        return (
+            f"no iterations were run (solver.max_iterations 0; {costs}): the plan is the "
+            "initial guess itself (`hydroilqr check TASK --replay FILE.html` shows a guess "
+            "without a solve)"
+        )
     steps = sum(1 for e in sol.eps if e > 0)
     costs += "; no step was taken" if steps == 0 else f"; {steps} small step(s) were taken"
     tracked = tracked_objects(task)

@@ -26,9 +26,11 @@ import numpy as np
 
 from hydroilqr import metrics
 from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.common import coordinate_name, coordinate_units
 from hydroilqr.metrics.terms import terms_on_guess
 from hydroilqr.model.contacts import (
     NO_CONTACT_REMEDY,
+    cost_pull_contact,
     fixed_bodies,
     no_contact_remedy,
     touched_pairs,
@@ -38,6 +40,7 @@ from hydroilqr.model.contacts import (
 )
 from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
+from hydroilqr.model.names import body_labels
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.config import DerivativeMethod
 from hydroilqr.studies.bases import base_report
@@ -204,7 +207,8 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     done("continuation")
 
     plant = dyn.plant
-    free = [plant.get_body(i).name() for i in plant.GetFloatingBaseBodies()]
+    labels = body_labels(plant)
+    free = [labels[int(i)] for i in plant.GetFloatingBaseBodies()]
     out["floating_bodies"] = sorted(free)
     done("floating_bodies")
 
@@ -286,6 +290,8 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
         warn(w)
     for w in out["bases"]["warnings"]:  # (free and planar bases: fell, left, flew)
         warn(w)
+    if out.get("cost_pull"):  # the cost itself brings the robot to the object
+        return _rollout_more_warnings(out, warn)
     w = _untracked_contact_warning(
         out["touched_pairs"],
         set(out["tracked_objects"]),
@@ -294,6 +300,10 @@ def _rollout_warnings(pairs: list, out: dict, warn) -> None:
     )
     if w:
         warn(w)
+    _rollout_more_warnings(out, warn)
+
+
+def _rollout_more_warnings(out: dict, warn) -> None:
     if out["contact_faces"] > 500:
         warn(
             f"{out['contact_faces']} contact polygons at x0: consider a coarser "
@@ -470,14 +480,20 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
+    fastest = dyn.nq + int(np.argmax(np.max(np.abs(X[:, dyn.nq :]), axis=0))) if dyn.nv else 0
 
     tracked = tracked_objects(task)
     Xc = _contact_rollout(task, X) if tracked else X
     out["bases"] = base_report(task, Xc if tracked else _contact_rollout(task, X))
+    touched = touched_pairs(task, Xc)
+    pull = None
+    if tracked and not touches_moving(touched, tracked, fixed_bodies(task)):
+        pull = cost_pull_contact(task, task.initial_guess(task.steps)[: len(Xc) - 1])
     out.update(
         {
+            "cost_pull": pull,
             "no_contact_remedy": no_contact_remedy(task, None, ", ".join(sorted(tracked))),
-            "touched_pairs": touched_pairs(task, Xc),
+            "touched_pairs": touched,
             "contact_rollout_steps": len(Xc) - 1,
             "tracked_bodies": sorted(tracked_bodies(task)),
             "tracked_objects": sorted(tracked),
@@ -486,10 +502,20 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
             "rollout_steps": N,
             "task_steps": task.steps,
             "max_speed": speed,
+            "max_speed_coordinate": coordinate_name(dyn.layout, fastest) if dyn.nv else "",
+            "max_speed_unit": coordinate_units(dyn)[fastest] if dyn.nv else "",
             "step_ms": step_ms,
             "rollout_ms_per_step": rollout_ms,
         }
     )
+
+
+def guess_trajectory(task) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t: [N+1] s, X: [N+1, nx], U: [N, nu]): the task's initial guess rolled out from x0
+    over its whole horizon (a receding-horizon task: all its steps), as a solve starts."""
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
+    return task.config.plant.time_step * np.arange(len(X)), X, U
 
 
 def _contact_rollout(task, X: np.ndarray) -> np.ndarray:

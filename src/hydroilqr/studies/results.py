@@ -481,6 +481,40 @@ def render(
     return "\n".join(lines) + "\n", page
 
 
+#: The page this repository ships (its numbers estimate how long a run takes).
+SHIPPED_PAGE = Path(__file__).resolve().parents[3] / "docs" / "results.json"
+
+
+def estimate(tasks: Sequence[str], smoke: bool, page: Path = SHIPPED_PAGE) -> str:
+    """How long ``tasks`` took on the machine that wrote ``page`` (the shipped results
+    page): its whole run if it recorded one and ran the same tasks, else its solves of
+    these tasks alone; '' when there is no such page or it has none of them."""
+    try:
+        doc = json.loads(page.read_text())
+    except (OSError, ValueError):
+        return ""
+    solves = {
+        s.get("task"): s.get("solve_seconds") for s in doc.get("sections", {}).get("solves", [])
+    }
+    known = [solves[t] for t in tasks if isinstance(solves.get(t), (int, float))]
+    if not known or smoke:
+        return ""
+    env = doc.get("environment") or {}
+    where = f"{env.get('cpu', 'its CPU')}, {env.get('cores', '?')} cores"
+    same = sorted(tasks) == sorted(solves) and doc.get("wall_seconds")
+    if same:
+        return f"about {_duration(doc['wall_seconds'])} on the machine of docs/results.md ({where})"
+    return (
+        f"the solves alone took {_duration(sum(known))} on the machine of docs/results.md "
+        f"({where}; {len(known)} of the {len(tasks)} tasks), and the playback, mismatch and "
+        "bench sections add to that"
+    )
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.0f} min"
+
+
 def generate(
     tasks: Sequence[str] = DEFAULT_TASKS,
     out: str | Path = "docs",
@@ -495,6 +529,7 @@ def generate(
     ``hydroilqr results ...`` command). Returns the paths written, by format."""
     tasks = list(tasks)
     out = output_dir(out)  # created, locked and proven writable before any solve
+    wall0 = time.perf_counter()
     context = Context(
         command=command or command_line(tasks, out, smoke, overrides),
         smoke=smoke,
@@ -505,6 +540,7 @@ def generate(
     env = dict(environment())
     env["command"] = context.command
     md, page = render(results, context, env, sections)
+    page["wall_seconds"] = round(time.perf_counter() - wall0, 1)  # (the next run's estimate)
     paths = {
         "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
         "md": atomic_write(out / "results.md", md),

@@ -45,6 +45,7 @@ from hydroilqr.io.environment import code_version, environment
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.io.files import atomic_write, content_hash
 from hydroilqr.metrics import validate_task
+from hydroilqr.metrics.goals import judge
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe, output_dir
 from hydroilqr.output.results import POINT_HASH, write_sweep_point
@@ -74,6 +75,8 @@ POINT_COLUMNS = (
 )
 EXTRA_COLUMNS = (
     "initial_cost",
+    "goal_met",
+    "solve_status",
     "reason",
     "solve_seconds",
     "worker",
@@ -293,6 +296,7 @@ def solve_point(
             initial_cost=float(sol.stats()["initial_cost"]),  # the task model's (continuation)
             iterations=sol.iterations,
             converged=bool(sol.converged),
+            solve_status=sol.status,  # solve's word for how it ended (docs/guide.md, section 4)
             reason=sol.reason,
         )
         arrays = {"X": sol.X, "U": sol.U, "t": sol.t, "costs": np.asarray(sol.costs)}
@@ -302,6 +306,9 @@ def solve_point(
         for k, v in m.items():
             if isinstance(v, dict):
                 row.update({f"{k}.{kk}": vv for kk, vv in v.items() if _scalar(vv)})
+        goal = judge(task.config, m)
+        if goal["met"] is not None:  # the task's goal on this point's plan (as solve judges)
+            row["goal_met"] = bool(goal["met"])
         arrays.update(metrics_mod.sweep_arrays(task, sol.X))
     except BaseException as e:  # noqa: BLE001 - a failed point is data, the sweep goes on
         if isinstance(e, (KeyboardInterrupt, SystemExit)):
@@ -428,6 +435,20 @@ def _log_axis(vals: list) -> bool:
     return bool(v) and min(v) > 0 and max(v) / min(v) >= 100
 
 
+def goal_panels(goal: dict) -> list[tuple[str, str]]:
+    """(metric, axis label) of each goal check with a fixed bound, its bounds in the label."""
+    return [
+        (name, f"{name}\n(goal: {check.describe()})")
+        for name, check in goal.items()
+        if check.min is not None or check.max is not None
+    ]
+
+
+def _bounds(goal: dict, metric: str) -> list[float]:
+    check = goal.get(metric)
+    return [] if check is None else [b for b in (check.min, check.max) if b is not None]
+
+
 def plot_sweep(
     path: Path,
     task_name: str,
@@ -435,6 +456,7 @@ def plot_sweep(
     rows: list[dict],
     grid_values: list[list],
     metric_panels: list[tuple[str, str]] = (),
+    goal: dict | None = None,
 ) -> None:
     """sweep.png: each of ``metric_panels`` ((key, axis label), from the task's metrics) that
     some point reports, and the final cost, against the first parameter (a series per value
@@ -494,6 +516,8 @@ def plot_sweep(
             bad = [r[f"param:{key}"] for r in rs if r.get("status") != "ok"]
             for x in bad:
                 ax.axvline(x, color="gray", ls=":", lw=1.2, label=once("failed"))
+        for b in _bounds(goal or {}, metric):  # the goal's bound on this metric
+            ax.axhline(b, color="C3", ls="--", lw=1, label=once("goal bound"))
         ax.set_ylabel(labels.get(metric, metric))
         # log when the values span decades (overlap: 0.2 mm stiff, 100 mm tunnelled); not
         # when one is 0 (no contact), which a log axis would drop
@@ -874,8 +898,11 @@ def _plot(sw: _Sweep, params: list[tuple[str, list]], all_rows: list[dict], task
         sorted({r[f"param:{k}"] for r in all_rows}, key=float) if sw.earlier_rows else v
         for k, v in params
     ]
-    panels = metrics_mod.sweep_panels(task_cfg.metrics)
-    plot_sweep(sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values, panels)
+    panels = goal_panels(task_cfg.goal)
+    panels += [p for p in metrics_mod.sweep_panels(task_cfg.metrics) if p[0] not in task_cfg.goal]
+    plot_sweep(
+        sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values, panels, task_cfg.goal
+    )
     wrote = ["sweep.png"]
     for name, plot in metrics_mod.sweep_plots(task_cfg.metrics):
         if plot(sw.out / name, sw.points_dir, task_cfg, keys, all_rows):
