@@ -691,16 +691,20 @@ def test_dask_workers_start_with_ctrl_c_blocked_and_this_process_keeps_it():
     from hydroilqr.studies.cluster import _spawned_pids, open_client
 
     handler, mask = signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    # (earlier tests in this process may have left spawns of their own: only the new ones)
+    before = {child.pid for child in psutil.Process().children()}
     client, cluster = open_client(None, workers=1)
     try:
         assert signal.getsignal(signal.SIGINT) is handler  # (never ignored meanwhile)
         assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
-        (pid,) = _spawned_pids(psutil.Process(), set())
-        status = Path(f"/proc/{pid}/status").read_text()
-        blocked = int(
-            next(ln for ln in status.splitlines() if ln.startswith("SigBlk")).split()[1], 16
-        )
-        assert blocked & (1 << (signal.SIGINT - 1))
+        pids = _spawned_pids(psutil.Process(), before)
+        assert pids
+        for pid in pids:
+            status = Path(f"/proc/{pid}/status").read_text()
+            blocked = int(
+                next(ln for ln in status.splitlines() if ln.startswith("SigBlk")).split()[1], 16
+            )
+            assert blocked & (1 << (signal.SIGINT - 1))
     finally:
         client.close()
         cluster.close()
