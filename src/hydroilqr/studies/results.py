@@ -302,14 +302,14 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
 
 
 def robustness_table(results: Sequence[TaskResult], context: Context) -> Section | None:
-    """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART]`` runs (each with
+    """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART...]`` runs (each with
     its own command and environment), if any were run into the results directory: first the
     goal's pass rate per task, kind of run (solve or closed loop) and seed, a column per BLAS
     kernel set the records were measured on (``environment.blas_core``); then each record's
     table: how many of its perturbed runs met the goal and each of its checks."""
 
     root = Path(context.out) / "robustness"
-    paths = sorted(root.glob("robustness.json")) + sorted(root.glob("*/robustness.json"))
+    paths = sorted(root.glob("**/robustness.json"), key=lambda p: (len(p.parts), str(p)))
     if not paths:
         return None
     docs = [json.loads(path.read_text()) for path in paths]
@@ -347,7 +347,10 @@ def kernel_table(docs: Sequence[dict]) -> str:
             cells[blas] += [cell] if cell not in cells[blas] else []
     head = ["task", "run", "seed", *(f"goal met, {k} kernels" for k in kernels)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for (task, kind, seed), cells in rows.items():
+    first = {}  # (a task's rows together, where it first appears; then by kind and seed)
+    for task, _, _ in rows:
+        first.setdefault(task, len(first))
+    for (task, kind, seed), cells in sorted(rows.items(), key=lambda r: (first[r[0][0]], r[0])):
         row = [f"`{task}`", kind, str(seed), *(", ".join(cells.get(k, ["-"])) for k in kernels)]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
