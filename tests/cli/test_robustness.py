@@ -184,3 +184,42 @@ def test_the_spread_of_each_check_shows_how_close_the_runs_came():
     assert spread["worst"] == 0.0187 and abs(spread["worst_slack"] - 0.0013) < 1e-12
     (line,) = spread_lines({"tasks": [s]})
     assert "min 0.004, median 0.009, max 0.0187; worst 0.0187 against <= 0.02" in line
+
+
+def test_the_results_section_shows_each_rows_kernel_set_and_the_closed_loops():
+    """The page's first robustness table: a column per BLAS kernel set the records were
+    measured on (their environment's blas_core), a row per task, kind of run and seed; a
+    closed-loop record (--mpc) is its own row."""
+
+    def doc(blas, met, mpc=False, seed=0):
+        s = summarize("t", [_run(k, k <= met, [("a", k <= met)]) for k in range(1, 11)])
+        return {"tasks": [s], "mpc": mpc, "seed": seed, "environment": {"blas_core": blas}}
+
+    md = results.kernel_table(
+        [doc("Haswell", 7), doc("SkylakeX", 9), doc("Haswell", 10, mpc=True), doc("X", 8, seed=1)]
+    )
+    lines = md.splitlines()
+    assert lines[0] == (
+        "| task | run | seed | goal met, Haswell kernels | goal met, SkylakeX kernels "
+        "| goal met, X kernels |"
+    )
+    assert "| `t` | solve | 0 | 7 of 10 | 9 of 10 | - |" in lines
+    assert "| `t` | closed loop | 0 | 10 of 10 | - | - |" in lines
+    assert "| `t` | solve | 1 | - | - | 8 of 10 |" in lines
+
+
+def test_robustness_mpc_runs_each_tasks_closed_loop(tmp_path, capsys):
+    """--mpc: each run is the task's closed loop (lock-step, smoke-sized here), judged by the
+    loop's goal; the record says so. --transfer (a solve's plan played back) is refused."""
+    out = tmp_path / "rob"
+    argv = ["robustness", "cartpole-wall", "--mpc", "--smoke", "--runs", "2", "--workers", "2"]
+    assert cli.main([*argv, "--out", str(out)]) == 0
+    assert "closed loops (lock-step)" in capsys.readouterr().out
+    doc = json.loads((out / "robustness.json").read_text())
+    assert doc["mpc"] is True
+    (t,) = doc["tasks"]
+    assert [r["status"] for r in t["results"]] == ["ran", "ran"]
+    assert set(t["checks_met"]) == {"final_angle_error_rad", "wall_contact_steps"}
+    assert "median closed loop s" in table(doc)
+    assert cli.main([*argv, "--transfer", "--out", str(out)]) == 2
+    assert "--transfer" in capsys.readouterr().err

@@ -560,19 +560,18 @@ def test_finger_spin_runs_its_loop_with_restarts(tmp_path):
     assert "wheel_axle" in data["metrics"]["tracking_error_rms"]
 
 
-def test_finger_spin_loop_keeps_touching_the_wheel():
-    """The built-in finger-spin's whole 5 s loop (lock-step, reproducible): the first plan's
-    flick, tried again as a restart, starts new strokes, so the wheel follows its moving
-    target (the task's mpc.goal) instead of coasting down after the first flick."""
-    from hydroilqr.metrics import compute
-    from hydroilqr.metrics.goals import evaluate
+def test_finger_spin_loop_meets_its_goal_across_perturbed_runs():
+    """The built-in finger-spin's whole 5 s loop (lock-step, reproducible) three times, each
+    first plan started from the guess perturbed by a relative 1e-9 (runs 1-3 of `hydroilqr
+    robustness finger-spin --mpc`): every run keeps the wheel near its moving target (the
+    task's mpc.goal). Not one trajectory's number: which basin a run lands in is a last-bit
+    matter (other BLAS kernels, another CPU), and the loop must hold in all of them."""
+    from hydroilqr.studies.robustness import loop_run
 
-    task = Task.load("finger-spin")
-    res = run_mpc(task)
-    metrics = compute(task, res.as_solution())
-    assert res.restarts >= 2  # strokes after the first one
-    verdict = evaluate(task.config.mpc.goal, metrics)
-    assert verdict["met"], verdict
+    ref = {"label": "finger-spin", "name": "finger-spin", "overrides": [], "config": None}
+    runs = [loop_run({**ref, "smoke": False}, k, 0, 1e-9) for k in (1, 2, 3)]
+    assert [r.status for r in runs] == ["ran"] * 3, [r.record() for r in runs]
+    assert all(r.goal_met for r in runs), [r.record() for r in runs]
 
 
 def test_delay_compensation_plans_from_the_state_one_period_ahead(monkeypatch):

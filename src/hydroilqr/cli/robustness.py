@@ -33,6 +33,13 @@ def setup(p) -> None:
         "gap",
     )
     p.add_argument(
+        "--mpc",
+        action="store_true",
+        help="run each task's closed loop instead of a solve (its mpc: settings, lock-step, "
+        "the first plan's guess perturbed) and judge it by the loop's goal (mpc.goal, else "
+        "goal)",
+    )
+    p.add_argument(
         "--min-rate",
         type=float,
         default=0.9,
@@ -62,6 +69,8 @@ def _check(args) -> None:
         raise ConfigError(f"--seed: must be >= 0, got {args.seed}")
     if not (math.isfinite(args.min_rate) and 0 <= args.min_rate <= 1):
         raise ConfigError(f"--min-rate: must be a number in [0, 1], got {args.min_rate}")
+    if args.mpc and args.transfer:
+        raise ConfigError("--transfer plays back a solve's plan; it does not go with --mpc")
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
     if args.scheduler and args.workers is not None:
@@ -81,16 +90,21 @@ def _concurrency(report: dict) -> str:
 def run(args) -> int:
     _check(args)
     # (late: the command's arguments are checked before Drake and Dask are loaded)
+    from hydroilqr.control.mpc import prepare
     from hydroilqr.metrics import validate_task
     from hydroilqr.model.task import Task
     from hydroilqr.output.report import output_dir
     from hydroilqr.studies.results import DEFAULT_TASKS
+    from hydroilqr.studies.robustness import loop_settings
 
     names = list(args.tasks or DEFAULT_TASKS)
     refs = []
     for name in names:  # every task loads and validates before any solve starts
         cfg = load_task(name, list(args.set), None, args.smoke)
-        validate_task(Task(cfg))  # its metrics and goal, as solve checks them
+        task = Task(cfg)
+        validate_task(task)  # its metrics and goal, as solve checks them
+        if args.mpc:  # its closed loop's settings, as mpc checks them
+            prepare(task, loop_settings(task, args.smoke))
         refs.append(
             {
                 "label": cfg.name,
@@ -106,8 +120,9 @@ def run(args) -> int:
     from hydroilqr.studies.robustness import run_robustness, spread_lines, table
 
     where = args.scheduler or "a local Dask cluster"
+    what = "closed loops (lock-step), first plan's" if args.mpc else "solves,"
     console.print(
-        f"robustness: {len(refs)} task(s) x {args.runs} solves, guess perturbed by a relative "
+        f"robustness: {len(refs)} task(s) x {args.runs} {what} guess perturbed by a relative "
         f"{args.noise:g} (seed {args.seed}), on {where}"
     )
 
@@ -132,6 +147,7 @@ def run(args) -> int:
         args.workers,
         done,
         transfer=args.transfer,
+        mpc=args.mpc,
     )
     report["command"] = command_line(args)
     report["smoke"] = bool(args.smoke)

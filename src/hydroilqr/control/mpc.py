@@ -34,7 +34,9 @@ import numpy as np
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 
+from hydroilqr import metrics as metrics_mod
 from hydroilqr.io.rundir import previous_task
+from hydroilqr.metrics.common import beyond_limits
 from hydroilqr.model.derivatives import Linearizer
 from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import body_labels, find_body
@@ -399,6 +401,24 @@ class MPCResult:
             "mpc",
             "",
         )
+
+
+def loop_metrics(task, res: MPCResult) -> dict:
+    """The task's metrics of a closed-loop run, on the plant that was simulated (truth
+    overrides cannot touch the cost), the effort limits judged on the commanded inputs (the
+    applied ones are clipped); {"error": ...} for a state the plant cannot evaluate."""
+    try:
+        sim_task = task
+        if res.settings.truth_overrides:
+            sim_task = task.with_overrides(res.settings.truth_overrides)
+        task_metrics = metrics_mod.compute(sim_task, res.as_solution())
+        if "commands_beyond_limits" in task_metrics and res.U_commanded is not None:
+            for key in ("max_command_to_limit_ratio", "max_command_to_limit_actuator"):
+                task_metrics.pop(key, None)  # (of the clipped inputs: not there)
+            task_metrics.update(beyond_limits(sim_task.dynamics, res.U_commanded))
+    except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
+        task_metrics = {"error": str(e).strip().splitlines()[0]}
+    return task_metrics
 
 
 class UpdateResult(NamedTuple):

@@ -14,14 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr import metrics as metrics_mod
-from hydroilqr.control.mpc import MPCResult
+from hydroilqr.control.mpc import MPCResult, loop_metrics
 from hydroilqr.control.playback import PlaybackResult, executed_goal
 from hydroilqr.io import rundir
 from hydroilqr.io.environment import environment
 from hydroilqr.io.files import atomic_savez, atomic_write, content_hash
-from hydroilqr.metrics.common import beyond_limits
 from hydroilqr.metrics.goals import judge, judge_loop
-from hydroilqr.model.plant import SimulationError
 from hydroilqr.output.plots import (
     plot_convergence,
     plot_mpc,
@@ -109,20 +107,7 @@ def write_mpc(
     returns the mpc.json dict (``res.stats()``, the task's metrics on the simulated plant and
     the environment, the task's ``goal`` judged on them; ``command`` its command line)."""
     stats = res.stats()
-    sol = res.as_solution()
-    try:
-        # On the plant that was simulated (truth overrides cannot touch the cost).
-        sim_task = task
-        if res.settings.truth_overrides:
-            sim_task = task.with_overrides(res.settings.truth_overrides)
-        task_metrics = metrics_mod.compute(sim_task, sol)
-        if "commands_beyond_limits" in task_metrics and res.U_commanded is not None:
-            # sol.U is what the plant applied (clipped): the limits judge what was asked
-            for key in ("max_command_to_limit_ratio", "max_command_to_limit_actuator"):
-                task_metrics.pop(key, None)  # (of the clipped inputs: not there)
-            task_metrics.update(beyond_limits(sim_task.dynamics, res.U_commanded))
-    except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
-        task_metrics = {"error": str(e).strip().splitlines()[0]}
+    task_metrics = loop_metrics(task, res)
     data = {
         "task": task.name,
         **stats,

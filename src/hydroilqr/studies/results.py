@@ -302,46 +302,79 @@ def bench_table(results: Sequence[TaskResult], context: Context) -> Section | No
 
 
 def robustness_table(results: Sequence[TaskResult], context: Context) -> Section | None:
-    """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART]`` runs (each with
-    its own command and environment), if any were run into the results directory: per task,
-    how many of its perturbed solves met the goal and each of its checks."""
+    """The latest ``hydroilqr robustness ... --out OUT/robustness[/PART...]`` runs (each with
+    its own command and environment), if any were run into the results directory: first the
+    goal's pass rate per task, kind of run (solve or closed loop) and seed, a column per BLAS
+    kernel set the records were measured on (``environment.blas_core``); then each record's
+    table: how many of its perturbed runs met the goal and each of its checks."""
 
     root = Path(context.out) / "robustness"
-    paths = sorted(root.glob("robustness.json")) + sorted(root.glob("*/robustness.json"))
+    paths = sorted(root.glob("**/robustness.json"), key=lambda p: (len(p.parts), str(p)))
     if not paths:
         return None
-    parts, docs = [], []
-    for path in paths:
-        doc = json.loads(path.read_text())
-        env = doc.get("environment", {})
-        parts += [
-            table(doc),
-            "",
-            f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
-            f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
-            f"load {env.get('load_average', 'not recorded')}): {doc['runs']} solves per task, "
-            f"each from the initial guess perturbed by a relative {doc['noise']:g}"
-            + (
-                "; each plan also played back as in the transfer section (the goal judged on "
-                "the executed motion; the object's resting gap)."
-                if doc.get("transfer")
-                else "."
-            ),
-            "",
-        ]
-        docs.append(doc)
+    docs = [json.loads(path.read_text()) for path in paths]
+    parts = [kernel_table(docs), ""]
+    for doc in docs:
+        parts += [table(doc), "", _robustness_source(doc), ""]
     note = (
-        "Each run is judged by the task's goal. The perturbation stands in for last-bit "
-        "differences between machines: other BLAS kernel sets and CPUs land in other, equally "
-        "valid local minima, so these pass rates, not the single solves above, are the numbers "
-        "to expect on another machine. Solve times here are of one Dask worker process each, "
-        "two at once."
+        "Each run is judged by the task's goal (a closed loop by its `mpc.goal`). The "
+        "perturbation stands in for last-bit differences between machines: other BLAS kernel "
+        "sets and CPUs land in other, equally valid local minima, so these pass rates, not the "
+        "single solves above, are the numbers to expect on another machine. Solve times here "
+        "are of one Dask worker process each, two at once."
     )
     return Section(
         "robustness",
         "Robustness to last-bit differences",
         "\n".join([*parts, note]),
         docs,
+    )
+
+
+def kernel_table(docs: Sequence[dict]) -> str:
+    """Goal pass rates by task, kind of run and seed (rows) and BLAS kernel set (columns,
+    ``environment.blas_core`` of each record; '-' where a row was not measured on a set)."""
+    kernels: list[str] = []
+    rows: dict[tuple, dict[str, list[str]]] = {}
+    for doc in docs:
+        blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
+        kernels += [blas] if blas not in kernels else []
+        kind = "closed loop" if doc.get("mpc") else "solve"
+        for t in doc["tasks"]:
+            cell = f"{t['goal_met']} of {t['runs']}" if t["goal_declared"] else "no goal"
+            cells = rows.setdefault((t["task"], kind, doc.get("seed", 0)), {})
+            cells.setdefault(blas, [])
+            cells[blas] += [cell] if cell not in cells[blas] else []
+    head = ["task", "run", "seed", *(f"goal met, {k} kernels" for k in kernels)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    first = {}  # (a task's rows together, where it first appears; then by kind and seed)
+    for task, _, _ in rows:
+        first.setdefault(task, len(first))
+    for (task, kind, seed), cells in sorted(rows.items(), key=lambda r: (first[r[0][0]], r[0])):
+        row = [f"`{task}`", kind, str(seed), *(", ".join(cells.get(k, ["-"])) for k in kernels)]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def _robustness_source(doc: dict) -> str:
+    """Where a robustness record came from: its command, code, kernels, load and runs."""
+    env = doc.get("environment", {})
+    runs = (
+        f"{doc['runs']} closed loops per task (lock-step), each first plan's initial guess "
+        if doc.get("mpc")
+        else f"{doc['runs']} solves per task, each from the initial guess "
+    )
+    return (
+        f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
+        f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
+        f"load {env.get('load_average', 'not recorded')}): {runs}perturbed by a relative "
+        f"{doc['noise']:g}"
+        + (
+            "; each plan also played back as in the transfer section (the goal judged on "
+            "the executed motion; the object's resting gap)."
+            if doc.get("transfer")
+            else "."
+        )
     )
 
 

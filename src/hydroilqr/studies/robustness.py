@@ -18,6 +18,11 @@ simulation with the other contact approximation), and the report adds the task's
 on the executed motion and, for a task that moves an object, where the object comes to rest
 against where the plan puts it (``resting_gap``): whether a transfer holds in the basins other
 machines land in, not only in this machine's.
+
+With ``mpc`` each run is the task's closed loop instead (``loop_run``): its ``mpc:`` settings,
+lock-step (the simulation waits for each update, so a run depends on neither the machine's
+load nor its speed), the first plan's initial guess perturbed as a solve's is, and the run
+judged by the loop's goal (``mpc.goal``, else ``goal``) on the simulated motion.
 """
 
 from __future__ import annotations
@@ -26,20 +31,23 @@ import logging
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from distributed import as_completed
 
+from hydroilqr.control.mpc import SMOKE_UPDATES, loop_metrics, mpc_config, prepare
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
 from hydroilqr.model.derivatives import num_threads
+from hydroilqr.metrics.goals import judge_loop
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
 from hydroilqr.problem.config import ConfigError, load_task
 from hydroilqr.studies.cluster import open_client
-from hydroilqr.studies.multistart import solve_start
+from hydroilqr.studies.multistart import perturbation, solve_start
 
 #: The default relative perturbation of the initial guess: last-bit sized.
 DEFAULT_NOISE = 1e-9
@@ -139,6 +147,49 @@ def most_at_once(runs: Sequence[RunResult]) -> int:
         now += step
         most = max(most, now)
     return most
+
+
+def loop_settings(task, smoke: bool = False):
+    """The closed loop a robustness run simulates: the task's ``mpc:`` settings, lock-step;
+    under ``smoke`` at most ``SMOKE_UPDATES`` updates (as ``hydroilqr mpc --smoke``)."""
+    settings = mpc_config(task, realtime=False)
+    if smoke and settings.rate > 0:
+        settings.duration = min(settings.duration, SMOKE_UPDATES / settings.rate)
+    return settings
+
+
+def loop_run(task_ref: dict, k: int, seed: int, noise: float) -> RunResult:
+    """Runs on a worker: the task's closed loop (``loop_settings``) whose first plan starts
+    from the initial guess perturbed by run ``k``'s draw (``multistart.perturbation``), judged
+    by the loop's goal; a failure (or a plant that failed mid-run) is a run that did not meet
+    it. ``status``: ``ran`` or ``plant_failed``; ``iterations``: over all updates."""
+    t0, started = time.perf_counter(), time.time()
+    res = RunResult(task=task_ref["label"], index=k)
+    try:
+        task = Task.load(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        res.threads = solve_threads(task.config.solver)
+        loop = prepare(task, loop_settings(task, task_ref["smoke"]))
+        U0 = loop.ctrl.U
+        limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
+        loop.ctrl.seed(perturbation(U0, limits, noise, seed, k))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out = loop.run()
+        goal = judge_loop(task.config, loop_metrics(task, out))
+        res.status = "plant_failed" if out.failure else "ran"
+        res.iterations = int(sum(out.iterations))
+        res.goal_met = False if out.failure else goal.get("met")
+        res.checks = goal.get("checks", [])
+        res.error = out.failure
+    except Exception as e:  # noqa: BLE001 - a failed run is data; the others go on
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        res.error = f"{type(e).__name__}: {first}"[:300]
+        res.goal_met = False
+    res.seconds = time.perf_counter() - t0
+    res.started, res.finished, res.worker = started, time.time(), os.getpid()
+    return res
 
 
 def played_back(task_ref: dict, sol) -> dict:
@@ -253,12 +304,14 @@ def run_robustness(
     workers: int | None = None,
     on_run: Callable[[RunResult], None] | None = None,
     transfer: bool = False,
+    mpc: bool = False,
 ) -> dict:
     """Solves every task of ``task_refs`` ``runs`` times (all runs of all tasks as one pool of
     Dask jobs) and returns the report: ``{"noise", "seed", "runs", "tasks": [summary per
     task], "environment", "transfer"}``. A ``task_ref``: {label, name, overrides, config,
     smoke}. ``on_run(result)`` is called as each run finishes (progress display);
-    ``transfer``: each plan is also played back (``played_back``)."""
+    ``transfer``: each plan is also played back (``played_back``); ``mpc``: each run is the
+    task's closed loop (``loop_run``) instead of a solve."""
 
     env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)
@@ -267,12 +320,8 @@ def run_robustness(
     try:
         futures = [
             client.submit(
-                solve_run,
-                ref,
-                k,
-                seed,
-                noise,
-                transfer,
+                *((loop_run, ref, k, seed, noise) if mpc else (solve_run, ref, k, seed, noise)),
+                *(() if mpc else (transfer,)),
                 pure=False,
                 key=f"robust-{ref['label']}-{k}",
             )
@@ -302,15 +351,21 @@ def run_robustness(
         "threads_per_solve": {
             label: max((r.threads for r in rs), default=0) for label, rs in by_task.items()
         },
+        "mpc": mpc,
     }
 
 
 def table(report: dict) -> str:
-    """The report as a Markdown table: per task, the goal's pass rate and each check's; with
-    transfer, the goal's pass rate on the executed motions and the resting gaps."""
+    """The report as a Markdown table: per task, the goal's pass rate and each check's (of
+    the closed loops with ``mpc``); with transfer, the goal's pass rate on the executed
+    motions and the resting gaps."""
     if report.get("transfer"):
         return _transfer_table(report)
-    rows = ["| task | goal met | per check | statuses | median solve s |", "|---|---|---|---|---|"]
+    what = "closed loop" if report.get("mpc") else "solve"
+    rows = [
+        f"| task | goal met | per check | statuses | median {what} s |",
+        "|---|---|---|---|---|",
+    ]
     for t in report["tasks"]:
         n = t["runs"]
         goal = f"{t['goal_met']} of {n}" if t["goal_declared"] else "no goal"
