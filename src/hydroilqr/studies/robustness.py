@@ -41,8 +41,8 @@ from distributed import as_completed
 from hydroilqr.control.mpc import SMOKE_UPDATES, loop_metrics, mpc_config, prepare
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
-from hydroilqr.model.derivatives import num_threads
 from hydroilqr.metrics.goals import judge_loop
+from hydroilqr.model.derivatives import num_threads
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
 from hydroilqr.problem.config import ConfigError, load_task
