@@ -318,7 +318,8 @@ def robustness_table(results: Sequence[TaskResult], context: Context) -> Section
             table(doc),
             "",
             f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
-            f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
+            f"{env.get('code') or 'unknown'} (Python {env.get('python') or 'unknown'}, Drake "
+            f"{env.get('drake') or 'unknown'}, BLAS kernels {env.get('blas_core') or 'unknown'}, "
             f"load {env.get('load_average', 'not recorded')}): {doc['runs']} solves per task, "
             f"each from the initial guess perturbed by a relative {doc['noise']:g}"
             + (
