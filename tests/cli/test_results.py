@@ -94,3 +94,21 @@ def test_gait_report_section_links_the_gait_diagram(tmp_path):
     assert "[gait.png](results/cheetah-trot-1.0/gait.png)" in section.markdown
     assert (tmp_path / "results" / "cheetah-trot-1.0" / "gait.png").exists()
     assert results.metric_reports([], ctx) == []
+
+
+def test_each_robustness_part_names_its_python_and_drake(tmp_path):
+    """The results page puts robustness runs of several stacks side by side (issue 55): each
+    part's line says which Python and Drake ran it, from its own robustness.json."""
+    from pathlib import Path
+
+    from hydroilqr.studies.results import Context, robustness_table
+
+    src = Path(__file__).resolve().parents[2] / "docs" / "robustness" / "finger-spin"
+    doc = json.loads((src / "robustness.json").read_text())
+    for name, (python, drake) in {"a": ("3.11.7", "1.51.1"), "b": ("3.12.1", "1.56.0")}.items():
+        (tmp_path / "robustness" / name).mkdir(parents=True)
+        doc["environment"].update(python=python, drake=drake)
+        (tmp_path / "robustness" / name / "robustness.json").write_text(json.dumps(doc))
+    context = Context(command="hydroilqr results", smoke=False, out=str(tmp_path))
+    text = robustness_table([], context).markdown
+    assert "Python 3.11.7, Drake 1.51.1" in text and "Python 3.12.1, Drake 1.56.0" in text
