@@ -33,7 +33,7 @@ def test_find_python_takes_the_supported_one_on_path(tmp_path):
     mine = f"{sys.version_info.major}.{sys.version_info.minor}"
     path = _path_with(tmp_path, {"python3": sys.executable, "python2.7": sys.executable})
     r = _run([str(ROOT / "tools" / "find-python")], path, tmp_path)
-    exe, version = r.stdout.split()
+    version, exe = r.stdout.strip().split(" ", 1)
     assert r.returncode == 0 and version == mine and Path(exe).exists()
     # asked for another version only: this interpreter is not it
     other = "3.13" if mine != "3.13" else "3.12"
