@@ -9,9 +9,10 @@ import pytest
 
 from hydroilqr import cli
 from hydroilqr.cli import main
-from tests.conftest import assert_one_line
+from tests.conftest import assert_one_line, needs_tamsi
 
 
+@needs_tamsi
 def test_bench_smoke_writes_json_and_plot(tmp_path):
     out = tmp_path / "bench"
     rc = main(
@@ -76,6 +77,7 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
     assert lim["fast_share_of_limit"] == lim["limit_s"] / r["fast"]["median_s"]
 
 
+@needs_tamsi
 def test_same_iterates_starts_from_each_nominal_of_the_fast_run(monkeypatch):
     """The shadow sees U0 and then every iterate (b) continues from, with its μ, inside (b)'s
     turn; and one (a) iteration from a nominal is timed without its initial rollout."""
@@ -226,3 +228,25 @@ def test_bench_refuses_an_ensemble_task_in_one_line(tmp_path, capsys):
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, "has an ensemble")
     assert not (tmp_path / "b").exists()
+
+
+def test_bench_without_tamsi_runs_the_other_paths_and_says_why(tmp_path, monkeypatch, capsys):
+    """On a Drake without TAMSI (1.57 and newer), bench skips path (a) and (a) at (b)'s
+    iterates with one note naming the Drakes that have it, and runs (a') and (b) as always."""
+    from hydroilqr.studies import bench
+
+    monkeypatch.setattr(bench, "drake_has_tamsi", lambda: False)
+    out = tmp_path / "bench"
+    argv = ["bench", "cartpole-wall", "--smoke", "--iterations", "2"]
+    rc = main([*argv, "--fast", "solver.derivatives=forward", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert rc == 0
+    r = json.loads((out / "bench.json").read_text())["tasks"]["cartpole-wall"]
+    assert "iteration_seconds" not in r["paper"] and "1.56" in r["paper"]["skipped"]
+    assert "same_iterates" not in r and "speedup_median" not in r
+    for method in ("fast", "paper_same_solver"):
+        assert 1 <= r[method]["iterations"] <= 2
+        assert r[method]["final_cost"] < r[method]["initial_cost"]
+    assert r["speedup_same_solver_median"] > 0 and "accuracy" in r and "limits" in r
+    assert (out / "iterations.png").stat().st_size > 0
+    assert "(a) not run: path (a), the paper's method, needs Drake's TAMSI" in printed

@@ -118,3 +118,21 @@ def test_results_is_dated_estimated_and_leaves_the_repositorys_page_alone(tmp_pa
     p = argparse.ArgumentParser()
     cli_results.setup(p)
     assert p.parse_args([]).out == "runs/results"
+
+
+def test_each_robustness_part_names_its_python_and_drake(tmp_path):
+    """The results page puts robustness runs of several stacks side by side (issue 55): each
+    part's line says which Python and Drake ran it, from its own robustness.json."""
+    from pathlib import Path
+
+    from hydroilqr.studies.results import Context, robustness_table
+
+    src = Path(__file__).resolve().parents[2] / "docs" / "robustness" / "finger-spin"
+    doc = json.loads((src / "robustness.json").read_text())
+    for name, (python, drake) in {"a": ("3.11.7", "1.51.1"), "b": ("3.12.1", "1.56.0")}.items():
+        (tmp_path / "robustness" / name).mkdir(parents=True)
+        doc["environment"].update(python=python, drake=drake)
+        (tmp_path / "robustness" / name / "robustness.json").write_text(json.dumps(doc))
+    context = Context(command="hydroilqr results", smoke=False, out=str(tmp_path))
+    text = robustness_table([], context).markdown
+    assert "Python 3.11.7, Drake 1.51.1" in text and "Python 3.12.1, Drake 1.56.0" in text

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import os
+import platform
 import subprocess
 import sys
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
@@ -138,7 +140,8 @@ def test_resolving_replaces_earlier_results_and_refuses_another_tasks_dir(tmp_pa
     # Provenance: contact-rich results move with last-bit differences, so every result says
     # what produced it.
     env = summary["environment"]
-    assert env["drake"] == "1.51.1" and env["numpy"] and env["cores"] >= 1 and env["cpu"]
+    assert env["drake"] == version("drake") and env["python"] == platform.python_version()
+    assert env["numpy"] and env["cores"] >= 1 and env["cpu"]
     assert env["command"] == f"hydroilqr solve {task} --out {out} --no-replay"
     from hydroilqr.io import environment
 

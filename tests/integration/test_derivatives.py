@@ -8,6 +8,7 @@ import pytest
 
 from hydroilqr import DerivativeMethod, Task
 from hydroilqr.model.derivatives import _finite_differences, linearize
+from tests.conftest import needs_tamsi
 
 GRIPPER = str(Path(__file__).parents[2] / "examples" / "gripper-brick.yaml")
 
@@ -78,6 +79,7 @@ def test_other_contact_approximations_use_plain_differences(approximation):
     assert np.array_equal(A, A0) and np.array_equal(B, B0)
 
 
+@needs_tamsi
 def test_damped_joints_under_sap_but_not_under_tamsi():
     """Drake's planar gripper has damped finger joints (0.1 N m s). SAP applies the damping
     implicitly and the differences over forces match; TAMSI does not, and keeps (x, u)."""

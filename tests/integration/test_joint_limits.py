@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
+from tests.conftest import needs_tamsi
 
 URDF = """<?xml version="1.0"?>
 <robot name="arm">
@@ -28,7 +29,9 @@ URDF = """<?xml version="1.0"?>
 """
 
 
-@pytest.mark.parametrize("approximation", ["sap", "similar", "lagged", "tamsi"])
+@pytest.mark.parametrize(
+    "approximation", ["sap", "similar", "lagged", pytest.param("tamsi", marks=needs_tamsi)]
+)
 def test_model_position_limits_hold_under_the_convex_approximations(tmp_path, approximation):
     (tmp_path / "arm.urdf").write_text(URDF)
     data = {

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
+from tests.conftest import needs_tamsi
 
 
 def _fake_solution(X, iteration_seconds, phases, costs):
@@ -21,6 +22,7 @@ def _fake_solution(X, iteration_seconds, phases, costs):
     )  # fmt: skip
 
 
+@needs_tamsi
 def test_bench_ratios_cost_difference_and_phase_shares(monkeypatch):
     from hydroilqr.studies import bench
 

@@ -258,3 +258,22 @@ def test_continuation_stages_keep_the_grid_and_read_paths_from_the_task_file(tmp
     path = write_case(tmp_path, edit(continuation=[{"cost.R": 0.02}], initial_guess="u.csv"))
     stage = Task.load(str(path)).stages()[0]
     assert stage.config.resolve_path(stage.config.initial_guess) == tmp_path / "u.csv"
+
+
+def test_tamsi_is_refused_where_the_drake_has_none(monkeypatch, capsys):
+    """Drake 1.57 removed TAMSI: there, tamsi is refused in one line before any work, naming
+    the Drakes that have it; the check reads the bindings the installed Drake ships."""
+    from pydrake.multibody.plant import DiscreteContactApproximation
+
+    from hydroilqr import cli
+    from hydroilqr.problem import capabilities, config
+    from tests.conftest import assert_one_line
+
+    assert capabilities.drake_has_tamsi() == hasattr(DiscreteContactApproximation, "kTamsi")
+    monkeypatch.setattr(config, "drake_has_tamsi", lambda: False)
+    with pytest.raises(ConfigError, match=r"TAMSI.*Drake 1\.56 and older"):
+        Task.load("cartpole-wall", ["plant.contact_approximation=tamsi"])
+    Task.load("cartpole-wall", ["plant.contact_approximation=sap"])  # the others still load
+    rc = cli.main(["solve", "cartpole-wall", "--set", "plant.contact_approximation=tamsi"])
+    out, err = capsys.readouterr()
+    assert_one_line(rc, out, err, "plant.contact_approximation=tamsi needs Drake's TAMSI")

@@ -92,6 +92,7 @@ class _NoTamsiNotice(logging.Filter):
 def print_table(rows: list[dict]) -> None:
     """bench's report: the table of iteration times, then notes per task."""
     _print_times(rows)
+    _print_skipped(rows)
     _print_limits(rows)
     _print_short_runs(rows)
     _print_same_iterates(rows)
@@ -122,6 +123,9 @@ def _print_times(rows: list[dict]) -> None:
     console.print(head, style="bold", soft_wrap=True)
     for r in rows:
         a, b = r.get("paper", {}), r.get("fast", {})
+        if "skipped" in a and "median_s" in b:
+            console.print(_row_without_a(r), soft_wrap=True)
+            continue
         if "median_s" not in a or "median_s" not in b:
             console.print(
                 f"{r['task']:<18} {r['steps']:>4} {a.get('error', 'ok')} | {b.get('error', 'ok')}",
@@ -138,6 +142,24 @@ def _print_times(rows: list[dict]) -> None:
             f"{r['cost_rel_diff']:>+7.2%} {fa:>9} {_same_solver_cells(r)}",
             soft_wrap=True,
         )
+
+
+def _row_without_a(r: dict) -> str:
+    """A table row where (a) did not run (a Drake without TAMSI): (b) and (a') only."""
+    b = r["fast"]
+    rb = f"{b['median_s']:.4f} ({b['p10_s']:.4f}-{b['p90_s']:.4f})"
+    fb = f"-/{b['polygons']['max_faces']}"
+    return (
+        f"{r['task']:<18} {r['steps']:>4} {'-':>26} {rb:>26} {'-':>6} {'-':>9} {'-':>10} "
+        f"{b['final_cost']:>10.5g} {'-':>7} {fb:>9} {_same_solver_cells(r)}"
+    )
+
+
+def _print_skipped(rows: list[dict]) -> None:
+    """Why (a) did not run (once: the reason is this Drake's, the same for every task)."""
+    notes = {r["paper"]["skipped"] for r in rows if "skipped" in r.get("paper", {})}
+    for note in sorted(notes):
+        console.print(f"(a) not run: {note}", soft_wrap=True)
 
 
 def _same_solver_cells(r: dict) -> str:

@@ -93,6 +93,7 @@ from typing import Any
 
 import yaml
 
+from hydroilqr.problem.capabilities import drake_has_tamsi, no_tamsi_message
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import MAX_MODEL_BYTES, check_file, read_text_bounded
 
@@ -1772,6 +1773,10 @@ def _validate_plant(plant: PlantConfig) -> None:
         raise ConfigError(
             f"plant.contact_approximation: expected one of {', '.join(APPROXIMATIONS)}, "
             f"got {plant.contact_approximation!r}"
+        )
+    if plant.contact_approximation == "tamsi" and not drake_has_tamsi():
+        raise ConfigError(
+            no_tamsi_message("plant.contact_approximation=tamsi") + ": use sap, similar or lagged"
         )
     if plant.contact_model not in CONTACT_MODELS:
         raise ConfigError(

@@ -9,6 +9,9 @@ the other), so that load from other processes hits both alike:
      every step, no interpolation, and (b)'s ``plant.contact_approximation``), so that the
      ratio a'/b is what hydroilqr's derivatives and solver gain, not what Drake's SAP gains;
 (b) the fast configuration (``FAST``, or ``--fast KEY=VALUE`` overrides).
+Path (a) needs a Drake with TAMSI (``drake_has_tamsi``); on one without it, (a) and the
+timing at (b)'s iterates (``SameIterates``, (a)'s method) are skipped with a note in
+bench.json, and (a') and (b) run as always.
 
 The solves run in Python threads (in the order (a), (b), (a')) that hand a baton on from the
 solver's per-iteration callback; only the holder of the baton computes, and iteration times are
@@ -49,6 +52,7 @@ from hydroilqr.model.derivatives import (
 from hydroilqr.model.plant import SimulationError, hydroelastic_kind
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import output_dir
+from hydroilqr.problem.capabilities import drake_has_tamsi, no_tamsi_message
 from hydroilqr.problem.config import ConfigError, DerivativeMethod, load_task
 from hydroilqr.solver.ilqr import backward_pass
 from hydroilqr.solver.loop import solve
@@ -126,7 +130,8 @@ class _Baton:
 def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> list:
     """Solves each of ``tasks`` (two or more) from U0 for ``iterations`` iterations, taking
     turns in blocks of ``block`` iterations (tasks[0], tasks[1], ...). Returns [Solution or
-    Exception, ...] in the order of ``tasks``.
+    Exception, ...] in the order of ``tasks``; a task that is None (a path this Drake cannot
+    run) is skipped and its result is None.
 
     ``shadow(U, mu)``, if given, is called in (b)'s turn after each of (b)'s iterations with the
     nominal controls U: [N, nu] that iteration started from (U0, then (b)'s iterates) and the μ
@@ -151,6 +156,9 @@ def run_alternating(tasks, U0, iterations: int, block: int = 1, shadow=None) -> 
                 baton.wait(i)
 
         pending = [None]
+        if task is None:
+            baton.finish(i)
+            return
         try:
             baton.wait(i)
             if shadow is not None and i == 1:
@@ -502,18 +510,23 @@ def bench_tasks(name: str, threads: int, smoke: bool, sets, fast) -> tuple[dict,
     """The configurations ({"paper": [...], "fast": [...], "paper_same_solver": [...]}) and
     the validated Tasks of one benchmark in the order (a), (b), (a'); ConfigError if ``fast``
     changes the problem being timed (its length or time step: the runs share one initial guess
-    and are compared per iteration). (a') takes (b)'s contact approximation."""
+    and are compared per iteration). (a') takes (b)'s contact approximation. (a) is None where
+    the Drake has no TAMSI."""
 
     sets = list(sets or [])
     th = [f"solver.threads={threads}"]
     cfgs = {"paper": PAPER + th, "fast": FAST + th + list(fast or [])}
-    tasks = [Task.load(name, sets + cfgs[k], smoke=smoke) for k in ("paper", "fast")]
+    tasks = [
+        Task.load(name, sets + cfgs["paper"], smoke=smoke) if drake_has_tamsi() else None,
+        Task.load(name, sets + cfgs["fast"], smoke=smoke),
+    ]
     approx = tasks[1].config.plant.contact_approximation
     cfgs["paper_same_solver"] = PAPER_SAME_SOLVER + [f"plant.contact_approximation={approx}"] + th
     tasks.append(Task.load(name, sets + cfgs["paper_same_solver"], smoke=smoke))
     for t in tasks:
-        validate_task(t)
-    a, b = tasks[:2]
+        if t is not None:
+            validate_task(t)
+    a, b = tasks[0] or tasks[2], tasks[1]
     if b.config.ensemble:
         raise ConfigError(
             f"{b.name} has an ensemble: bench times one model's iterations (the paper's method "
@@ -544,24 +557,27 @@ def bench_task(
     ``on_message`` receives a line (rich markup) saying what is timed before it starts."""
     fast = list(fast or [])
     cfgs, tasks = bench_tasks(name, threads, smoke, sets, fast)
-    N = tasks[0].steps
-    # One initial guess for both (a 'hold' guess depends on the contact solver: take (a)'s).
-    U0 = tasks[0].initial_guess(N)
+    # One initial guess for all (a 'hold' guess depends on the contact solver: take (a)'s,
+    # or (a')'s where this Drake has no TAMSI for (a)).
+    ref = tasks[0] or tasks[2]
+    N = ref.steps
+    U0 = ref.initial_guess(N)
     probe = None
     if not any(f.startswith("solver.derivatives=") for f in fast):
         probe = probe_derivatives(tasks[1], U0, threads)
         cfgs["fast"].append(f"solver.derivatives={probe['choice']}")
         tasks[1] = tasks[1].with_overrides(cfgs["fast"][-1])
-    name = tasks[0].name  # the task's own name, also when given as a file
+    name = ref.name  # the task's own name, also when given as a file
+    paths = "(a), (b), (a')" if tasks[0] is not None else "(b), (a') ((a) needs TAMSI)"
     (on_message or _ignore)(
-        f"[bold]{name}[/bold]: N={N} nx={tasks[0].dynamics.nx} "
-        f"nu={tasks[0].dynamics.nu}, {iterations} iterations each of (a), (b), (a'), alternating"
+        f"[bold]{name}[/bold]: N={N} nx={ref.dynamics.nx} "
+        f"nu={ref.dynamics.nu}, {iterations} iterations each of {paths}, alternating"
     )
-    for t in tasks:  # worker processes (if any) start here, not inside a timed iteration
+    for t in filter(None, tasks):  # worker processes start here, not inside a timed iteration
         s = t.config.solver
         size = max(workers.resolve(n) for n in (s.autodiff_workers, s.line_search_workers))
         workers.warm_up(t.dynamics, size)
-    same = SameIterates(tasks[0]) if same_iterates else None
+    same = SameIterates(tasks[0]) if same_iterates and tasks[0] is not None else None
     t0 = time.perf_counter()
     res = run_alternating(tasks, U0, iterations, block, shadow=same)
     wall = time.perf_counter() - t0
@@ -569,9 +585,9 @@ def bench_task(
         "task": name,
         "requested_iterations": int(iterations),
         "steps": int(N),
-        "nx": int(tasks[0].dynamics.nx),
-        "nu": int(tasks[0].dynamics.nu),
-        "receding_window": tasks[0].config.receding_horizon is not None,
+        "nx": int(ref.dynamics.nx),
+        "nu": int(ref.dynamics.nu),
+        "receding_window": ref.config.receding_horizon is not None,
         "wall_s": wall,
         "load_average": list(os.getloadavg()),
         "configs": cfgs,
@@ -580,6 +596,9 @@ def bench_task(
     X0 = tasks[1].dynamics.rollout(tasks[1].x0, U0)
     out["initial_polygons"] = polygons(tasks[1].dynamics, X0)
     for key, task, r in zip(("paper", "fast", "paper_same_solver"), tasks, res):
+        if task is None:
+            out[key] = {"skipped": no_tamsi_message("path (a), the paper's method,")}
+            continue
         if isinstance(r, Exception):
             out[key] = {"error": f"{type(r).__name__}: {str(r).strip().splitlines()[0]}"}
             continue
@@ -602,7 +621,7 @@ def bench_task(
         )
     if "median_s" in out["fast"]:
         out["limits"] = limit_analysis(tasks[1], res[1], out, threads)
-    if all("median_s" in out[k] for k in ("paper", "fast")):
+    if "median_s" in out["fast"] and "error" not in out["paper"]:
         if accuracy:
             sol_b = res[1]
             out["accuracy"] = derivative_accuracy(tasks[1], sol_b.X, sol_b.U, threads)
@@ -617,31 +636,42 @@ def bench_task(
 # ------------------------------------------------------------------------------------------
 
 
+def _series(r: dict) -> list[tuple[str, list]]:
+    """A row's boxes: (a), (b) and (a) at (b)'s iterates; (a') in (a)'s place where (a) did
+    not run (a Drake without TAMSI)."""
+    if "iteration_seconds" in r.get("paper", {}):
+        series = [("paper", r["paper"]["iteration_seconds"])]
+    elif "iteration_seconds" in r.get("paper_same_solver", {}):
+        series = [("same_solver", r["paper_same_solver"]["iteration_seconds"])]
+    else:
+        return []
+    series.append(("fast", r["fast"]["iteration_seconds"]))
+    si = r.get("same_iterates") or {}
+    if si.get("paper_iteration_seconds"):
+        series.append(("same", si["paper_iteration_seconds"]))
+    return series
+
+
 def plot(rows: list[dict], path: Path) -> None:
-    rows = [
-        r
-        for r in rows
-        if "iteration_seconds" in r.get("paper", {}) and "iteration_seconds" in r.get("fast", {})
-    ]
+    rows = [r for r in rows if "iteration_seconds" in r.get("fast", {}) and _series(r)]
     fig, ax = plt.subplots(figsize=(max(4.0, 2.8 * len(rows) + 1), 4))
     data, pos, labels, colors = [], [], [], []
     names = {
         "paper": "(a) paper: TAMSI, serial AutoDiff",
         "fast": "(b) fast configuration",
         "same": "(a) at (b)'s iterates",
+        "same_solver": "(a') paper's method on (b)'s contact solver",
     }
     first: dict[str, int] = {}  # the first box of each kind, for the legend
     for i, r in enumerate(rows):
-        series = [("paper", r["paper"]["iteration_seconds"])]
-        series.append(("fast", r["fast"]["iteration_seconds"]))
-        si = r.get("same_iterates") or {}
-        if si.get("paper_iteration_seconds"):
-            series.append(("same", si["paper_iteration_seconds"]))
+        series = _series(r)
         for j, (key, values) in enumerate(series):
             first.setdefault(key, len(data))
             data.append(values)
             pos.append(4 * i + j)
-            colors.append({"paper": "tab:red", "fast": "tab:blue", "same": "tab:orange"}[key])
+            colors.append(
+                {"paper": "tab:red", "fast": "tab:blue", "same": "tab:orange"}.get(key, "tab:gray")
+            )
         labels.append((4 * i + (len(series) - 1) / 2, r["task"]))
     if data:
         # black medians: the default orange one vanished in the orange "(a) at (b)'s iterates" box

@@ -366,7 +366,8 @@ def _robustness_source(doc: dict) -> str:
     )
     return (
         f"From `{doc.get('command') or 'hydroilqr robustness'}` at code "
-        f"{env.get('code') or 'unknown'} (BLAS kernels {env.get('blas_core') or 'unknown'}, "
+        f"{env.get('code') or 'unknown'} (Python {env.get('python') or 'unknown'}, Drake "
+        f"{env.get('drake') or 'unknown'}, BLAS kernels {env.get('blas_core') or 'unknown'}, "
         f"load {env.get('load_average', 'not recorded')}): {runs}perturbed by a relative "
         f"{doc['noise']:g}"
         + (
