@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from hydroilqr import Task
-from hydroilqr.model.terms import softmin
+from hydroilqr.model.activations import Bounds, Identity, SoftMin, Sum, Target
+from hydroilqr.model.residuals import RESIDUALS
+from hydroilqr.model.terms import Term, softmin
+from hydroilqr.model.windows import Ramp, Terminal, Window
 from hydroilqr.problem.config import ConfigError
 from tests.conftest import edit, write_case
 
@@ -18,39 +21,55 @@ from tests.conftest import edit, write_case
 # relative_to_start, chosen axes, one-sided bounds, a tilted plane, a ramp, a window, a soft
 # minimum over the window, a slip's sphere radius (its contact point moves with the body's
 # rotation) and its clearance.
-TERMS = [
-    {"name": "reach", "type": "position", "body": "end_effector_link", "point": [0, 0, 0.12],
-     "target": [0.5, 0.1, 0.3], "target_velocity": [0.1, 0, 0], "weight": [1.0, 2.0, 3.0]},
-    {"name": "rel", "type": "position", "body": "gripper", "relative_to": "ball",
-     "axes": ["x", "z"], "relative_to_start": True, "target": [0.02, 0, 0.01], "weight": 5.0,
-     "after": 0.01},
-    {"name": "turn", "type": "orientation", "body": "gripper", "target": [0.1, 0.2, 0.3],
-     "weight": [1.0, 2.0, 3.0]},
-    {"name": "roll", "type": "orientation", "body": "ball", "relative_to": "gripper",
-     "relative_to_start": True, "target": [0.9, 0.1, 0.2, 0.1], "axes": ["x", "y"],
-     "weight": 0.5},
-    {"name": "slide", "type": "velocity", "body": "bracelet_link", "point": [0.01, 0.02, 0.03],
-     "axes": ["x", "z"], "weight": 0.3},
-    {"name": "ballv", "type": "velocity", "body": "ball", "point": [0.03, 0.02, 0.05],
-     "relative_to": "gripper", "target": [0.1, 0, 0], "weight": 0.2},
-    {"name": "lift", "type": "height", "body": "ball", "min": 0.5, "weight": 10.0,
-     "terminal": True},
-    {"name": "tilt", "type": "height", "body": "gripper", "target": 0.2,
-     "normal": [0.2, 0.1, 1.0], "ramp": [0.5, 2.0]},
-    {"name": "over", "type": "height", "body": "gripper", "point": [0.01, 0.0, 0.02],
-     "above_body": "ball", "above_point": [0.0, 0.03, 0.0], "min": 0.5, "weight": 4.0},
-    {"name": "near", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
-     "target": 0.0, "weight": 7.0},
-    {"name": "apart", "type": "distance", "geometry_a": "ball", "geometry_b": "forearm_link",
-     "max": 0.01, "weight": 2.0, "until": 0.015},
-    {"name": "touch", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
-     "max": 0.0, "weight": 3.0, "softmin": 1.0e-4},
-    {"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0},
-    {"name": "ballslip", "type": "slip", "body": "ball", "radius": 0.05, "clearance": 0.5,
-     "weight": 3.0},
-    {"name": "linkslip", "type": "slip", "body": "bracelet_link", "point": [0.01, 0.02, 0.03],
-     "radius": 0.02, "clearance": 1.0, "weight": 0.4, "after": 0.01},
-]  # fmt: skip
+# Cases of each registered term type (model/residuals.py's RESIDUALS): a new type adds its
+# cases here, and the tests below (the finite-difference Jacobian test among them) run them.
+CASES = {
+    "position": [
+        {"name": "reach", "type": "position", "body": "end_effector_link", "point": [0, 0, 0.12],
+         "target": [0.5, 0.1, 0.3], "target_velocity": [0.1, 0, 0], "weight": [1.0, 2.0, 3.0]},
+        {"name": "rel", "type": "position", "body": "gripper", "relative_to": "ball",
+         "axes": ["x", "z"], "relative_to_start": True, "target": [0.02, 0, 0.01],
+         "weight": 5.0, "after": 0.01},
+    ],
+    "orientation": [
+        {"name": "turn", "type": "orientation", "body": "gripper", "target": [0.1, 0.2, 0.3],
+         "weight": [1.0, 2.0, 3.0]},
+        {"name": "roll", "type": "orientation", "body": "ball", "relative_to": "gripper",
+         "relative_to_start": True, "target": [0.9, 0.1, 0.2, 0.1], "axes": ["x", "y"],
+         "weight": 0.5},
+    ],
+    "velocity": [
+        {"name": "slide", "type": "velocity", "body": "bracelet_link",
+         "point": [0.01, 0.02, 0.03], "axes": ["x", "z"], "weight": 0.3},
+        {"name": "ballv", "type": "velocity", "body": "ball", "point": [0.03, 0.02, 0.05],
+         "relative_to": "gripper", "target": [0.1, 0, 0], "weight": 0.2},
+    ],
+    "height": [
+        {"name": "lift", "type": "height", "body": "ball", "min": 0.5, "weight": 10.0,
+         "terminal": True},
+        {"name": "tilt", "type": "height", "body": "gripper", "target": 0.2,
+         "normal": [0.2, 0.1, 1.0], "ramp": [0.5, 2.0]},
+        {"name": "over", "type": "height", "body": "gripper", "point": [0.01, 0.0, 0.02],
+         "above_body": "ball", "above_point": [0.0, 0.03, 0.0], "min": 0.5, "weight": 4.0},
+    ],
+    "distance": [
+        {"name": "near", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
+         "target": 0.0, "weight": 7.0},
+        {"name": "apart", "type": "distance", "geometry_a": "ball",
+         "geometry_b": "forearm_link", "max": 0.01, "weight": 2.0, "until": 0.015},
+        {"name": "touch", "type": "distance", "geometry_a": "gripper", "geometry_b": "ball",
+         "max": 0.0, "weight": 3.0, "softmin": 1.0e-4},
+    ],
+    "joint_limits": [{"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0}],
+    "slip": [
+        {"name": "ballslip", "type": "slip", "body": "ball", "radius": 0.05, "clearance": 0.5,
+         "weight": 3.0},
+        {"name": "linkslip", "type": "slip", "body": "bracelet_link",
+         "point": [0.01, 0.02, 0.03], "radius": 0.02, "clearance": 1.0, "weight": 0.4,
+         "after": 0.01},
+    ],
+}  # fmt: skip
+TERMS = [term for cases in CASES.values() for term in cases]
 
 N = 3
 
@@ -82,16 +101,16 @@ def _fd(f, X, h=1e-6):
     return out
 
 
-def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
-    """J = ∂r/∂x of each term (position, orientation, velocity incl. its q-dependence,
-    height, distance, joint limits, slip incl. its height weight),
-    where its weight is positive, against central differences (h = 1e-6) of its residual over
-    every coordinate, quaternion ones included: within 1e-8 (measured: 1e-10)."""
-    task, X, _ = kinova
-    terms = task.cost.task_terms
+def assert_jacobians_match_central_differences(terms, X, kind: str) -> None:
+    """J = ∂r/∂x of each term of type ``kind`` where its weight is positive, against central
+    differences (h = 1e-6) of its residual over every coordinate of the state, quaternion
+    ones included: within 1e-8 (measured: 1e-10). ``terms``: a TaskSpaceTerms."""
     active, factor, R, Js, _ = terms._evaluate(X, 0.0, True)
-    assert active.any(axis=1).all()
+    checked = 0
     for i, term in enumerate(terms.terms):
+        if term.cfg.type != kind:
+            continue
+        assert active[i].any(), term.name
         for k in np.flatnonzero(factor[i] > 0):
 
             def residual(x, i=i, k=k):
@@ -101,6 +120,22 @@ def test_every_term_type_residual_jacobian_matches_central_differences(kinova):
 
             J_fd = _fd(residual, X[k])
             np.testing.assert_allclose(Js[i][k], J_fd, atol=1e-8, err_msg=term.name)
+            checked += 1
+    assert checked, f"no {kind} term with a positive weight factor"
+
+
+def test_every_registered_term_type_has_cases():
+    """Each type in the registry is exercised here: a new type adds its cases to CASES."""
+    assert set(RESIDUALS) <= set(CASES)
+
+
+@pytest.mark.parametrize("kind", sorted(RESIDUALS))
+def test_residual_jacobian_matches_central_differences(kinova, kind):
+    """Over the registry: every term type's Jacobian (position, orientation, velocity incl.
+    its q-dependence, height, distance, joint limits, slip incl. its height weight) against
+    central differences of its residual, with its cases' options."""
+    task, X, _ = kinova
+    assert_jacobians_match_central_differences(task.cost.task_terms, X, kind)
 
 
 def test_term_gradient_and_gauss_newton_hessian(kinova):
@@ -157,7 +192,7 @@ def test_position_term_targets_relative_to_start_and_moving(kinova):
         ctx, plant.GetFrameByName("gripper"), np.zeros(3), plant.GetFrameByName("ball")
     ).ravel()
     rel = next(t for t in terms.terms if t.name == "rel")
-    np.testing.assert_allclose(rel.target0, p0 + [0.02, 0, 0.01])
+    np.testing.assert_allclose(rel.residual.target0, p0 + [0.02, 0, 0.01])
     X = np.tile(task.x0, (N + 1, 1))
     rep = terms.report(X, 0.0)
     # reach: target [0.5, 0.1, 0.3] moving at 0.1 m/s in x; last running step at t = 0.02
@@ -271,15 +306,16 @@ def test_joint_limits_term_reads_the_model_limits_with_a_margin(kinova):
     task, X, _ = kinova
     terms = task.cost.task_terms
     t = next(t for t in terms.terms if t.name == "limits")
+    lim = t.residual
     lay = task.dynamics.layout
-    assert [int(i) for i in t.coords] == [lay.block(f"joint_{j}").coords[0] for j in (2, 4, 6)]
-    np.testing.assert_allclose(t.upper, np.array([2.41, 2.66, 2.23]) - 1.0)
+    assert [int(i) for i in lim.coords] == [lay.block(f"joint_{j}").coords[0] for j in (2, 4, 6)]
+    np.testing.assert_allclose(lim.upper, np.array([2.41, 2.66, 2.23]) - 1.0)
     x = X[0].copy()
-    x[t.coords] = [0.0, -2.0, 1.5]  # inside, 0.34 below -1.66, 0.27 above 1.23
-    terms._set(x)
-    r, J, _ = terms._residual(t, x, 0.0, True)
+    x[lim.coords] = [0.0, -2.0, 1.5]  # inside, 0.34 below -1.66, 0.27 above 1.23
+    terms.kin.set(x)
+    r, J, _ = t.evaluate(terms.kin, x, 0.0, True)
     np.testing.assert_allclose(r, [0.0, -0.34, 0.27], atol=1e-12)
-    assert J[0].sum() == 0 and J[1, t.coords[1]] == 1 and J[2, t.coords[2]] == 1
+    assert J[0].sum() == 0 and J[1, lim.coords[1]] == 1 and J[2, lim.coords[2]] == 1
 
 
 def test_plant_joint_limits_false_removes_drakes_but_the_term_still_reads_them(tmp_path):
@@ -295,7 +331,7 @@ def test_plant_joint_limits_false_removes_drakes_but_the_term_still_reads_them(t
     assert np.all(np.isinf(plant.GetPositionUpperLimits()))
     i = free.dynamics.layout.block("joint_4").coords[0]
     assert free.dynamics.scene.position_limits[1][i] == pytest.approx(2.66)
-    t = free.cost.task_terms.terms[0]
+    t = free.cost.task_terms.terms[0].residual
     assert list(t.coords) == [i] and t.upper[0] == pytest.approx(2.66)
     held = Task.load("kinova-forward", smoke=True)
     assert held.dynamics.plant.GetPositionUpperLimits()[i] == pytest.approx(2.66)
@@ -445,15 +481,48 @@ def test_a_term_of_weight_zero_is_reported_but_not_evaluated_in_the_cost(monkeyp
     terms = task.cost.task_terms
     assert terms.terms[0].name == "approach" and not np.any(terms.terms[0].weights)
     calls = []
-    real = type(terms)._residual
+    real = Term.evaluate
 
-    def counting(self, t, *a, **k):
-        calls.append(t.cfg.name)
-        return real(self, t, *a, **k)
+    def counting(self, *a, **k):
+        calls.append(self.name)
+        return real(self, *a, **k)
 
-    monkeypatch.setattr(type(terms), "_residual", counting)
+    monkeypatch.setattr(Term, "evaluate", counting)
     X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
     assert terms.stage_costs(X).sum() == 0.0 and np.all(terms.quadratize(X)[0] == 0.0)
     assert calls == []
     rep = terms.report(X)
     assert "approach" in calls and rep["approach"]["final"] > 0.0  # not touching yet
+
+
+def test_each_term_is_its_residual_composed_with_activation_weights_and_window(kinova):
+    """The keys a term gives choose its parts: a target or bounds, a window with a ramp or the
+    last state, a sum or a soft minimum over the window."""
+    task, _, _ = kinova
+    terms = {t.name: t for t in task.cost.task_terms.terms}
+    assert all(type(t.residual) is RESIDUALS[t.cfg.type] for t in terms.values())
+    assert terms["lift"].time == Terminal() and terms["lift"].shape == Bounds(0.5, np.inf)
+    assert terms["tilt"].time == Window(None, None, Ramp(0.5, 2.0))
+    assert terms["tilt"].shape == Target(0.2) and terms["apart"].time == Window(None, 0.015)
+    assert terms["apart"].shape == Bounds(-np.inf, 0.01) and terms["reach"].shape == Identity()
+    assert terms["touch"].aggregate == SoftMin(1.0e-4) and isinstance(terms["near"].aggregate, Sum)
+    np.testing.assert_array_equal(terms["reach"].weights, [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(terms["limits"].weights, [3.0, 3.0, 3.0])  # one per joint
+
+
+def test_bounds_cost_only_beyond_them_with_a_unit_slope():
+    r, d = Bounds(np.array([-1.0, 0.0, -np.inf]), np.array([1.0, np.inf, 2.0]))(
+        np.array([1.5, -0.25, 0.5])
+    )
+    np.testing.assert_array_equal(r, [0.5, -0.25, 0.0])
+    np.testing.assert_array_equal(d, [1.0, 1.0, 0.0])
+    assert Target(0.5)(np.array([2.0])) == (np.array([1.5]), None)
+
+
+def test_a_ramp_is_linear_over_its_window_up_to_the_tasks_end():
+    times = np.linspace(0.0, 1.0, 6)  # 5 steps of 0.2 s
+    on, f = Window(0.2, None, Ramp(1.0, 3.0)).factors(times, 0.5, end_time=1.0)
+    np.testing.assert_array_equal(on, [0, 1, 1, 1, 1, 0])  # the last state is a terminal's
+    np.testing.assert_allclose(f, 0.5 * np.array([0.0, 1.0, 1.5, 2.0, 2.5, 0.0]))
+    on, f = Terminal().factors(times, 0.5, end_time=1.0)
+    np.testing.assert_array_equal(f, [0, 0, 0, 0, 0, 1.0])

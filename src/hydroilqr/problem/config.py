@@ -86,7 +86,7 @@ import math
 import re
 import types
 import typing
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -185,16 +185,7 @@ class ActuatorConfig:
 
 NOMINAL_TIMES = ("step", "horizon_end")
 
-# Task-space cost term types (model/terms.py) and the axis names of a 3-vector residual.
-TERM_TYPES = (
-    "position",
-    "orientation",
-    "velocity",
-    "height",
-    "distance",
-    "slip",
-    "joint_limits",
-)
+# The axis names of a 3-vector term's residual (the term types: TERM_TYPES, below).
 AXES = ("x", "y", "z")
 
 
@@ -1856,59 +1847,126 @@ def _validate_cost(cost: CostConfig) -> None:
         _validate_term(term, f"cost.terms[{i}]", names)
 
 
-# The keys each term type reads (besides name, type, weight and the window keys).
-_TERM_KEYS = {
-    "position": {"body", "point", "relative_to", "axes", "target", "target_velocity",
-                 "relative_to_start"},
-    "orientation": {"body", "relative_to", "axes", "target", "relative_to_start"},
-    "velocity": {"body", "point", "relative_to", "axes", "target"},
-    "height": {"body", "point", "target", "min", "max", "normal", "above_body", "above_point"},
-    "distance": {"geometry_a", "geometry_b", "target", "min", "max"},
-    "joint_limits": {"joints", "margin"},
-    "slip": {"body", "point", "radius", "clearance"},
-}  # fmt: skip
+@dataclass(frozen=True)
+class TermType:
+    """A term type as the task file sees it: the keys of ``TermConfig`` it reads (besides
+    name, type, weight, the window keys and softmin), whether its residual is a 3-vector with
+    ``axes`` and a weight per axis, and ``check(term, key)``: its own keys' checks (the model's
+    names are checked when the plant is built). model/residuals.py registers the residual
+    class of each type with its TermType (``register``)."""
+
+    name: str
+    keys: frozenset[str]
+    check: Callable[[TermConfig, str], None]
+    vector: bool = False
+
+
+#: Term types by name (``cost.terms[].type``): the built-ins below, and any that
+#: ``register_term_type`` (model/residuals.py's ``register``) adds.
+TERM_TYPES: dict[str, TermType] = {}
+
+
+def register_term_type(spec: TermType) -> TermType:
+    TERM_TYPES[spec.name] = spec
+    return spec
 
 
 def _validate_term(term: TermConfig, key: str, names: set[str]) -> None:
     """A term's name (unique), type, weight, the keys its type reads (and no other key set),
-    target and window; the model's names are checked when the plant is built."""
+    its type's checks and its window; the model's names are checked when the plant is built."""
     if not term.name or not all(c.isalnum() or c in "-_" for c in term.name):
         raise ConfigError(f"{key}.name: required: letters, digits, - and _ (got {term.name!r})")
     if term.name in names:
         raise ConfigError(f"{key}.name: two terms are named {term.name!r}")
     names.add(term.name)
     key = f"cost.terms.{term.name}"
-    if term.type not in TERM_TYPES:
+    spec = TERM_TYPES.get(term.type)
+    if spec is None:
         raise ConfigError(f"{key}.type: {unknown_key(term.type, list(TERM_TYPES), 'term type')}")
     default = TermConfig()
-    every = set().union(*_TERM_KEYS.values())
+    every = set().union(*(s.keys for s in TERM_TYPES.values()))
     for f in sorted(every):
-        if f not in _TERM_KEYS[term.type] and getattr(term, f) != getattr(default, f):
+        if f not in spec.keys and getattr(term, f) != getattr(default, f):
             article = "an" if term.type[0] in "aeiou" else "a"
             raise ConfigError(f"{key}.{f}: {article} {term.type} term has no {f}")
-    vector = term.type in ("position", "orientation", "velocity")
-    _validate_term_weight(term, key, vector)
-    if term.type not in ("distance", "joint_limits") and not term.body:
+    _validate_term_weight(term, key, spec.vector)
+    spec.check(term, key)
+    _validate_term_window(term, key)
+
+
+def _check_body(term: TermConfig, key: str) -> None:
+    """The body or frame of a term's point, and the point (xyz)."""
+    if not term.body:
         raise ConfigError(f"{key}.body: required (the body or frame the point is fixed on)")
-    if term.type == "distance" and not (term.geometry_a and term.geometry_b):
-        raise ConfigError(f"{key}: a distance term needs geometry_a and geometry_b")
     _check_length(term.point, 3, f"{key}.point")
+
+
+def _check_position(term: TermConfig, key: str) -> None:
+    _check_body(term, key)
     _check_length(term.target_velocity, 3, f"{key}.target_velocity")
+    _validate_vector_target(term, key, (3,), "xyz in m")
+
+
+def _check_orientation(term: TermConfig, key: str) -> None:
+    _check_body(term, key)
+    _validate_vector_target(term, key, (3, 4), "roll, pitch, yaw in rad")
+
+
+def _check_velocity(term: TermConfig, key: str) -> None:
+    _check_body(term, key)
+    _validate_vector_target(term, key, (3,), "")
+
+
+def _check_height(term: TermConfig, key: str) -> None:
+    _check_body(term, key)
     _check_length(term.normal, 3, f"{key}.normal")
     _check_length(term.above_point, 3, f"{key}.above_point")
     if math.hypot(*term.normal) < 1e-9:
         raise ConfigError(f"{key}.normal: must be non-zero")
-    if term.type == "joint_limits":
-        _check_weight(term.margin, term.margin, f"{key}.margin", False)
-        if term.margin < 0:
-            raise ConfigError(f"{key}.margin: must be >= 0 (rad or m inside each limit)")
-        if any(not isinstance(j, str) or not j for j in term.joints):
-            raise ConfigError(f"{key}.joints: expected joint names, got {term.joints!r}")
-    elif term.type == "slip":
-        _validate_slip(term, key)
-    else:
-        _validate_term_target(term, key, vector)
-    _validate_term_window(term, key)
+    _validate_scalar_target(term, key)
+
+
+def _check_distance(term: TermConfig, key: str) -> None:
+    if not (term.geometry_a and term.geometry_b):
+        raise ConfigError(f"{key}: a distance term needs geometry_a and geometry_b")
+    _validate_scalar_target(term, key)
+
+
+def _check_joint_limits(term: TermConfig, key: str) -> None:
+    _check_weight(term.margin, term.margin, f"{key}.margin", False)
+    if term.margin < 0:
+        raise ConfigError(f"{key}.margin: must be >= 0 (rad or m inside each limit)")
+    if any(not isinstance(j, str) or not j for j in term.joints):
+        raise ConfigError(f"{key}.joints: expected joint names, got {term.joints!r}")
+
+
+def _check_slip(term: TermConfig, key: str) -> None:
+    """A slip term's clearance (> 0 m, required) and sphere radius (>= 0 m)."""
+    _check_body(term, key)
+    c = term.clearance
+    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
+        raise ConfigError(f"{key}.clearance: required, a height > 0 (m), got {c!r}")
+    r = term.radius
+    if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
+        raise ConfigError(f"{key}.radius: expected a length >= 0 (m), got {r!r}")
+
+
+_POINT = frozenset({"body", "point"})
+for _spec in (
+    TermType("position", _POINT | {"relative_to", "axes", "target", "target_velocity",
+             "relative_to_start"}, _check_position, vector=True),
+    TermType("orientation", frozenset({"body", "relative_to", "axes", "target",
+             "relative_to_start"}), _check_orientation, vector=True),
+    TermType("velocity", _POINT | {"relative_to", "axes", "target"}, _check_velocity,
+             vector=True),
+    TermType("height", _POINT | {"target", "min", "max", "normal", "above_body",
+             "above_point"}, _check_height),
+    TermType("distance", frozenset({"geometry_a", "geometry_b", "target", "min", "max"}),
+             _check_distance),
+    TermType("slip", _POINT | {"radius", "clearance"}, _check_slip),
+    TermType("joint_limits", frozenset({"joints", "margin"}), _check_joint_limits),
+):  # fmt: skip
+    register_term_type(_spec)
 
 
 def _validate_term_window(term: TermConfig, key: str) -> None:
@@ -1944,41 +2002,31 @@ def _validate_term_weight(term: TermConfig, key: str, vector: bool) -> None:
         raise ConfigError(f"{key}.weight: expected a number or {n} values (one per axis)")
 
 
-def _validate_slip(term: TermConfig, key: str) -> None:
-    """A slip term's clearance (> 0 m, required) and sphere radius (>= 0 m)."""
-    c = term.clearance
-    if isinstance(c, bool) or not isinstance(c, (int, float)) or not math.isfinite(c) or c <= 0:
-        raise ConfigError(f"{key}.clearance: required, a height > 0 (m), got {c!r}")
-    r = term.radius
-    if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
-        raise ConfigError(f"{key}.radius: expected a length >= 0 (m), got {r!r}")
-
-
-def _validate_term_target(term: TermConfig, key: str, vector: bool) -> None:
-    """position: a target of 3 numbers (optional with relative_to_start: offset 0);
-    orientation: 3 (roll, pitch, yaw) or 4 (quaternion) numbers (optional with
-    relative_to_start); velocity: none (0) or 3 numbers; height, distance: a target number, or
-    min and/or max."""
+def _validate_vector_target(term: TermConfig, key: str, sizes: tuple, required: str) -> None:
+    """A 3-vector term's target: ``sizes`` numbers (orientation: 3, roll, pitch, yaw, or 4, a
+    quaternion); when None, ``required`` says what it holds unless the term is
+    relative_to_start (empty: optional, as a velocity's 0)."""
     t = term.target
-    if vector:
-        if t is None:
-            if term.type in ("position", "orientation") and not term.relative_to_start:
-                what = "xyz in m" if term.type == "position" else "roll, pitch, yaw in rad"
-                raise ConfigError(f"{key}.target: required ({what}), or relative_to_start")
-            return
-        sizes = (3, 4) if term.type == "orientation" else (3,)
-        if not isinstance(t, list) or len(t) not in sizes:
-            want = (
-                "3 numbers (roll, pitch, yaw) or 4 (a quaternion w, x, y, z)"
-                if term.type == "orientation"
-                else "3 numbers (x, y, z)"
-            )
-            raise ConfigError(f"{key}.target: expected {want}, got {t!r}")
-        for x in t:
-            _check_weight(x, t, f"{key}.target", False)
-        if len(t) == 4 and math.hypot(*t) < 1e-9:
-            raise ConfigError(f"{key}.target: a quaternion must be non-zero")
+    if t is None:
+        if required and not term.relative_to_start:
+            raise ConfigError(f"{key}.target: required ({required}), or relative_to_start")
         return
+    if not isinstance(t, list) or len(t) not in sizes:
+        want = (
+            "3 numbers (roll, pitch, yaw) or 4 (a quaternion w, x, y, z)"
+            if 4 in sizes
+            else "3 numbers (x, y, z)"
+        )
+        raise ConfigError(f"{key}.target: expected {want}, got {t!r}")
+    for x in t:
+        _check_weight(x, t, f"{key}.target", False)
+    if len(t) == 4 and math.hypot(*t) < 1e-9:
+        raise ConfigError(f"{key}.target: a quaternion must be non-zero")
+
+
+def _validate_scalar_target(term: TermConfig, key: str) -> None:
+    """A height's or distance's target number, or min and/or max."""
+    t = term.target
     bounds = term.min is not None or term.max is not None
     if (t is None) == (not bounds):
         raise ConfigError(f"{key}: give a target, or min and/or max (not both)")

@@ -80,7 +80,7 @@ def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
     properties = {}
     for f in task_file_fields(cls):
         prop = _type_schema(hints[f.name], definitions)
-        choices = _CHOICES.get((cls, f.name)) or _CHOICES.get((_base_with(cls, f.name), f.name))
+        choices = _choices(cls, f.name)
         if choices:
             prop = (
                 {"anyOf": [{"enum": list(choices)}, {"type": "null"}]}
@@ -88,7 +88,8 @@ def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
                 else {"enum": list(choices)}
             )
         default = _default(f)
-        if default is not dataclasses.MISSING:
+        # (a required choice, such as a term's type, has no default a file could use)
+        if default is not dataclasses.MISSING and (not choices or default in (None, *choices)):
             prop["default"] = default
         properties[f.name] = prop
     out: dict[str, Any] = {"type": "object", "properties": properties}
@@ -97,6 +98,14 @@ def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
     if doc and not doc.startswith(cls.__name__ + "("):  # (not the generated signature)
         out["description"] = " ".join(doc.split())
     return out
+
+
+def _choices(cls: type, name: str) -> tuple[str, ...] | None:
+    """The values a string field takes, if a fixed set: ``_CHOICES``, and a term's ``type``
+    (the term types registered when the schema is made)."""
+    if (cls, name) == (c.TermConfig, "type"):
+        return tuple(c.TERM_TYPES)
+    return _CHOICES.get((cls, name)) or _CHOICES.get((_base_with(cls, name), name))
 
 
 def _base_with(cls: type, name: str) -> type | None:
