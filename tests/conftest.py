@@ -26,10 +26,23 @@ def pytest_configure(config):
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def pytest_addoption(parser):
+    parser.addoption(
+        "--fast",
+        action="store_true",
+        help="leave out the tests marked slow (the full-size solves): ./hydroilqr test --fast",
+    )
+
+
 def pytest_collection_modifyitems(config, items):
-    """Tests marked ``slow`` (full-size solves of minutes) run first, in their own order: on
-    worker processes they then start on different workers at once, instead of one of them
-    starting last and running alone at the end."""
+    """Tests marked ``slow`` (full-size solves) run first, in their own order: on worker
+    processes they then start on different workers at once, instead of one of them starting
+    last and running alone at the end. With ``--fast`` they are deselected."""
+    if config.getoption("--fast"):
+        slow = [item for item in items if item.get_closest_marker("slow") is not None]
+        if slow:
+            config.hook.pytest_deselected(items=slow)
+            items[:] = [item for item in items if item.get_closest_marker("slow") is None]
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # (a stable sort)
 
 

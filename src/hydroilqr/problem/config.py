@@ -1851,14 +1851,17 @@ def _validate_cost(cost: CostConfig) -> None:
 class TermType:
     """A term type as the task file sees it: the keys of ``TermConfig`` it reads (besides
     name, type, weight, the window keys and softmin), whether its residual is a 3-vector with
-    ``axes`` and a weight per axis, and ``check(term, key)``: its own keys' checks (the model's
-    names are checked when the plant is built). model/residuals.py registers the residual
-    class of each type with its TermType (``register``)."""
+    ``axes`` and a weight per axis, ``check(term, key)``: its own keys' checks (the model's
+    names are checked when the plant is built), and ``approach``: whether its ``max`` or
+    ``target`` pulls two geometries towards contact (what solve's no-contact remedy asks
+    for). model/residuals.py registers the residual class of each type with its TermType
+    (``register``)."""
 
     name: str
     keys: frozenset[str]
     check: Callable[[TermConfig, str], None]
     vector: bool = False
+    approach: bool = False
 
 
 #: Term types by name (``cost.terms[].type``): the built-ins below, and any that
@@ -1962,7 +1965,7 @@ for _spec in (
     TermType("height", _POINT | {"target", "min", "max", "normal", "above_body",
              "above_point"}, _check_height),
     TermType("distance", frozenset({"geometry_a", "geometry_b", "target", "min", "max"}),
-             _check_distance),
+             _check_distance, approach=True),
     TermType("slip", _POINT | {"radius", "clearance"}, _check_slip),
     TermType("joint_limits", frozenset({"joints", "margin"}), _check_joint_limits),
 ):  # fmt: skip
