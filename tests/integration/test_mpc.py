@@ -560,6 +560,7 @@ def test_finger_spin_runs_its_loop_with_restarts(tmp_path):
     assert "wheel_axle" in data["metrics"]["tracking_error_rms"]
 
 
+@pytest.mark.slow  # the built-in's whole closed loop, full size (three runs)
 def test_finger_spin_loop_meets_its_goal_across_perturbed_runs():
     """The built-in finger-spin's whole 5 s loop (lock-step, reproducible) three times, each
     first plan started from the guess perturbed by a relative 1e-9 (runs 1-3 of `hydroilqr
