@@ -33,6 +33,12 @@ def setup(p) -> None:
         "gap",
     )
     p.add_argument(
+        "--search",
+        action="store_true",
+        help="run each task's search: section and its iLQR polish, as solve does, the search's "
+        "seed set to SEED + k - 1 in run k (instead of iLQR alone from a perturbed guess)",
+    )
+    p.add_argument(
         "--min-rate",
         type=float,
         default=0.9,
@@ -91,6 +97,8 @@ def run(args) -> int:
     for name in names:  # every task loads and validates before any solve starts
         cfg = load_task(name, list(args.set), None, args.smoke)
         validate_task(Task(cfg))  # its metrics and goal, as solve checks them
+        if args.search and cfg.search is None:
+            raise ConfigError(f"--search: {cfg.name} has no search: section")
         refs.append(
             {
                 "label": cfg.name,
@@ -106,10 +114,12 @@ def run(args) -> int:
     from hydroilqr.studies.robustness import run_robustness, table
 
     where = args.scheduler or "a local Dask cluster"
-    console.print(
-        f"robustness: {len(refs)} task(s) x {args.runs} solves, guess perturbed by a relative "
-        f"{args.noise:g} (seed {args.seed}), on {where}"
+    how = (
+        f"search seeds {args.seed}..{args.seed + args.runs - 1}, then iLQR polish"
+        if args.search
+        else f"guess perturbed by a relative {args.noise:g} (seed {args.seed})"
     )
+    console.print(f"robustness: {len(refs)} task(s) x {args.runs} solves, {how}, on {where}")
 
     def done(r) -> None:
         rec = r.record()
@@ -132,6 +142,7 @@ def run(args) -> int:
         args.workers,
         done,
         transfer=args.transfer,
+        search=args.search,
     )
     report["command"] = command_line(args)
     report["smoke"] = bool(args.smoke)
