@@ -321,3 +321,30 @@ def test_pusher_puck_searches_in_position_space_from_a_still_start():
     space, res = run_search(task)
     assert np.array_equal(res.best.knots[0], task.x0[space.qi])
     assert res.best.cost <= res.costs[0, 0] and np.isfinite(res.costs).all()
+
+
+def test_a_robustness_run_with_search_searches_with_its_own_seed_and_polishes():
+    """``robustness --search``: run k searches with the seed ``seed + k - 1`` (as ``solve
+    --set search.seed=...`` would) and polishes its candidates; a task without a search:
+    section is a failed run, not an exception."""
+    from hydroilqr.model.task import Task
+    from hydroilqr.solver.search import run_search
+    from hydroilqr.studies.search import search_start
+
+    name = str(EXAMPLES / "pusher-puck.yaml")
+    ref = {"name": name, "overrides": ["search.polish=1"], "config": None, "smoke": True}
+    r = search_start(ref, 2, 3)  # run 2 of seed 3: the search's seed 4
+    assert not r.error and r.solution is not None and "met" in r.goal
+    task = Task.load(name, ["search.polish=1", "search.seed=4"], smoke=True)
+    space, res = run_search(task)
+    assert r.solution.costs[0] == pytest.approx(space.rollout(task, res.best.command).cost)
+    bare = search_start({**ref, "name": "cartpole-wall", "overrides": []}, 1, 0)
+    assert bare.solution is None and "no search: section" in bare.error
+
+
+def test_robustness_search_refuses_a_task_without_a_search_section(tmp_path, capsys):
+    from hydroilqr import cli
+
+    rc = cli.main(["robustness", "cartpole-wall", "--search", "--out", str(tmp_path / "r")])
+    assert rc == 2 and "--search: cartpole-wall has no search: section" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

@@ -40,6 +40,12 @@ def setup(p) -> None:
         "goal)",
     )
     p.add_argument(
+        "--search",
+        action="store_true",
+        help="run each task's search: section and its iLQR polish, as solve does, the search's "
+        "seed set to SEED + k - 1 in run k (instead of iLQR alone from a perturbed guess)",
+    )
+    p.add_argument(
         "--min-rate",
         type=float,
         default=0.9,
@@ -71,6 +77,8 @@ def _check(args) -> None:
         raise ConfigError(f"--min-rate: must be a number in [0, 1], got {args.min_rate}")
     if args.mpc and args.transfer:
         raise ConfigError("--transfer plays back a solve's plan; it does not go with --mpc")
+    if args.mpc and args.search:
+        raise ConfigError("--search runs a task's search and polish; it does not go with --mpc")
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
     if args.scheduler and args.workers is not None:
@@ -105,6 +113,8 @@ def run(args) -> int:
         validate_task(task)  # its metrics and goal, as solve checks them
         if args.mpc:  # its closed loop's settings, as mpc checks them
             prepare(task, loop_settings(task, args.smoke))
+        if args.search and cfg.search is None:
+            raise ConfigError(f"--search: {cfg.name} has no search: section")
         refs.append(
             {
                 "label": cfg.name,
@@ -120,11 +130,16 @@ def run(args) -> int:
     from hydroilqr.studies.robustness import run_robustness, spread_lines, table
 
     where = args.scheduler or "a local Dask cluster"
-    what = "closed loops (lock-step), first plan's" if args.mpc else "solves,"
-    console.print(
-        f"robustness: {len(refs)} task(s) x {args.runs} {what} guess perturbed by a relative "
-        f"{args.noise:g} (seed {args.seed}), on {where}"
-    )
+    if args.mpc:
+        how = (
+            f"closed loops (lock-step), first plan's guess perturbed by a relative "
+            f"{args.noise:g} (seed {args.seed})"
+        )
+    elif args.search:
+        how = f"solves, search seeds {args.seed}..{args.seed + args.runs - 1}, then iLQR polish"
+    else:
+        how = f"solves, guess perturbed by a relative {args.noise:g} (seed {args.seed})"
+    console.print(f"robustness: {len(refs)} task(s) x {args.runs} {how}, on {where}")
 
     def done(r) -> None:
         rec = r.record()
@@ -148,6 +163,7 @@ def run(args) -> int:
         done,
         transfer=args.transfer,
         mpc=args.mpc,
+        search=args.search,
     )
     report["command"] = command_line(args)
     report["smoke"] = bool(args.smoke)

@@ -98,13 +98,21 @@ class RunResult:
         }
 
 
-def solve_run(task_ref: dict, k: int, seed: int, noise: float, transfer: bool = False) -> RunResult:
+def solve_run(
+    task_ref: dict, k: int, seed: int, noise: float, transfer: bool = False, search: bool = False
+) -> RunResult:
     """Runs on a worker: multi-start's start ``k`` (the task loaded there, solved from its
-    guess perturbed by run ``k``'s draw, metrics and goal), and with ``transfer`` its plan
-    played back (``played_back``); a failure is recorded as a run that did not meet the
-    goal."""
+    guess perturbed by run ``k``'s draw, metrics and goal), or with ``search`` the task's
+    search and polish with the search's seed perturbed instead (``studies.search.
+    search_start``), and with ``transfer`` its plan played back (``played_back``); a failure
+    is recorded as a run that did not meet the goal."""
     started = time.time()
-    r = solve_start(task_ref, k, seed, noise)
+    if search:
+        from hydroilqr.studies.search import search_start  # noqa: PLC0415 - it imports this module
+
+        r = search_start(task_ref, k, seed)
+    else:
+        r = solve_start(task_ref, k, seed, noise)
     sol = r.solution
     res = RunResult(task=task_ref["label"], index=k, error=r.error, seconds=r.seconds)
     res.started, res.finished, res.worker = started, time.time(), os.getpid()
@@ -305,13 +313,15 @@ def run_robustness(
     on_run: Callable[[RunResult], None] | None = None,
     transfer: bool = False,
     mpc: bool = False,
+    search: bool = False,
 ) -> dict:
     """Solves every task of ``task_refs`` ``runs`` times (all runs of all tasks as one pool of
     Dask jobs) and returns the report: ``{"noise", "seed", "runs", "tasks": [summary per
     task], "environment", "transfer"}``. A ``task_ref``: {label, name, overrides, config,
     smoke}. ``on_run(result)`` is called as each run finishes (progress display);
     ``transfer``: each plan is also played back (``played_back``); ``mpc``: each run is the
-    task's closed loop (``loop_run``) instead of a solve."""
+    task's closed loop (``loop_run``) instead of a solve; ``search``: each run is the task's
+    search (seed ``seed + k - 1``) and polish instead of iLQR alone."""
 
     env = json_safe(environment())  # (the code and machine the runs start on)
     client, cluster = open_client(scheduler, workers)
@@ -321,7 +331,7 @@ def run_robustness(
         futures = [
             client.submit(
                 *((loop_run, ref, k, seed, noise) if mpc else (solve_run, ref, k, seed, noise)),
-                *(() if mpc else (transfer,)),
+                *(() if mpc else (transfer, search)),
                 pure=False,
                 key=f"robust-{ref['label']}-{k}",
             )
@@ -346,6 +356,7 @@ def run_robustness(
         "tasks": [summarize(label, rs) for label, rs in by_task.items()],
         "environment": env,
         "transfer": transfer,
+        **({"search": True} if search else {}),
         "workers": n_workers,  # each runs one solve at a time
         "most_solves_at_once": most_at_once([r for rs in by_task.values() for r in rs]),
         "threads_per_solve": {

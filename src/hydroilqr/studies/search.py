@@ -30,6 +30,7 @@ import numpy as np
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.metrics.goals import evaluate as evaluate_goal
 from hydroilqr.model.task import Task
+from hydroilqr.problem.config import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.cluster import kill_workers, open_client
@@ -307,3 +308,37 @@ def throughput(
             }
         )
     return out
+
+
+def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
+    """Runs on a worker (``hydroilqr robustness --search``): run ``k`` (1..runs) of a task
+    with a ``search:`` section as ``hydroilqr solve`` does it, the search's seed set to
+    ``seed + k - 1``: the search in this process (no Dask inside a Dask job), iLQR from its
+    best ``search.polish`` samples, the plan chosen by ``search.select``. Never raises: a
+    failure is a StartResult with its error."""
+    t0 = time.perf_counter()
+    res = StartResult(index=k)
+    try:
+        cfg = load_task(
+            task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
+        )
+        if cfg.search is None:  # (a search.seed override would make one)
+            raise ValueError(f"{cfg.name} has no search: section")
+        ref = dict(task_ref, overrides=[*task_ref["overrides"], f"search.seed={seed + k - 1}"])
+        task = load(ref)
+        space, result = search_mod.run_search(task)
+        transfer = space.settings.select == "transfer"
+        polished = [
+            polish_one(ref, space.rollout(task, c.command).U, i, transfer)
+            for i, c in enumerate(result.candidates)
+        ]
+        chosen = select(polished, space.settings.select)
+        if chosen is None:
+            raise RuntimeError("no polished candidate finished: " + polished[0].error)
+        best = polished[chosen]
+        res.solution, res.metrics, res.goal = best.solution, best.metrics, best.goal
+    except Exception as e:  # noqa: BLE001 - a failed run is data; the others go on
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        res.error = f"{type(e).__name__}: {first}"[:300]
+    res.seconds = time.perf_counter() - t0
+    return res
