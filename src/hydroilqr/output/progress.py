@@ -39,43 +39,13 @@ class IterationTable:
         )
 
 
-class ResolveProgress:
-    """A progress bar over receding-horizon resolves with time left; use as a context manager
-    and pass ``update`` as the ``on_resolve`` callback."""
+class _Bar:
+    """A rich progress bar named ``label`` over ``total`` steps with an info field and the
+    time left; a context manager."""
 
-    def __init__(self, total: int):
+    def __init__(self, label: str, total: int, console: Console | None = None):
         self.progress = Progress(
-            TextColumn("[bold]resolves"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("{task.fields[info]}"),
-            TimeElapsedColumn(),
-            TextColumn("left"),
-            TimeRemainingColumn(),
-        )
-        self.total = total
-        self.id = None
-
-    def __enter__(self):
-        self.progress.__enter__()
-        self.id = self.progress.add_task("resolves", total=self.total, info="")
-        return self
-
-    def __exit__(self, *exc):
-        return self.progress.__exit__(*exc)
-
-    def update(self, done: int, total: int, sol) -> None:
-        info = f"it={sol.iterations} cost={sol.final_cost:.4g}"
-        self.progress.update(self.id, completed=done, info=info)
-
-
-class SearchProgress:
-    """A progress bar over a sampling search's iterations with the best cost so far; use as
-    a context manager and pass ``update`` as the search's ``on_iteration`` callback."""
-
-    def __init__(self, total: int, console: Console | None = None):
-        self.progress = Progress(
-            TextColumn("[bold]search"),
+            TextColumn(f"[bold]{label}"),
             BarColumn(),
             MofNCompleteColumn(),
             TextColumn("{task.fields[info]}"),
@@ -84,16 +54,37 @@ class SearchProgress:
             TimeRemainingColumn(),
             console=console,
         )
+        self.label = label
         self.total = total
         self.id = None
 
     def __enter__(self):
         self.progress.__enter__()
-        self.id = self.progress.add_task("search", total=self.total, info="")
+        self.id = self.progress.add_task(self.label, total=self.total, info="")
         return self
 
     def __exit__(self, *exc):
         return self.progress.__exit__(*exc)
+
+
+class ResolveProgress(_Bar):
+    """A progress bar over receding-horizon resolves with time left; use as a context manager
+    and pass ``update`` as the ``on_resolve`` callback."""
+
+    def __init__(self, total: int):
+        super().__init__("resolves", total)
+
+    def update(self, done: int, total: int, sol) -> None:
+        info = f"it={sol.iterations} cost={sol.final_cost:.4g}"
+        self.progress.update(self.id, completed=done, info=info)
+
+
+class SearchProgress(_Bar):
+    """A progress bar over a sampling search's iterations with the best cost so far; use as
+    a context manager and pass ``update`` as the search's ``on_iteration`` callback."""
+
+    def __init__(self, total: int, console: Console | None = None):
+        super().__init__("search", total, console)
 
     def update(self, info: dict) -> None:
         text = f"best {info['best_cost']:.5g}, median {info['median']:.4g}"
