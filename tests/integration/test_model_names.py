@@ -163,3 +163,19 @@ def test_printed_numbers_carry_their_units(nudge):
     assert line.endswith("base_link.position=0.2 m, shoulder=0.01 rad"), line
     f = check_task(nudge, rollout_steps=5)
     assert f["max_speed_unit"] in ("m/s", "rad/s") and f["max_speed_coordinate"]
+
+
+def test_a_weld_parent_takes_model_scoped_frame_names():
+    """A frame two models share is named MODEL::FRAME as a weld's parent too (the cube's
+    base_link welded to the acrobot's); an unknown scoped parent is one line naming the key."""
+    spec = copy.deepcopy(NUDGE)
+    spec["models"][0]["name"] = "acrobot"
+    spec["models"][1]["weld"] = {"parent": "acrobot::base_link", "child": "base_link"}
+    spec.pop("metric_params")
+    spec["metrics"] = ["default"]
+    spec.pop("initial_state")
+    spec["cost"] = {"Q": {"shoulder": 0.1}, "R": 0.01, "Qf": {"shoulder": 1.0}}
+    assert Task.from_dict(spec).dynamics.nq == 2  # the cube is welded: only the acrobot moves
+    spec["models"][1]["weld"]["parent"] = "nobody::base_link"
+    with pytest.raises(ConfigError, match="parent: unknown frame 'nobody::base_link'"):
+        Task.from_dict(spec).dynamics

@@ -647,10 +647,29 @@ def _add_models(task: TaskConfig, plant, scene_graph) -> None:
             _weld(plant, instances, wkey, w)
 
 
+def _frame_named(plant, name: str):
+    """The frame ``name`` names: ``world``, ``MODEL::FRAME`` or a frame name unique in the
+    plant (Drake's lookup refuses a name two models share)."""
+    if name == "world":
+        return plant.world_frame()
+    if "::" in name:
+        model, frame = name.rsplit("::", 1)
+        return plant.GetFrameByName(frame, plant.GetModelInstanceByName(model))
+    return plant.GetFrameByName(name)
+
+
+def _has_frame_named(plant, name: str) -> bool:
+    try:
+        _frame_named(plant, name)
+    except Exception:  # noqa: BLE001 - any lookup failure: no such frame
+        return False
+    return True
+
+
 def _weld(plant, instances, wkey: str, w) -> None:
     """Welds ``w.child`` (a frame of ``instances``) to ``w.parent`` at (xyz, rpy)."""
     try:
-        parent = plant.world_frame() if w.parent == "world" else plant.GetFrameByName(w.parent)
+        parent = _frame_named(plant, w.parent)
         child = None
         for inst in instances:  # the child is a frame of this model, not another's
             if plant.HasFrameNamed(w.child, inst):
@@ -658,7 +677,7 @@ def _weld(plant, instances, wkey: str, w) -> None:
         if child is None:
             raise KeyError(w.child)
     except Exception:
-        bad = "parent" if w.parent != "world" and not plant.HasFrameNamed(w.parent) else "child"
+        bad = "parent" if not _has_frame_named(plant, w.parent) else "child"
         frames = sorted(
             {plant.get_frame(f).name() for inst in instances for f in plant.GetFrameIndices(inst)}
         )
