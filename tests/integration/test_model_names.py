@@ -178,4 +178,4 @@ def test_a_weld_parent_takes_model_scoped_frame_names():
     assert Task.from_dict(spec).dynamics.nq == 2  # the cube is welded: only the acrobot moves
     spec["models"][1]["weld"]["parent"] = "nobody::base_link"
     with pytest.raises(ConfigError, match="parent: unknown frame 'nobody::base_link'"):
-        Task.from_dict(spec).dynamics
+        _ = Task.from_dict(spec).dynamics
