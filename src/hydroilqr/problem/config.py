@@ -249,7 +249,7 @@ class TermConfig:
     geometry_b: str = ""
     # joint_limits: the joints (state blocks of joint coordinates; default every coordinate
     # with finite limits in the model files) and how far inside each limit the cost starts
-    # (rad or m).
+    # (rad or m). effort_limits: how far inside each actuator's effort limit (N·m or N).
     joints: list[str] = field(default_factory=list)
     margin: float = 0.0
     # slip: the horizontal (world x, y) velocity of the lowest point of a sphere of ``radius``
@@ -1943,6 +1943,16 @@ def _check_joint_limits(term: TermConfig, key: str) -> None:
         raise ConfigError(f"{key}.joints: expected joint names, got {term.joints!r}")
 
 
+def _check_effort_limits(term: TermConfig, key: str) -> None:
+    """An effort_limits term's margin (>= 0, N·m or N); it prices every step's controls."""
+    _check_weight(term.margin, term.margin, f"{key}.margin", False)
+    if term.margin < 0:
+        raise ConfigError(f"{key}.margin: must be >= 0 (N·m or N inside each effort limit)")
+    for what in ("terminal", "softmin"):
+        if getattr(term, what):
+            raise ConfigError(f"{key}.{what}: an effort_limits term prices each step's controls")
+
+
 def _check_slip(term: TermConfig, key: str) -> None:
     """A slip term's clearance (> 0 m, required) and sphere radius (>= 0 m)."""
     _check_body(term, key)
@@ -1968,6 +1978,7 @@ for _spec in (
              _check_distance, approach=True),
     TermType("slip", _POINT | {"radius", "clearance"}, _check_slip),
     TermType("joint_limits", frozenset({"joints", "margin"}), _check_joint_limits),
+    TermType("effort_limits", frozenset({"margin"}), _check_effort_limits),
 ):  # fmt: skip
     register_term_type(_spec)
 
