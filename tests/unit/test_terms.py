@@ -603,3 +603,18 @@ def test_a_ramp_is_linear_over_its_window_up_to_the_tasks_end():
     np.testing.assert_allclose(f, 0.5 * np.array([0.0, 1.0, 1.5, 2.0, 2.5, 0.0]))
     on, f = Terminal().factors(times, 0.5, end_time=1.0)
     np.testing.assert_array_equal(f, [0, 0, 0, 0, 0, 1.0])
+
+
+def test_check_lists_a_term_on_the_controls_with_its_cost(kinova):
+    """``hydroilqr check``'s term list (terms_on_guess) has the effort term, with its cost on
+    the guess (the guess's commands: none beyond the limits) and no error of a state."""
+    from hydroilqr.metrics.terms import terms_on_guess
+
+    task, _, _ = kinova
+    rows = {r["name"]: r for r in terms_on_guess(task)}
+    effort = rows["effort"]
+    assert effort["type"] == "effort_limits" and effort["controls"] and effort["error"] is None
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
+    assert effort["cost"] == task.cost.breakdown(X, U)["terms.effort"]
+    assert set(rows) == {t["name"] for t in TERMS}
