@@ -49,6 +49,7 @@ import numpy as np
 from pydrake.multibody.tree import JointIndex
 
 from hydroilqr import metrics
+from hydroilqr.metrics.common import SATURATION_WARNING
 from hydroilqr.metrics.goals import judge
 from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.pd import actuated_indices, pd_torque
@@ -56,18 +57,14 @@ from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
 from hydroilqr.model.scene import left_scene, scene_box
 from hydroilqr.model.state import quat_conj, quat_mul
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import (
-    APPROXIMATIONS,
-    MAX_STEPS,
-    PLAYBACK_FEEDFORWARDS,
-    PLAYBACK_POLICIES,
-    TASKS_DIR,
-    ConfigError,
-    check_truth_overrides,
-    task_from_dict,
-    with_overrides,
-)
+from hydroilqr.problem.checks import MAX_STEPS
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.problem.load import task_from_dict, with_overrides
+from hydroilqr.problem.plant import APPROXIMATIONS
+from hydroilqr.problem.playback import PLAYBACK_FEEDFORWARDS, PLAYBACK_POLICIES
+from hydroilqr.problem.variants import check_truth_overrides
 from hydroilqr.solver.solution import Solution, load_run_solution
 
 #: Default "real" contact approximation for each planner approximation (always a different one).
@@ -962,9 +959,6 @@ def pd_period(st: PlaybackSettings) -> float:
     them; a rate above 1/truth_time_step runs once per step)."""
     dt = st.truth_time_step
     return dt * max(1, math.ceil(1.0 / (st.rate * dt) - 1e-9))
-
-
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning
 
 
 def advisories(plant, settings: PlaybackSettings) -> list[str]:

@@ -12,9 +12,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.geometry import (
@@ -53,16 +53,8 @@ from hydroilqr.model.names import (
     scoped_names,
 )
 from hydroilqr.model.state import StateLayout
-from hydroilqr.problem.config import (
-    ActuatorConfig,
-    ConfigError,
-    ContactProperties,
-    ModelConfig,
-    PlantConfig,
-    SceneObject,
-    TaskConfig,
-    unknown_key,
-)
+from hydroilqr.problem.checks import unknown_key
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import (
     MAX_MESH_BYTES,
     MAX_MODEL_BYTES,
@@ -70,6 +62,12 @@ from hydroilqr.problem.inputs import (
     model_file_references,
     read_bounded,
 )
+from hydroilqr.problem.plant import (
+    ContactProperties,
+    PlantSpec,
+    SceneObject,
+)
+from hydroilqr.problem.task import TaskConfig
 
 # A state beyond this (m, rad, m/s, rad/s) is a blown-up simulation, not a motion.
 DIVERGED = 1e6
@@ -742,39 +740,6 @@ def _add_visualizers(builder, plant, scene_graph, meshcat, contact_visualizer: b
             cvis = ContactVisualizer.AddToBuilder(builder, plant, meshcat, cparams)
             visualizers += (cvis,)
     return visualizers
-
-
-@dataclass
-class PlantSpec:
-    """What a plant is built from: the parts of a task that describe the physical system
-    (model files, scene, contact properties, plant settings, state blocks, initial state),
-    and nothing about cost or solver. ``build_diagram`` accepts it as it accepts a TaskConfig."""
-
-    name: str = ""
-    models: list[ModelConfig] = field(default_factory=list)
-    package_map: dict[str, str] = field(default_factory=dict)
-    scene: list[SceneObject] = field(default_factory=list)
-    geometry: dict[str, ContactProperties] = field(default_factory=dict)
-    plant: PlantConfig = field(default_factory=PlantConfig)
-    actuators: dict[str, ActuatorConfig] = field(default_factory=dict)
-    blocks: dict[str, list[str]] = field(default_factory=dict)
-    initial_state: dict[str, Any] = field(default_factory=dict)
-    base_dir: str = ""
-
-    @classmethod
-    def of(cls, task: TaskConfig | PlantSpec) -> PlantSpec:
-        """The plant part of a task (a PlantSpec as it is)."""
-        if isinstance(task, PlantSpec):
-            return task
-        names = [f for f in cls.__dataclass_fields__]
-        return cls(**{k: getattr(task, k) for k in names})
-
-    def resolve_path(self, path: str) -> Path:
-        """As ``TaskConfig.resolve_path``: relative to the task file's directory."""
-        p = Path(path).expanduser()
-        if not p.is_absolute():
-            p = Path(self.base_dir or ".") / p
-        return p
 
 
 def feedback_rollout(step, x0, Ubar, Xbar, K, kappa, eps):

@@ -49,15 +49,12 @@ from hydroilqr.metrics.goals import judge
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe, output_dir
 from hydroilqr.output.results import POINT_HASH, write_sweep_point
-from hydroilqr.problem.config import (
-    TASKS_DIR,
-    ConfigError,
-    cwd_path,
-    load_task,
-    parse_override,
-    task_file,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR, task_file
 from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_JSON_BYTES, check_npz, read_bounded
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.overrides import parse_override
+from hydroilqr.problem.paths import cwd_path
 from hydroilqr.solver import api
 from hydroilqr.studies.cluster import open_client
 
