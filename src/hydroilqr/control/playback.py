@@ -81,10 +81,11 @@ from hydroilqr.control.playback_settings import (
     load_run,
     truth_config,
 )
+from hydroilqr.metrics.common import SATURATION_WARNING
 from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.pd import pd_torque
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.solver.solution import Solution
 
 __all__ = [
@@ -115,8 +116,6 @@ __all__ = [
     "settle_plan",
     "truth_config",
 ]
-
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning
 
 
 def plan_touches(task, X: np.ndarray) -> bool:

@@ -43,14 +43,11 @@ from hydroilqr.metrics import validate_task
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import output_dir
 from hydroilqr.output.results import write_sweep_point
-from hydroilqr.problem.config import (
-    TASKS_DIR,
-    ConfigError,
-    cwd_path,
-    parse_override,
-    task_file,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR, task_file
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.problem.overrides import parse_override
+from hydroilqr.problem.paths import cwd_path
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.sweep_plots import goal_panels, plot_sweep
 from hydroilqr.studies.sweep_points import (
