@@ -42,17 +42,13 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import (
-    MAX_STEPS,
-    ConfigError,
-    MPCConfig,
-    SolverConfig,
-    check_truth_overrides,
-    unknown_key,
-    validate_for_solve,
-    validate_mpc,
-    with_overrides,
-)
+from hydroilqr.problem.checks import MAX_STEPS, unknown_key
+from hydroilqr.problem.cost import validate_for_solve
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import with_overrides
+from hydroilqr.problem.mpc import MPCConfig, validate_mpc
+from hydroilqr.problem.solver import SolverConfig
+from hydroilqr.problem.variants import check_truth_overrides
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
@@ -731,9 +727,6 @@ class Controller:
             return None
         self.U = U
         return X
-
-
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (as playback)
 
 
 class Truth:
