@@ -20,7 +20,7 @@ import typing
 from typing import Any
 
 from hydroilqr.problem.cost import NOMINAL_TIMES, CostConfig
-from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.mpc import PlannerSettings
 from hydroilqr.problem.plant import (
     APPROXIMATIONS,
     CONTACT_MODELS,
@@ -54,8 +54,8 @@ _CHOICES: dict[tuple[type, str], tuple[str, ...]] = {
     (CostConfig, "nominal_time"): NOMINAL_TIMES,
     (SolverConfig, "derivatives"): DERIVATIVES,
     (RecedingHorizonConfig, "warm_start_tail"): WARM_START_TAILS,
-    (MPCConfig, "warm_start_tail"): WARM_START_TAILS,
-    (MPCConfig, "derivatives"): ("", *DERIVATIVES),
+    (PlannerSettings, "warm_start_tail"): WARM_START_TAILS,
+    (PlannerSettings, "derivatives"): ("", *DERIVATIVES),
     (SearchConfig, "method"): SEARCH_METHODS,
     (SearchConfig, "space"): SEARCH_SPACES,
     (SearchConfig, "select"): SEARCH_SELECTS,
