@@ -97,3 +97,19 @@ def test_a_closed_loop_checks_its_settings_once_not_per_update(calls):
     result = loop.run()
     assert len(result.update_times) >= 3  # (after the first plan)
     assert dict(calls) == {**loaded, "validate_for_solve": 1}
+
+
+def test_settings_changed_in_python_are_checked_by_prepare_the_sections_values_are_not(calls):
+    """As the mpc command does: the task's section with the loop's duration changed is not
+    checked again; a changed planner setting is checked once, by prepare."""
+    t = Task.load("cartpole-wall", overrides={"mpc.realtime": False})
+    loaded = dict(calls)
+    mpc_control.prepare(t, mpc_control.mpc_config(t, duration=0.05))
+    assert dict(calls) == {**loaded, "validate_for_solve": 1}
+    mpc_control.prepare(t, mpc_control.mpc_config(t, duration=0.05, line_search_steps=2))
+    assert dict(calls) == {
+        **loaded,
+        "validate_for_solve": 2,
+        "validate_mpc": loaded["validate_mpc"] + 1,
+        "validate_goal": loaded["validate_goal"] + 1,
+    }

@@ -829,11 +829,10 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     task's ``mpc:`` section (as the ``mpc`` command uses); a bare ``MPCConfig(...)`` starts
     from generic defaults instead. ``run_mpc`` is ``prepare`` then ``ClosedLoop.run``."""
     validate_for_solve(task.config)
-    given = settings is not None
-    if not given:
+    if settings is None:
         settings = mpc_config(task)
     dt = task.dynamics.dt
-    U_ref = check_settings(settings, task, section_checked=not given)
+    U_ref = check_settings(settings, task, section_checked=_as_checked(settings, task))
     planner = planning_task(task, settings)
     N = max(2, int(round(settings.horizon / dt)))
     if settings.shrinking_horizon:
@@ -859,6 +858,17 @@ def run_mpc(task, settings: MPCConfig | None = None, on_update=None) -> MPCResul
     the settings). ``on_update(k, n)``: called with the time steps simulated so far and in
     all."""
     return prepare(task, settings).run(on_update)
+
+
+def _as_checked(settings: MPCConfig, task) -> bool:
+    """Whether the settings ``validate_mpc`` checks (the planner's and the goal) are the task's
+    own ``mpc:`` section's, checked when the task was built (e.g. the command line changed
+    only the loop's rate or duration); a warm-start plan's path is compared as given."""
+
+    def checked_part(m: MPCConfig) -> tuple:
+        return dataclasses.replace(PlannerSettings.of(m), warm_start_plan=""), m.goal
+
+    return checked_part(settings) == checked_part(task.config.mpc)
 
 
 def controller_solver(solver: SolverConfig, settings: MPCConfig) -> SolverConfig:
