@@ -154,7 +154,8 @@ def test_resume_computes_only_missing(swept):
     (out / "points" / f"{victim}.json").unlink()  # as if killed before it finished
     (out / "points" / f".{victim}.json.123.tmp").write_text("{torn")  # a torn temp file
     n_log = len(_log(out))
-    assert main(argv) == 1  # the failed point is kept, and still reported
+    one = [a if argv[i - 1] != "--workers" else "1" for i, a in enumerate(argv)]  # (1 point)
+    assert main(one) == 1  # the failed point is kept, and still reported
     new = _log(out)[n_log:]
     assert new == [victim]  # only the missing point was computed; the failed one is kept
     after = {r["id"]: r for r in _rows(out)}
