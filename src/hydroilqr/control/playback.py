@@ -81,10 +81,11 @@ from hydroilqr.control.playback_settings import (
     load_run,
     truth_config,
 )
+from hydroilqr.metrics.common import SATURATION_WARNING
 from hydroilqr.model.contacts import touched_pairs
 from hydroilqr.model.pd import pd_torque
 from hydroilqr.model.plant import Dynamics, SimulationError, position_unit
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.solver.solution import Solution
 
 __all__ = [
@@ -115,8 +116,6 @@ __all__ = [
     "settle_plan",
     "truth_config",
 ]
-
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning
 
 
 def plan_touches(task, X: np.ndarray) -> bool:
@@ -265,14 +264,38 @@ class PlanSampler:
 # ------------------------------------------------------------------------------------------
 
 
-def playback(
-    task, sol: Solution, settings: PlaybackSettings | None = None, progress=None
-) -> PlaybackResult:
-    """Executes ``sol`` on the "real" system with the chosen policy. Raises SimulationError
-    if the real system's time step fails, ConfigError on bad settings."""
+@dataclass
+class Playback:
+    """A playback checked and ready to run (``prepare``)."""
+
+    task: Any
+    sol: Solution
+    settings: PlaybackSettings
+
+    def run(self, progress=None) -> PlaybackResult:
+        return _run(self.task, self.sol, self.settings, progress)
+
+
+def prepare(task, sol: Solution, settings: PlaybackSettings | None = None) -> Playback:
+    """The playback of ``sol`` on ``task`` under ``settings`` (default PlaybackSettings()),
+    its settings checked once, before any work: ConfigError for settings that cannot run."""
     settings = settings or PlaybackSettings()
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
+    return Playback(task, sol, settings)
+
+
+def playback(
+    task, sol: Solution, settings: PlaybackSettings | None = None, progress=None
+) -> PlaybackResult:
+    """Executes ``sol`` on the "real" system with the chosen policy (``prepare``, then
+    ``Playback.run``). Raises SimulationError if the real system's time step fails,
+    ConfigError on bad settings."""
+    return prepare(task, sol, settings).run(progress)
+
+
+def _run(task, sol: Solution, settings: PlaybackSettings, progress=None) -> PlaybackResult:
+    """The playback of checked settings."""
     wall0 = time.perf_counter()
     planner = task.dynamics
     truth = Dynamics(truth_config(task, settings))

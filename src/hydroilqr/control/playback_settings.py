@@ -13,18 +13,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import (
-    APPROXIMATIONS,
-    MAX_STEPS,
-    PLAYBACK_FEEDFORWARDS,
-    PLAYBACK_POLICIES,
-    TASKS_DIR,
-    ConfigError,
-    check_truth_overrides,
-    task_from_dict,
-    with_overrides,
-)
+from hydroilqr.problem.checks import MAX_STEPS
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.problem.load import task_from_dict, with_overrides
+from hydroilqr.problem.plant import APPROXIMATIONS
+from hydroilqr.problem.playback import PLAYBACK_FEEDFORWARDS, PLAYBACK_POLICIES
+from hydroilqr.problem.variants import check_truth_overrides
 from hydroilqr.solver.solution import Solution, load_run_solution
 
 #: Default "real" contact approximation for each planner approximation (always a different one).

@@ -37,11 +37,8 @@ from hydroilqr.model.names import (
     actuator_labels,
     actuator_names,
 )
-from hydroilqr.problem.config import (
-    ConfigError,
-    TaskConfig,
-    unknown_key,
-)
+from hydroilqr.problem.checks import unknown_key
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import (
     MAX_MESH_BYTES,
     MAX_MODEL_BYTES,
@@ -49,6 +46,7 @@ from hydroilqr.problem.inputs import (
     model_file_references,
     read_bounded,
 )
+from hydroilqr.problem.task import TaskConfig
 
 
 class _NoDeformableNotice(logging.Filter):

@@ -26,12 +26,9 @@ from hydroilqr.model.names import (
     full_body_name,
     scoped_names,
 )
-from hydroilqr.problem.config import (
-    ConfigError,
-    ContactProperties,
-    SceneObject,
-    TaskConfig,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.plant import ContactProperties, SceneObject
+from hydroilqr.problem.task import TaskConfig
 
 # ------------------------------------------------------------------------------------------
 # Contact properties

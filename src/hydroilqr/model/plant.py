@@ -12,9 +12,7 @@ Building lives in ``model/build.py``, contact properties and geometry names in
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from pydrake.geometry import HydroelasticContactRepresentation as Rep
@@ -41,14 +39,8 @@ from hydroilqr.model.contact_geometry import (
     named_geometries,
 )
 from hydroilqr.model.state import StateLayout
-from hydroilqr.problem.config import (
-    ActuatorConfig,
-    ContactProperties,
-    ModelConfig,
-    PlantConfig,
-    SceneObject,
-    TaskConfig,
-)
+from hydroilqr.problem.plant import PlantSpec
+from hydroilqr.problem.task import TaskConfig
 
 __all__ = [
     "DIVERGED",
@@ -100,39 +92,6 @@ def position_unit(joint) -> str:
     """The unit of a Drake joint's position coordinates: "m" (prismatic, a floating body's
     position), "rad" (revolute), "" for other joint types."""
     return _POSITION_UNITS.get(joint.type_name(), "")
-
-
-@dataclass
-class PlantSpec:
-    """What a plant is built from: the parts of a task that describe the physical system
-    (model files, scene, contact properties, plant settings, state blocks, initial state),
-    and nothing about cost or solver. ``build_diagram`` accepts it as it accepts a TaskConfig."""
-
-    name: str = ""
-    models: list[ModelConfig] = field(default_factory=list)
-    package_map: dict[str, str] = field(default_factory=dict)
-    scene: list[SceneObject] = field(default_factory=list)
-    geometry: dict[str, ContactProperties] = field(default_factory=dict)
-    plant: PlantConfig = field(default_factory=PlantConfig)
-    actuators: dict[str, ActuatorConfig] = field(default_factory=dict)
-    blocks: dict[str, list[str]] = field(default_factory=dict)
-    initial_state: dict[str, Any] = field(default_factory=dict)
-    base_dir: str = ""
-
-    @classmethod
-    def of(cls, task: TaskConfig | PlantSpec) -> PlantSpec:
-        """The plant part of a task (a PlantSpec as it is)."""
-        if isinstance(task, PlantSpec):
-            return task
-        names = [f for f in cls.__dataclass_fields__]
-        return cls(**{k: getattr(task, k) for k in names})
-
-    def resolve_path(self, path: str) -> Path:
-        """As ``TaskConfig.resolve_path``: relative to the task file's directory."""
-        p = Path(path).expanduser()
-        if not p.is_absolute():
-            p = Path(self.base_dir or ".") / p
-        return p
 
 
 def feedback_rollout(step, x0, Ubar, Xbar, K, kappa, eps):

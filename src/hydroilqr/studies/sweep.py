@@ -48,14 +48,11 @@ from hydroilqr.output.studies import (
     write_sweep_spec,
     write_sweep_tables,
 )
-from hydroilqr.problem.config import (
-    TASKS_DIR,
-    ConfigError,
-    cwd_path,
-    parse_override,
-    task_file,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR, task_file
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.problem.overrides import parse_override
+from hydroilqr.problem.paths import cwd_path
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.sweep_plots import goal_panels, plot_sweep
 from hydroilqr.studies.sweep_points import (

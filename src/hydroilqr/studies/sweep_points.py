@@ -25,11 +25,9 @@ from hydroilqr.metrics.goals import judge
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
 from hydroilqr.output.results import POINT_HASH
-from hydroilqr.problem.config import (
-    ConfigError,
-    load_task,
-)
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_JSON_BYTES, check_npz, read_bounded
+from hydroilqr.problem.load import load_task
 from hydroilqr.solver import api
 
 # Columns of every point; a task's metrics add theirs (metrics.sweep_columns) after final_cost,
