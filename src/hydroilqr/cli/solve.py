@@ -448,6 +448,7 @@ def _solve(task, out: Path, restart: bool):
 
 def _solve_receding(task, out: Path, restart: bool):
     from hydroilqr.output.progress import ResolveProgress
+    from hydroilqr.output.results import checkpointer
     from hydroilqr.solver import api, receding
 
     rh = task.config.receding_horizon
@@ -464,7 +465,9 @@ def _solve_receding(task, out: Path, restart: bool):
         ck.unlink()
     with ResolveProgress(rh.resolves) as prog:
         try:
-            return api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
+            return api.solve(
+                task, checkpoint_dir=out, on_resolve=prog.update, on_checkpoint=checkpointer(out)
+            )
         except KeyboardInterrupt:
             if ck.exists():
                 raise KeyboardInterrupt(

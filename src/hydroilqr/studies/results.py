@@ -23,10 +23,10 @@ from pathlib import Path
 from hydroilqr import Task, metrics, solve
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
-from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.output.report import json_safe, output_dir
+from hydroilqr.output.studies import write_results_page
 from hydroilqr.problem.variants import mismatch_overrides
 from hydroilqr.studies.robustness import table
 
@@ -575,8 +575,4 @@ def generate(
     env["command"] = context.command
     md, page = render(results, context, env, sections)
     page["wall_seconds"] = round(time.perf_counter() - wall0, 1)  # (the next run's estimate)
-    paths = {
-        "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
-        "md": atomic_write(out / "results.md", md),
-    }
-    return paths
+    return write_results_page(out, page, md)
