@@ -7,7 +7,7 @@ import math
 
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
 from hydroilqr.io.files import atomic_write
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.config import ConfigError, check_searchable, load_task
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
 
@@ -115,6 +115,8 @@ def run(args) -> int:
             prepare(task, loop_settings(task, args.smoke))
         if args.search and cfg.search is None:
             raise ConfigError(f"--search: {cfg.name} has no search: section")
+        if args.search:
+            check_searchable(cfg)
         refs.append(
             {
                 "label": cfg.name,

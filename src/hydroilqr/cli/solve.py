@@ -15,7 +15,7 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.config import DERIVATIVES, ConfigError, check_searchable
 
 # Multi-start's seed and perturbation size when --starts N is given without them (None on
 # the command line means "not given": they are refused without --starts).
@@ -180,6 +180,7 @@ def _check_starts(task, args) -> None:
         raise ConfigError(
             "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
         )
+    check_searchable(task.config)
     if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
         raise ConfigError(
             f"{task.name} has a search: section (the search's best samples are the starts): "
@@ -286,6 +287,7 @@ def _search_then_polish(task, args):
     (studies/search.py), the plan chosen by ``search.select``: a SearchRun."""
     from hydroilqr.cli.search import print_search_line
     from hydroilqr.output.progress import SearchProgress
+    from hydroilqr.solver.search import total_iterations
     from hydroilqr.studies.search import run_search
 
     sc = task.config.search
@@ -305,7 +307,7 @@ def _search_then_polish(task, args):
         console.print(f"  polish {r.index}: {start_line(r.record())}", soft_wrap=True)
 
     t0 = time.perf_counter()
-    with SearchProgress(sc.iterations, console) as prog:
+    with SearchProgress(total_iterations(task.config), console) as prog:
         srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:

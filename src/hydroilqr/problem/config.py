@@ -472,6 +472,14 @@ class MPCConfig:
     # What the closed loop must achieve, judged on its simulated motion (the same metrics as
     # ``goal``, e.g. a tracking error over the run); empty: the task's ``goal`` judges it.
     goal: dict[str, GoalCheck] = field(default_factory=dict)
+    # The loop's planner: ilqr; sampling (the task's search: settings over the horizon, warm-
+    # started by the previous best spline shifted); hybrid (the sampler's best, then at most
+    # iterations_per_update iLQR iterations on it, cut by deadline with --realtime)
+    planner: str = "ilqr"
+    samples: int = 0  # sampling / hybrid: rollouts per sampling iteration (0: search.samples)
+    sampling_iterations: int = 1  # per update (the first plan: search.iterations)
+    knots: int = 0  # spline knots over the horizon (0: search.knots)
+    sampling_workers: int = 0  # processes that roll samples out, this one included (0: cores)
 
 
 SEARCH_METHODS = ("predictive", "cem", "mppi")  # search.method
@@ -511,6 +519,11 @@ class SearchConfig:
     # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it
     select: str = "goal"
     batches: int = 0  # evaluation batches per iteration (0: one per worker)
+    # receding-horizon search (long motions): windows of this many steps (0: the whole
+    # horizon at once), each keeping its first shift_steps (0: half the window); knots and
+    # iterations are per window
+    window_steps: int = 0
+    shift_steps: int = 0
 
 
 BOUNDS = ("min", "max", "above", "below")  # the bounds of a goal check
@@ -1437,10 +1450,14 @@ def _check_length(values: list[float], n: int, key: str) -> None:
 MAX_STEPS = 1_000_000  # time steps of one trajectory (a typo such as horizon: 2e6 is refused)
 
 
+MPC_PLANNERS = ("ilqr", "sampling", "hybrid")  # mpc.planner
+
+
 def validate_mpc(m: Any) -> None:
     """Checks the ``mpc:`` settings that need no plant (an MPCConfig); ConfigError naming the
     key."""
     validate_goal(m.goal, "mpc.goal")
+    _validate_mpc_planner(m)
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
@@ -2111,13 +2128,38 @@ def _generic_smoke(data: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _validate_mpc_planner(m: Any) -> None:
+    if m.planner not in MPC_PLANNERS:
+        raise ConfigError(
+            f"mpc.planner: expected one of {', '.join(MPC_PLANNERS)}, got {m.planner!r}"
+        )
+    for name, ok, rule in (
+        ("samples", m.samples == 0 or 2 <= m.samples <= MAX_SEARCH_SAMPLES,
+         f"0 (search.samples) or from 2 to {MAX_SEARCH_SAMPLES}"),
+        ("sampling_iterations", 1 <= m.sampling_iterations <= 1000, "from 1 to 1000"),
+        ("knots", 0 <= m.knots <= MAX_STEPS, "0 (search.knots) or more"),
+        ("sampling_workers", 0 <= m.sampling_workers <= 1024, "from 0 (one per core) to 1024"),
+    ):  # fmt: skip
+        if not ok:
+            raise ConfigError(f"mpc.{name}: must be {rule}, got {getattr(m, name)!r}")
+
+
+def check_searchable(cfg: TaskConfig) -> None:
+    """``hydroilqr search`` / ``solve`` / ``robustness --search`` of a task with a ``search:``
+    section: ConfigError for a receding-horizon solve (its windows are iLQR's; a search's are
+    ``search.window_steps``). ``mpc.planner: sampling`` reads the section on any task."""
+    if cfg.search is not None and cfg.receding_horizon is not None:
+        raise ConfigError(
+            "search: a receding-horizon task cannot be searched (one horizon only; set "
+            "receding_horizon=null and search.window_steps for a search window by window)"
+        )
+
+
 def validate_search(cfg: TaskConfig) -> None:
     """ConfigError naming the first invalid ``search:`` setting (none: nothing to check)."""
     sc = cfg.search
     if sc is None:
         return
-    if cfg.receding_horizon is not None:
-        raise ConfigError("search: a receding-horizon task cannot be searched (one horizon only)")
     for key, value, choices in (
         ("method", sc.method, SEARCH_METHODS),
         ("space", sc.space, SEARCH_SPACES),
@@ -2133,10 +2175,17 @@ def validate_search(cfg: TaskConfig) -> None:
         ("samples", 2 <= sc.samples <= MAX_SEARCH_SAMPLES, f"from 2 to {MAX_SEARCH_SAMPLES}"),
         ("iterations", 1 <= sc.iterations <= 100_000, "from 1 to 100000"),
         ("knots", 1 <= sc.knots <= steps, f"from 1 to the task's {steps} steps"),
+        ("knots", sc.knots <= (sc.window_steps or steps), "at most search.window_steps"),
         ("elites", sc.elites >= 1, ">= 1 (at most search.samples are used)"),
         ("seed", sc.seed >= 0, ">= 0"),
         ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
         ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
+        ("window_steps", sc.window_steps >= 0, ">= 0 (0: the whole horizon at once)"),
+        (
+            "shift_steps",
+            0 <= sc.shift_steps <= max(sc.window_steps, 0),
+            "from 0 (half the window) to search.window_steps",
+        ),  # fmt: skip
     ):
         if not ok:
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")
