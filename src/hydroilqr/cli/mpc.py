@@ -14,7 +14,7 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.config import DERIVATIVES, MPC_PLANNERS, ConfigError
 
 HELP = "closed-loop MPC over hydroelastic contact"
 
@@ -75,6 +75,13 @@ def setup(p) -> None:
         metavar="S",
         help="the simulated robot's time step, a divisor of the plan's plant.time_step "
         "(default: mpc.plant_time_step, 0 = the plan's)",
+    )
+    p.add_argument(
+        "--planner",
+        choices=MPC_PLANNERS,
+        help="the loop's planner: ilqr, sampling (the task's search: settings, warm-started "
+        "by the shifted best spline) or hybrid (iLQR iterations on the best sample); default "
+        "mpc.planner",
     )
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument(
@@ -151,6 +158,7 @@ def _settings(args):
         plant_time_step=args.plant_time_step,
         plan_overrides=list(task.config.mpc.plan_overrides) + list(args.plan_set or []),
         warm_start_plan=args.warm_start_plan,
+        planner=args.planner,
     )
     if args.horizon is not None and settings.shrinking_horizon:
         raise ConfigError(
@@ -175,6 +183,7 @@ def _print_header(task, settings) -> None:
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
         f"{horizon}, {settings.iterations_per_update} it/update, "
         f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
+        + ("" if settings.planner == "ilqr" else f", planner {settings.planner}")
     )
     if settings.truth_overrides:
         console.print(f"simulated plant differs: {', '.join(settings.truth_overrides)}")
@@ -214,6 +223,18 @@ def _print_summary(data: dict, settings, task) -> None:
         f"{data['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{data['realtime_factor']:.2f}"
     )
+    sp = data.get("sampling")
+    if sp:
+        console.print(
+            f"sampler ({data['planner']}): {sp['samples_per_update_mean']:.0f} samples per "
+            f"update in {1e3 * sp['sampling_seconds_p50']:.1f} ms (p50), "
+            f"{sp['samples_per_second']:.0f} samples/s"
+            + (
+                f", {sp['ilqr_iterations_mean']:.1f} iLQR it/update"
+                if sp["ilqr_iterations_mean"]
+                else ""
+            )  # fmt: skip
+        )
     phases = data.get("phase_seconds_mean") or {}
     if phases:  # where an update's time goes
         console.print(
