@@ -259,3 +259,5 @@ def _print_summary(data: dict, settings, task) -> None:
     units = metrics.final_error_units(task, data["metrics"])
     for line in metrics.summary_lines(data["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
+    for line in metrics.report_lines(data.get("reports") or {}, "closed loop"):
+        console.print(line, soft_wrap=True)

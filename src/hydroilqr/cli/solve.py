@@ -520,6 +520,8 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
     units = metrics_mod.final_error_units(task, summary["metrics"])
     for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
+    for line in metrics_mod.report_lines(summary.get("reports") or {}, "plan"):
+        console.print(line, soft_wrap=True)
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))
