@@ -96,8 +96,12 @@ def run(args) -> int:
 
 def print_search_line(srun, wall: float) -> None:
     r = srun.result
+    if r.windows:  # (a window's nominal prices that window only)
+        head = f"search: {len(r.windows)} windows, the stitched plan's cost {r.best.cost:.6g},"
+    else:
+        head = f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g})"
     console.print(
-        f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g}) after "
+        f"{head} after "
         f"{len(r.history)} iterations, {r.samples} samples in {r.seconds:.1f} s "
         f"({r.samples / max(r.seconds, 1e-9):.1f} samples/s on {srun.workers} worker(s)); "
         f"{wall:.1f} s in all",
