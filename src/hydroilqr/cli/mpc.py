@@ -179,11 +179,19 @@ def _output_dir(task, args):
 
 def _print_header(task, settings) -> None:
     horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
+    per_update = f"{settings.iterations_per_update} it/update"
+    if settings.planner != "ilqr":
+        sc = task.config.search
+        samples = settings.samples or (sc.samples if sc else 64)
+        per_update = (
+            f"planner {settings.planner}: {samples} samples x {settings.sampling_iterations} "
+            f"per update ({sc.space if sc else 'torque'} space)"
+            + (f" + up to {per_update} of iLQR" if settings.planner == "hybrid" else "")
+        )
     console.print(
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
-        f"{horizon}, {settings.iterations_per_update} it/update, "
+        f"{horizon}, {per_update}, "
         f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
-        + ("" if settings.planner == "ilqr" else f", planner {settings.planner}")
     )
     if settings.truth_overrides:
         console.print(f"simulated plant differs: {', '.join(settings.truth_overrides)}")
