@@ -18,7 +18,8 @@ import pytest
 
 from hydroilqr.metrics import validate_task
 from hydroilqr.problem import inputs
-from hydroilqr.problem.config import ConfigError, load_raw, yaml_value
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import load_raw, yaml_value
 
 SMOKE_RH = {
     "receding_horizon.window_steps": 6,

@@ -7,7 +7,8 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.control.mpc import prepare, run_mpc
 from hydroilqr.model import workers
-from hydroilqr.problem.config import ConfigError, MPCConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.mpc import MPCConfig
 
 SMALL = ["search.samples=4", "search.knots=3", "search.iterations=2"]
 

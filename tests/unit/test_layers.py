@@ -86,7 +86,7 @@ def test_a_deliberate_upward_import_is_caught(tmp_path):
     assert violations(tmp_path) == ["problem imports model (problem/config.py)"]
 
 
-@pytest.mark.parametrize("module", ["hydroilqr.cli", "hydroilqr.problem.config"])
+@pytest.mark.parametrize("module", ["hydroilqr.cli", "hydroilqr.problem.load"])
 def test_the_command_line_and_the_config_load_no_drake(module):
     heavy = "('pydrake', 'matplotlib')"
     code = f"import sys, {module}; print(sorted(m for m in {heavy} if m in sys.modules))"

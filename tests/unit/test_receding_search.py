@@ -4,7 +4,9 @@ command whose rollout from the start is the windows' rollouts end to end."""
 import numpy as np
 import pytest
 
-from hydroilqr.problem.config import ConfigError, SearchConfig, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.search import SearchConfig
 from hydroilqr.solver import search, splines
 
 

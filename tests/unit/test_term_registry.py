@@ -17,8 +17,9 @@ from hydroilqr.cli import main
 from hydroilqr.model.activations import Bounds, SoftMin
 from hydroilqr.model.residuals import RESIDUALS, Residual, register
 from hydroilqr.model.windows import Ramp, Window
-from hydroilqr.problem.config import TERM_TYPES, ConfigError, TermConfig, TermType
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.schema import task_schema
+from hydroilqr.problem.terms import TERM_TYPES, TermConfig, TermType
 from tests.unit.test_terms import N, assert_jacobians_match_central_differences
 
 

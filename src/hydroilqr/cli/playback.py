@@ -5,13 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydroilqr.cli.common import command_line, console, print_goal, warn
-from hydroilqr.problem.config import (
-    APPROXIMATIONS,
-    PLAYBACK_FEEDFORWARDS,
-    PLAYBACK_POLICIES,
-    ConfigError,
-    mismatch_overrides,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.plant import APPROXIMATIONS
+from hydroilqr.problem.playback import PLAYBACK_FEEDFORWARDS, PLAYBACK_POLICIES
+from hydroilqr.problem.variants import mismatch_overrides
 
 HELP = (
     "execute a solved trajectory open loop (PD+, paper §V) on a finer "

@@ -12,7 +12,8 @@ from hydroilqr.cli.common import (
     load_task_from_args,
     print_goal,
 )
-from hydroilqr.problem.config import ConfigError, check_searchable
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.search import check_searchable
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
 

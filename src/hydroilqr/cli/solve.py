@@ -15,7 +15,9 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError, check_searchable
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.search import check_searchable
+from hydroilqr.problem.solver import DERIVATIVES
 
 # Multi-start's seed and perturbation size when --starts N is given without them (None on
 # the command line means "not given": they are refused without --starts).

@@ -15,10 +15,8 @@ import numpy as np
 from hydroilqr.model.derivatives import Linearizer
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import (
-    MPCConfig,
-    SolverConfig,
-)
+from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution
 

@@ -45,17 +45,15 @@ from hydroilqr.control.mpc_settings import (
     simulation_step,
 )
 from hydroilqr.control.sampling_planner import SamplingPlanner
-from hydroilqr.metrics.common import beyond_limits
+from hydroilqr.metrics.common import SATURATION_WARNING, beyond_limits
 from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import (
-    ConfigError,
-    MPCConfig,
-    validate_for_solve,
-    with_overrides,
-)
+from hydroilqr.problem.cost import validate_for_solve
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import with_overrides
+from hydroilqr.problem.mpc import MPCConfig
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution
 
@@ -231,9 +229,6 @@ def loop_metrics(task, res: MPCResult) -> dict:
     except (RuntimeError, SimulationError) as e:  # e.g. a state the plant cannot evaluate
         task_metrics = {"error": str(e).strip().splitlines()[0]}
     return task_metrics
-
-
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (as playback)
 
 
 class Truth:

@@ -15,16 +15,12 @@ import numpy as np
 
 from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.names import body_labels, find_body
-from hydroilqr.problem.config import (
-    MAX_STEPS,
-    ConfigError,
-    MPCConfig,
-    SolverConfig,
-    check_truth_overrides,
-    unknown_key,
-    validate_mpc,
-    with_overrides,
-)
+from hydroilqr.problem.checks import MAX_STEPS, unknown_key
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import with_overrides
+from hydroilqr.problem.mpc import MPCConfig, validate_mpc
+from hydroilqr.problem.solver import SolverConfig
+from hydroilqr.problem.variants import check_truth_overrides
 from hydroilqr.solver.solution import load_run_solution
 
 

@@ -33,7 +33,9 @@ from hydroilqr.model.pd import actuated_indices
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
 from hydroilqr.model.workers import sample_rollouts
-from hydroilqr.problem.config import MPCConfig, SearchConfig, SolverConfig
+from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.search import SearchConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import sampling
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.search import SearchSpace, priced, shifted_knots

@@ -9,7 +9,7 @@ import numpy as np
 from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.model.names import body_labels
-from hydroilqr.problem.config import TERM_TYPES
+from hydroilqr.problem.terms import TERM_TYPES
 
 
 def _normal_force_hydro(info) -> float:

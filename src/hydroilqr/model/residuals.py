@@ -40,7 +40,7 @@ a velocity the Jacobian with respect to v, its change with q by central differen
 Jacobian over the coordinates that move the point (a slip's: of the point's translational and
 its body's angular velocity Jacobians; its weight g(h) through P's position Jacobian).
 
-A new term type: a ``Residual`` subclass with ``kind``, ``spec`` (a ``problem.config.
+A new term type: a ``Residual`` subclass with ``kind``, ``spec`` (a ``problem.terms.
 TermType``: the keys it reads and their checks), ``value`` and ``jacobian``, decorated with
 ``@register``; the finite-difference test of tests/unit/test_terms.py runs over ``RESIDUALS``.
 """
@@ -57,15 +57,9 @@ from pydrake.multibody.tree import FrameIndex, JacobianWrtVariable
 from hydroilqr.model.activations import Bounds, Identity, Target
 from hydroilqr.model.plant import named_geometries
 from hydroilqr.model.state import left_mul_matrix, quat_conj
-from hydroilqr.problem.config import (
-    AXES,
-    TERM_TYPES,
-    ConfigError,
-    TermConfig,
-    TermType,
-    register_term_type,
-    unknown_key,
-)
+from hydroilqr.problem.checks import unknown_key
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.terms import AXES, TERM_TYPES, TermConfig, TermType, register_term_type
 
 # Central-difference step (in q's units) of a velocity term's ∂v_P/∂q.
 VELOCITY_FD_STEP = 1e-6
@@ -184,7 +178,7 @@ RESIDUALS: dict[str, type[Residual]] = {}
 
 def register(cls: type[Residual]) -> type[Residual]:
     """Registers a residual class under its ``kind``, and its ``spec`` with the task format
-    (problem.config.TERM_TYPES: the keys it reads and their checks)."""
+    (problem.terms.TERM_TYPES: the keys it reads and their checks)."""
     if cls.spec.name != cls.kind:
         raise ValueError(f"{cls.__name__}: spec {cls.spec.name!r} is not kind {cls.kind!r}")
     RESIDUALS[cls.kind] = cls

@@ -16,12 +16,9 @@ import numpy as np
 
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import (
-    SolverConfig,
-    _build_dataclass,
-    validate_for_solve,
-    validate_solver,
-)
+from hydroilqr.problem.cost import validate_for_solve
+from hydroilqr.problem.solver import SolverConfig, validate_solver
+from hydroilqr.problem.typed import build_dataclass
 from hydroilqr.solver import stopping
 from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
 from hydroilqr.solver.ilqr import IterationInfo
@@ -180,7 +177,7 @@ def _settings_for(solver: SolverConfig, settings: SolverConfig | dict | None) ->
 def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
     """``settings`` if it is a SolverConfig, else ``solver`` with the dict's fields changed."""
     if isinstance(settings, dict):
-        settings = _build_dataclass(
+        settings = build_dataclass(
             SolverConfig, {**dataclasses.asdict(solver), **settings}, "settings"
         )
     validate_solver(settings)

@@ -24,7 +24,8 @@ from hydroilqr.model import workers
 from hydroilqr.model.derivatives import DerivativeMethod, Linearizer
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem, check_finite
-from hydroilqr.problem.config import ConfigError, SolverConfig, validate_solver
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import SolverConfig, validate_solver
 from hydroilqr.solver import regularization, stopping
 from hydroilqr.solver.ilqr import (
     IterationInfo,
