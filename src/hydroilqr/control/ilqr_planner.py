@@ -15,7 +15,7 @@ import numpy as np
 from hydroilqr.model.derivatives import Linearizer
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.mpc import PlannerSettings
 from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution
@@ -42,14 +42,14 @@ class Controller:
         self,
         task,
         horizon_steps: int,
-        settings: MPCConfig | None = None,
+        settings: PlannerSettings | None = None,
         solver: SolverConfig | None = None,
         U_ref: np.ndarray | None = None,
     ):
         """``solver``: the solver settings of the first, full plan (default: the task's);
         later updates search fewer step sizes (``settings.line_search_steps``). ``U_ref``:
         the controls of a warm-start plan by time step, [M, nu] (``check_settings``)."""
-        settings = settings or MPCConfig()
+        settings = settings or PlannerSettings()  # (the planner's part of an MPCConfig)
         self.task = task
         self.dyn = task.dynamics
         self.cost = task.cost

@@ -50,10 +50,10 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.cost import validate_for_solve
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.load import with_overrides
-from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.mpc import MPCConfig, PlannerSettings
+from hydroilqr.problem.task import validate_for_solve
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution
 
@@ -293,7 +293,7 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     if settings is None:
         settings = mpc_config(task)
     dt = task.dynamics.dt
-    U_ref = check_settings(settings, task)
+    U_ref = check_settings(settings, task, section_checked=_as_checked(settings, task))
     planner = planning_task(task, settings)
     N = max(2, int(round(settings.horizon / dt)))
     if settings.shrinking_horizon:
@@ -303,7 +303,7 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     solver = controller_solver(planner.config.solver, settings)
     if not settings.derivatives:  # recorded as the method in use (the caller's is unchanged)
         settings = dataclasses.replace(settings, derivatives=solver.derivatives)
-    ctrl = planner_of(planner, N, settings, solver, U_ref)
+    ctrl = planner_of(planner, N, PlannerSettings.of(settings), solver, U_ref)
     h, _ = simulation_step(settings, dt)
     try:
         truth = Truth(task, settings.truth_overrides, h)
@@ -314,7 +314,18 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     return ClosedLoop(task, settings, ctrl, truth)
 
 
-def planner_of(task, N: int, settings: MPCConfig, solver, U_ref):
+def _as_checked(settings: MPCConfig, task) -> bool:
+    """Whether the settings ``validate_mpc`` checks (the planner's and the goal) are the task's
+    own ``mpc:`` section's, checked when the task was built (e.g. the command line changed
+    only the loop's rate or duration); a warm-start plan's path is compared as given."""
+
+    def checked_part(m: MPCConfig) -> tuple:
+        return dataclasses.replace(PlannerSettings.of(m), warm_start_plan=""), m.goal
+
+    return checked_part(settings) == checked_part(task.config.mpc)
+
+
+def planner_of(task, N: int, settings: PlannerSettings, solver, U_ref):
     """The loop's planner (``mpc.planner``): the iLQR ``Controller`` or a ``SamplingPlanner``
     (sampling, hybrid); ConfigError for settings only the iLQR planner has."""
     if settings.planner == "ilqr":

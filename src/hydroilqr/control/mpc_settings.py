@@ -17,7 +17,6 @@ from hydroilqr.io.rundir import previous_task
 from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.problem.checks import MAX_STEPS, unknown_key
 from hydroilqr.problem.errors import ConfigError
-from hydroilqr.problem.load import with_overrides
 from hydroilqr.problem.mpc import MPCConfig, validate_mpc
 from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.problem.variants import check_truth_overrides
@@ -46,14 +45,17 @@ class Push:
             raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
 
 
-def check_settings(settings: MPCConfig, task) -> np.ndarray | None:
+def check_settings(settings: MPCConfig, task, section_checked: bool = False) -> np.ndarray | None:
     """Raises ConfigError for settings that cannot run on ``task``; returns the warm-start
     plan's controls, U: [M, nu] (None without one). A task's ``ensemble:`` is not used: MPC
-    re-plans on the task's own model."""
+    re-plans on the task's own model. ``section_checked``: the settings are the task's own
+    ``mpc:`` section (``mpc_config(task)``), whose own checks ran when the task was built;
+    only those against the task run here."""
     dt = task.config.plant.time_step
     _check_timing(settings, dt)
     _check_iteration(settings)
-    validate_mpc(settings)  # the checks shared with a task file's mpc: section
+    if not section_checked:
+        validate_mpc(settings)  # the checks of a task file's mpc: section
     U_ref = plan_controls(settings, task) if settings.warm_start_plan else None
     _check_truth(settings, task, dt)
     _check_pushes(settings, task.dynamics.plant, simulation_step(settings, dt)[0])
@@ -188,14 +190,8 @@ def _check_truth(settings: MPCConfig, task, dt: float) -> None:
             f"--plant-time-step (mpc.plant_time_step) {h:g} s: the task's horizon "
             f"({task.steps * dt:g} s) is {task.steps * substeps} steps of it; at most {MAX_STEPS}"
         )
-    if settings.truth_overrides:
-        check_truth_overrides(settings.truth_overrides)
-        truth = with_overrides(task.config, settings.truth_overrides)
-        if truth.plant.time_step != dt:
-            raise ConfigError(
-                "--truth-set: plant.time_step of the simulated plant is set with "
-                "--plant-time-step (mpc.plant_time_step), not --truth-set"
-            )
+    # (the simulated plant's task is built, and checked, once: Truth)
+    check_truth_overrides(settings.truth_overrides, mpc=True)
     if settings.shrinking_horizon and int(round(settings.duration / dt)) > task.steps:
         raise ConfigError(
             f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "

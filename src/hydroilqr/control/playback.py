@@ -264,14 +264,38 @@ class PlanSampler:
 # ------------------------------------------------------------------------------------------
 
 
-def playback(
-    task, sol: Solution, settings: PlaybackSettings | None = None, progress=None
-) -> PlaybackResult:
-    """Executes ``sol`` on the "real" system with the chosen policy. Raises SimulationError
-    if the real system's time step fails, ConfigError on bad settings."""
+@dataclass
+class Playback:
+    """A playback checked and ready to run (``prepare``)."""
+
+    task: Any
+    sol: Solution
+    settings: PlaybackSettings
+
+    def run(self, progress=None) -> PlaybackResult:
+        return _run(self.task, self.sol, self.settings, progress)
+
+
+def prepare(task, sol: Solution, settings: PlaybackSettings | None = None) -> Playback:
+    """The playback of ``sol`` on ``task`` under ``settings`` (default PlaybackSettings()),
+    its settings checked once, before any work: ConfigError for settings that cannot run."""
     settings = settings or PlaybackSettings()
     settings.validate()
     settings.check_against(task, float(sol.t[-1] - sol.t[0]))
+    return Playback(task, sol, settings)
+
+
+def playback(
+    task, sol: Solution, settings: PlaybackSettings | None = None, progress=None
+) -> PlaybackResult:
+    """Executes ``sol`` on the "real" system with the chosen policy (``prepare``, then
+    ``Playback.run``). Raises SimulationError if the real system's time step fails,
+    ConfigError on bad settings."""
+    return prepare(task, sol, settings).run(progress)
+
+
+def _run(task, sol: Solution, settings: PlaybackSettings, progress=None) -> PlaybackResult:
+    """The playback of checked settings."""
     wall0 = time.perf_counter()
     planner = task.dynamics
     truth = Dynamics(truth_config(task, settings))

@@ -33,7 +33,7 @@ from hydroilqr.model.pd import actuated_indices
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
 from hydroilqr.model.workers import sample_rollouts
-from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.mpc import PlannerSettings
 from hydroilqr.problem.search import SearchConfig
 from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import sampling
@@ -42,7 +42,7 @@ from hydroilqr.solver.search import SearchSpace, priced, shifted_knots
 from hydroilqr.solver.solution import PHASES, Solution
 
 
-def sampler_settings(task, settings: MPCConfig, horizon_steps: int) -> SearchConfig:
+def sampler_settings(task, settings: PlannerSettings, horizon_steps: int) -> SearchConfig:
     """The sampler's settings: the task's ``search:`` section (or the defaults) with the
     ``mpc:`` section's samples and knots (at most one knot per step of the horizon)."""
     base = task.config.search or SearchConfig()
@@ -60,7 +60,7 @@ class SamplingPlanner:
 
     uses_stages = False  # (a continuation's stages seed iLQR, not a sampler)
 
-    def __init__(self, task, horizon_steps: int, settings: MPCConfig, solver: SolverConfig):
+    def __init__(self, task, horizon_steps: int, settings: PlannerSettings, solver: SolverConfig):
         self.task, self.dyn, self.cost = task, task.dynamics, task.cost
         self.N = horizon_steps
         self.search = sampler_settings(task, settings, horizon_steps)

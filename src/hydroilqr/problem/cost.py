@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from hydroilqr.problem.checks import check_magnitude, check_weight
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.terms import TermConfig, validate_term
-
-if TYPE_CHECKING:
-    from hydroilqr.problem.task import TaskConfig
 
 NOMINAL_TIMES = ("step", "horizon_end")
 
@@ -81,16 +78,6 @@ def validate_cost(cost: CostConfig) -> None:
     names: set[str] = set()
     for i, term in enumerate(cost.terms):
         validate_term(term, f"cost.terms[{i}]", names)
-
-
-def validate_for_solve(cfg: TaskConfig) -> None:
-    """Checks a task must pass to be solved (a task that only describes a plant, e.g. for
-    its dynamics, need not): ConfigError for a cost without terms."""
-    if not has_cost_terms(cfg.cost):
-        raise ConfigError(
-            "cost: no terms (every weight in Q, Qf, R and cost.terms is zero or missing): there "
-            "is nothing to optimize; give the cost some positive weights"
-        )
 
 
 def has_cost_terms(cost: CostConfig) -> bool:

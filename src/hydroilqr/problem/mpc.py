@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,16 +18,13 @@ MPC_CANDIDATES = ("first_plan", "first_plan_controls", "first_plan_policy", "gue
 
 
 @dataclass
-class MPCConfig:
-    """The settings of closed-loop MPC (``hydroilqr mpc``, ``control.mpc.run_mpc``): a task
-    file's ``mpc:`` section, each key overridable on the command line; also built in Python
-    (``control.mpc.mpc_config(task, **overrides)`` starts from a task's section). ``pushes`` is
-    not a task-file key (Push objects, from ``--push``)."""
+class PlannerSettings:
+    """The planner's settings (``control.mpc.Controller``): how each update plans (horizon,
+    iterations, partials, line search, warm starts and restarts, its deadline) and how its
+    plan is applied (feedback, delay compensation); the controller's own task overrides."""
 
-    rate: float = 50.0  # Hz, control updates
     horizon: float = 0.3  # s
     iterations_per_update: int = 1
-    duration: float = 2.0  # s
     # Per-update batches are small: one thread avoids waking a second one every update.
     threads: int = 1
     derivatives: str = ""  # empty: the task's solver.derivatives
@@ -68,8 +66,6 @@ class MPCConfig:
     # control period (it keeps the warm start, with fresh gains): late updates return in time.
     # 0 = off; lock-step runs ignore it.
     deadline: float = 0.0
-    # The simulation keeps running while the controller computes (its latency is felt).
-    realtime: bool = False
     # With realtime: each update plans from the state the plan in force is predicted to reach
     # one control period later (the controller's model under that plan's policy), and the new
     # plan takes over at that time, so its first control is the one applied. An update longer
@@ -79,24 +75,13 @@ class MPCConfig:
     delay_compensation: bool = False
     # Scales K in u = ū − K(x − x̄); 0 = feedforward only.
     feedback_scale: float = 1.0
-    # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
-    truth_overrides: list[str] = field(default_factory=list)
     # key=value overrides of the controller's task only (its cost, model and solver), e.g.
     # [cost.terms.approach.weight=1e5]: an approach term the task as written switches off
     # kept on in the loop, so that the plans keep looking for contact. The time grid, the
     # state and the inputs stay the task's; the simulated robot and the goal are the task's.
     plan_overrides: list[str] = field(default_factory=list)
-    # The simulated robot's own time step (s): a divisor of the plan's plant.time_step; between
-    # plan steps it holds the step's feed-forward and feeds back against the plan's state
-    # interpolated in time. 0: the plan's step (the simulation steps as the controller plans).
-    plant_time_step: float = 0.0
-    # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
-    pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
-    # What the closed loop must achieve, judged on its simulated motion (the same metrics as
-    # ``goal``, e.g. a tracking error over the run); empty: the task's ``goal`` judges it.
-    goal: dict[str, GoalCheck] = field(default_factory=dict)
-    # The loop's planner: ilqr; sampling (the task's search: settings over the horizon, warm-
-    # started by the previous best spline shifted); hybrid (the sampler's best, then at most
+    # The planner: ilqr; sampling (the task's search: settings over the horizon, warm-started
+    # by the previous best spline shifted); hybrid (the sampler's best, then at most
     # iterations_per_update iLQR iterations on it, cut by deadline with --realtime)
     planner: str = "ilqr"
     samples: int = 0  # sampling / hybrid: rollouts per sampling iteration (0: search.samples)
@@ -104,31 +89,63 @@ class MPCConfig:
     knots: int = 0  # spline knots over the horizon (0: search.knots)
     sampling_workers: int = 0  # processes that roll samples out, this one included (0: cores)
 
+    @classmethod
+    def of(cls, settings):
+        """Its part of ``settings`` (an MPCConfig), as a PlannerSettings of its own."""
+        return cls(**{f.name: getattr(settings, f.name) for f in dataclasses.fields(cls)})
+
+
+@dataclass
+class LoopSettings:
+    """The closed loop's settings (``control.mpc.ClosedLoop``): its rate and duration, real
+    time or lock-step, and the simulated robot (its time step, model mismatch, pushes)."""
+
+    rate: float = 50.0  # Hz, control updates
+    duration: float = 2.0  # s
+    # The simulation keeps running while the controller computes (its latency is felt).
+    realtime: bool = False
+    # The simulated robot's own time step (s): a divisor of the plan's plant.time_step; between
+    # plan steps it holds the step's feed-forward and feeds back against the plan's state
+    # interpolated in time. 0: the plan's step (the simulation steps as the controller plans).
+    plant_time_step: float = 0.0
+    # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
+    truth_overrides: list[str] = field(default_factory=list)
+    # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.
+    pushes: list[Any] = field(default_factory=list, metadata={"task_file": False})
+
+    @classmethod
+    def of(cls, settings):
+        """Its part of ``settings`` (an MPCConfig), as a LoopSettings of its own."""
+        return cls(**{f.name: getattr(settings, f.name) for f in dataclasses.fields(cls)})
+
+
+@dataclass
+class MPCConfig(PlannerSettings, LoopSettings):
+    """The settings of closed-loop MPC (``hydroilqr mpc``, ``control.mpc.run_mpc``), a task
+    file's ``mpc:`` section (flat: each key overridable on the command line as ``mpc.KEY``):
+    the planner's settings (``PlannerSettings``), the loop's (``LoopSettings``) and the closed
+    loop's goal. Also built in Python (``control.mpc.mpc_config(task, **overrides)`` starts
+    from a task's section). ``pushes`` is not a task-file key (Push objects, from ``--push``)."""
+
+    # What the closed loop must achieve, judged on its simulated motion (the same metrics as
+    # ``goal``, e.g. a tracking error over the run); empty: the task's ``goal`` judges it.
+    goal: dict[str, GoalCheck] = field(default_factory=dict)
+
+
+def validate_mpc(m: MPCConfig) -> None:
+    """Checks the ``mpc:`` settings that need no plant (an MPCConfig): the planner's and the
+    closed loop's goal (the loop's need the task: ``control.mpc.check_settings``);
+    ConfigError naming the key."""
+    validate_goal(m.goal, "mpc.goal")
+    validate_planner(m)
+
 
 MPC_PLANNERS = ("ilqr", "sampling", "hybrid")  # mpc.planner
 
 
-def _validate_mpc_planner(m: Any) -> None:
-    if m.planner not in MPC_PLANNERS:
-        raise ConfigError(
-            f"mpc.planner: expected one of {', '.join(MPC_PLANNERS)}, got {m.planner!r}"
-        )
-    for name, ok, rule in (
-        ("samples", m.samples == 0 or 2 <= m.samples <= MAX_SEARCH_SAMPLES,
-         f"0 (search.samples) or from 2 to {MAX_SEARCH_SAMPLES}"),
-        ("sampling_iterations", 1 <= m.sampling_iterations <= 1000, "from 1 to 1000"),
-        ("knots", 0 <= m.knots <= MAX_STEPS, "0 (search.knots) or more"),
-        ("sampling_workers", 0 <= m.sampling_workers <= 1024, "from 0 (one per core) to 1024"),
-    ):  # fmt: skip
-        if not ok:
-            raise ConfigError(f"mpc.{name}: must be {rule}, got {getattr(m, name)!r}")
-
-
-def validate_mpc(m: Any) -> None:
-    """Checks the ``mpc:`` settings that need no plant (an MPCConfig); ConfigError naming the
-    key."""
-    validate_goal(m.goal, "mpc.goal")
-    _validate_mpc_planner(m)
+def validate_planner(m: PlannerSettings) -> None:
+    """The planner's settings that need no plant."""
+    _validate_sampler(m)
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
@@ -167,3 +184,20 @@ def validate_mpc(m: Any) -> None:
         raise ConfigError(
             "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
         )
+
+
+def _validate_sampler(m: PlannerSettings) -> None:
+    """mpc.planner and the sampling planners' keys."""
+    if m.planner not in MPC_PLANNERS:
+        raise ConfigError(
+            f"mpc.planner: expected one of {', '.join(MPC_PLANNERS)}, got {m.planner!r}"
+        )
+    for name, ok, rule in (
+        ("samples", m.samples == 0 or 2 <= m.samples <= MAX_SEARCH_SAMPLES,
+         f"0 (search.samples) or from 2 to {MAX_SEARCH_SAMPLES}"),
+        ("sampling_iterations", 1 <= m.sampling_iterations <= 1000, "from 1 to 1000"),
+        ("knots", 0 <= m.knots <= MAX_STEPS, "0 (search.knots) or more"),
+        ("sampling_workers", 0 <= m.sampling_workers <= 1024, "from 0 (one per core) to 1024"),
+    ):  # fmt: skip
+        if not ok:
+            raise ConfigError(f"mpc.{name}: must be {rule}, got {getattr(m, name)!r}")

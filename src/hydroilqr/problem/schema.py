@@ -20,7 +20,7 @@ import typing
 from typing import Any
 
 from hydroilqr.problem.cost import NOMINAL_TIMES, CostConfig
-from hydroilqr.problem.mpc import MPCConfig
+from hydroilqr.problem.mpc import PlannerSettings
 from hydroilqr.problem.plant import (
     APPROXIMATIONS,
     CONTACT_MODELS,
@@ -40,7 +40,7 @@ from hydroilqr.problem.search import (
 )
 from hydroilqr.problem.solver import DERIVATIVES, SolverConfig
 from hydroilqr.problem.task import TaskConfig
-from hydroilqr.problem.terms import TERM_TYPES, TermConfig
+from hydroilqr.problem.terms import TermConfig
 
 SCHEMA_DIALECT = "http://json-schema.org/draft-07/schema#"
 
@@ -54,8 +54,8 @@ _CHOICES: dict[tuple[type, str], tuple[str, ...]] = {
     (CostConfig, "nominal_time"): NOMINAL_TIMES,
     (SolverConfig, "derivatives"): DERIVATIVES,
     (RecedingHorizonConfig, "warm_start_tail"): WARM_START_TAILS,
-    (MPCConfig, "warm_start_tail"): WARM_START_TAILS,
-    (MPCConfig, "derivatives"): ("", *DERIVATIVES),
+    (PlannerSettings, "warm_start_tail"): WARM_START_TAILS,
+    (PlannerSettings, "derivatives"): ("", *DERIVATIVES),
     (SearchConfig, "method"): SEARCH_METHODS,
     (SearchConfig, "space"): SEARCH_SPACES,
     (SearchConfig, "select"): SEARCH_SELECTS,
@@ -122,8 +122,8 @@ def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
 def _choices(cls: type, name: str) -> tuple[str, ...] | None:
     """The values a string field takes, if a fixed set: ``_CHOICES``, and a term's ``type``
     (the term types registered when the schema is made)."""
-    if (cls, name) == (TermConfig, "type"):
-        return tuple(TERM_TYPES)
+    if name == "type" and issubclass(cls, TermConfig) and cls.kind:
+        return (cls.kind,)  # a term type's definition (one per registered type)
     return _CHOICES.get((cls, name)) or _CHOICES.get((_base_with(cls, name), name))
 
 
@@ -157,6 +157,10 @@ def _type_schema(tp: Any, definitions: dict[str, Any]) -> dict[str, Any]:
         if name not in definitions:
             definitions[name] = {}  # (a placeholder against recursion)
             definitions[name] = _object_schema(tp, definitions)
+            if "variants" in vars(tp):  # one of its registered variants (cost terms)
+                refs = [_type_schema(v, definitions) for v in tp.variants()]
+                doc = definitions[name].get("description")
+                definitions[name] = {"anyOf": refs, **({"description": doc} if doc else {})}
         return {"$ref": f"#/definitions/{name}"}
     if origin is list:
         return {"type": "array", "items": _type_schema(args[0], definitions)}

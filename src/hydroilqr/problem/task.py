@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hydroilqr.problem.checks import MAX_STEPS
-from hydroilqr.problem.cost import CostConfig
+from hydroilqr.problem.cost import CostConfig, has_cost_terms
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.goal import GoalCheck
 from hydroilqr.problem.guess import PositionGuess
@@ -102,3 +102,13 @@ def validate_task(cfg: TaskConfig) -> None:
     if n > MAX_STEPS:  # it would not fail, it would allocate and run for ever
         what = "num_steps" if cfg.num_steps else f"horizon: {cfg.horizon:g} s is"
         raise ConfigError(f"{what} {n} time steps; at most {MAX_STEPS} (a longer time step?)")
+
+
+def validate_for_solve(cfg: TaskConfig) -> None:
+    """Checks a task must pass to be solved (a task that only describes a plant, e.g. for
+    its dynamics, need not): ConfigError for a cost without terms."""
+    if not has_cost_terms(cfg.cost):
+        raise ConfigError(
+            "cost: no terms (every weight in Q, Qf, R and cost.terms is zero or missing): there "
+            "is nothing to optimize; give the cost some positive weights"
+        )

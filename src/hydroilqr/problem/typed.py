@@ -92,6 +92,11 @@ def _same_shape(value: Any, tp: Any) -> bool:
 
 
 def _coerce_dataclass(value: Any, tp: Any, key: str) -> Any:
+    """A section's mapping; for a class with registered variants (``variant(data, key)``: a
+    cost term by its type), the variant its data names."""
+    variant = getattr(tp, "variant", None)
+    if variant is not None:
+        tp, value = variant(value, key)
     if value is None:
         value = {}
     if not isinstance(value, dict):

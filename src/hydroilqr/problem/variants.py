@@ -22,10 +22,15 @@ PLAYBACK_OWN = {
 }
 
 
-def check_truth_overrides(overrides: list[str], playback: bool = False) -> None:
+# Keys of the simulated plant that MPC's own option sets.
+MPC_OWN = {"plant.time_step": "--plant-time-step (mpc.plant_time_step)"}
+
+
+def check_truth_overrides(overrides: list[str], playback: bool = False, mpc: bool = False) -> None:
     """ConfigError for a --truth-set key the simulated plant does not use (solver, cost, ...);
-    with ``playback``, also for a key playback sets with its own options (the time step and
-    contact approximation)."""
+    with ``playback`` (``mpc``), also for a key playback (the closed loop) sets with its own
+    options (playback: the time step and contact approximation; MPC: the time step)."""
+    own, who = (PLAYBACK_OWN, "playback") if playback else (MPC_OWN, "the closed loop")
     top = {f.name for f in dataclasses.fields(TaskConfig)}
     for text in overrides:
         key, value = parse_override(text)
@@ -35,12 +40,12 @@ def check_truth_overrides(overrides: list[str], playback: bool = False) -> None:
                 f"--truth-set {key}: the simulated plant only uses {', '.join(TRUTH_SECTIONS)} "
                 "(and geometry/scene shorthands)"
             )
-        if not playback:
+        if not (playback or mpc):
             continue
         nested = value if key == "plant" and isinstance(value, dict) else {}
-        for own, option in PLAYBACK_OWN.items():
-            if key == own or own.split(".")[1] in nested:
-                raise ConfigError(f"--truth-set {own}: playback sets it with {option}")
+        for k, option in own.items():
+            if key == k or k.split(".")[1] in nested:
+                raise ConfigError(f"--truth-set {k}: {who} sets it with {option}")
 
 
 # Keys a continuation stage or an ensemble member cannot override (the time grid and start).
