@@ -40,14 +40,25 @@ def test_summary_counts_the_goal_and_each_check():
 
 def test_transfer_summary_counts_the_played_back_goal_and_the_resting_gaps():
     runs = [_run(k, True, [("a", True)]) for k in (1, 2, 3)]
-    runs[0].transfer = {"goal_met": True, "failed_checks": [], "resting_gap": 0.01}
-    runs[1].transfer = {"goal_met": False, "failed_checks": ["a"], "resting_gap": 0.3}
+    runs[0].transfer = {
+        "goal_met": True,
+        "failed_checks": [],
+        "values": {"a": 0.01},
+        "resting_gap": 0.01,
+    }
+    runs[1].transfer = {
+        "goal_met": False,
+        "failed_checks": ["a"],
+        "values": {"a": 0.04},
+        "resting_gap": 0.3,
+    }
     runs[2].transfer = {"error": "SimulationError: diverged"}
     s = summarize("t", runs)
     assert s["transfer"] == {
         "played": 3,
         "goal_met": 1,
         "failed": 1,
+        "executed_values": {"a": {"min": 0.01, "median": 0.025, "max": 0.04}},
         "median_resting_gap": 0.155,
         "max_resting_gap": 0.3,
     }
@@ -76,7 +87,9 @@ def test_a_perturbed_plan_is_played_back_as_the_transfer_section_plays_it():
     pb = playback(task, sol, PlaybackSettings(**HALF_SPEED))
     gap = pb.metrics["object"]["resting_gap"]
     assert r.transfer["resting_gap"] == gap  # the same plan, played back the same way
-    assert r.transfer["goal_met"] == executed_goal(task, sol, pb)["goal"]["met"]
+    goal = executed_goal(task, sol, pb)["goal"]
+    assert r.transfer["goal_met"] == goal["met"]
+    assert r.transfer["values"] == {c["metric"]: c["value"] for c in goal["checks"]}
 
 
 def test_perturbation_is_relative_reproducible_and_differs_per_run():
