@@ -7,6 +7,7 @@ import math
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.load import load_task
+from hydroilqr.problem.search import check_searchable
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
 
@@ -115,6 +116,8 @@ def run(args) -> int:
             prepare(task, loop_settings(task, args.smoke))
         if args.search and cfg.search is None:
             raise ConfigError(f"--search: {cfg.name} has no search: section")
+        if args.search:
+            check_searchable(cfg)
         refs.append(
             {
                 "label": cfg.name,

@@ -79,6 +79,7 @@ def write_solve(
             "goal": judge(task.config, metrics),
             "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
             "metrics": metrics,
+            "reports": metrics_mod.report_rows(task.config.metrics, metrics),
             **(extra_summary or {}),
             "extra": sol.extra,
             "config": task.config.to_dict(),
@@ -115,6 +116,7 @@ def write_mpc(
         **stats,
         "goal": judge_loop(task.config, task_metrics),
         "metrics": task_metrics,
+        "reports": metrics_mod.report_rows(task.config.metrics, task_metrics),
         "environment": environment(command),
     }
 
@@ -153,6 +155,7 @@ def write_playback(
     if plan is not None:
         judged = executed_goal(task, plan, r)
         data["goal"], data["executed_metrics"] = judged["goal"], judged["metrics"]
+        data["reports"] = metrics_mod.report_rows(task.config.metrics, judged["metrics"])
         # (final values: where the hold left things, unlike object.final_gap at the plan's end)
         data["executed_metrics_final_state"] = (
             "end of the hold after the plan"
