@@ -477,7 +477,7 @@ class MPCConfig:
 SEARCH_METHODS = ("predictive", "cem", "mppi")  # search.method
 SEARCH_SPACES = ("torque", "position")  # search.space
 SEARCH_ORDERS = (0, 1, 3)  # search.order: zero-order hold, linear, cubic
-SEARCH_SELECTS = ("goal", "cost", "transfer")  # search.select
+SEARCH_SELECTS = ("goal", "cost", "transfer", "robust")  # search.select
 MAX_SEARCH_SAMPLES = 100_000  # samples of one search iteration
 
 
@@ -508,8 +508,13 @@ class SearchConfig:
     seed: int = 0
     polish: int = 1  # solve: iLQR from the best this-many distinct samples (0: search only)
     # goal: the first polished plan meeting the goal, else the lowest cost; cost: the lowest
-    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it
+    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it;
+    # robust: the one whose perturbed re-solves (robust_runs, robust_noise) meet it most often
     select: str = "goal"
+    robust_runs: int = 3  # select robust: re-solves per polished candidate
+    # select robust: each re-solve's relative perturbation of the candidate's torques (as
+    # ``hydroilqr robustness --noise``)
+    robust_noise: float = 1e-9
     batches: int = 0  # evaluation batches per iteration (0: one per worker)
 
 
@@ -1383,7 +1388,7 @@ def _shrunk(data: dict[str, Any], shrink: dict[str, Any]) -> dict[str, Any]:
 
 
 #: What --smoke makes of a ``search:`` section (keys the smoke section sets itself win).
-SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1}
+SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1, "robust_runs": 1}
 
 
 def _shrink_search(shrunk: dict[str, Any], shrink: dict[str, Any]) -> None:
@@ -2137,6 +2142,7 @@ def validate_search(cfg: TaskConfig) -> None:
         ("seed", sc.seed >= 0, ">= 0"),
         ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
         ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
+        ("robust_runs", 1 <= sc.robust_runs <= 100, "from 1 to 100"),
     ):
         if not ok:
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")
@@ -2148,6 +2154,7 @@ def validate_search(cfg: TaskConfig) -> None:
         ("temperature", 0 < sc.temperature < math.inf, "a finite number > 0"),
         ("kp", 0 <= sc.kp < math.inf and (sc.kp > 0 or sc.space != "position"), "finite, > 0"),
         ("kd", 0 <= sc.kd < math.inf, "a finite number >= 0"),
+        ("robust_noise", 0 < sc.robust_noise < math.inf, "a finite number > 0"),
     ):
         if not ok:  # (NaN fails every comparison)
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")
