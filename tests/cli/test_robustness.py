@@ -169,7 +169,7 @@ def test_one_worker_runs_one_solve_at_a_time_and_each_solves_threads_are_stated(
 def test_the_spread_of_each_check_shows_how_close_the_runs_came():
     """Issue 54, item 6: "3 of 3" with one run 1.3 mm inside a 20 mm limit says so."""
     from hydroilqr.metrics.goals import evaluate
-    from hydroilqr.problem.config import GoalCheck
+    from hydroilqr.problem.goal import GoalCheck
     from hydroilqr.studies.robustness import spread_lines
 
     goal = {"target_error_m": GoalCheck(max=0.02)}

@@ -95,7 +95,7 @@ def test_every_worker_lost_is_one_line_and_keeps_the_best(tmp_path, monkeypatch,
 def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path):
     """The built-in with a search: section: `check` passes it, and `solve --smoke` runs its
     (smoke-sized) search and polish and writes the result set with both."""
-    from hydroilqr.problem.config import list_tasks
+    from hydroilqr.problem.files import list_tasks
 
     assert "pusher-puck" in list_tasks()
     assert main(["check", "pusher-puck"]) == 0

@@ -8,7 +8,7 @@ import pytest
 
 from hydroilqr import Task, linearize
 from hydroilqr.metrics import compute
-from hydroilqr.problem.config import list_tasks
+from hydroilqr.problem.files import list_tasks
 from hydroilqr.solver.api import solve
 from hydroilqr.solver.receding import CHECKPOINT
 
@@ -238,7 +238,7 @@ def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
     import json
     import shutil
 
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     _, _, full_dir = smoke_run
     shutil.copy(full_dir / CHECKPOINT, tmp_path / CHECKPOINT)
@@ -302,7 +302,7 @@ def test_foot_load_standing_carries_the_weight():
 
 
 def test_checkpoint_of_other_settings_refused(tmp_path):
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.solver.receding import load_checkpoint
 
     def stop(done, total, sol):
@@ -351,7 +351,8 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
     changed would stitch two models into one trajectory."""
     import shutil
 
-    from hydroilqr.problem.config import TASKS_DIR, ConfigError
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.files import TASKS_DIR
     from hydroilqr.solver.receding import load_checkpoint
 
     model = tmp_path / "cheetah.sdf"

@@ -9,7 +9,7 @@ import pytest
 from hydroilqr.control.playback import PlaybackSettings, advisories, load_run, playback
 from hydroilqr.model.task import Task
 from hydroilqr.output import results
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.solver.api import solve
 from tests.conftest import rollout_plan
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from hydroilqr.cli import main
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.studies.sweep import POINT_COLUMNS, grid, parse_values, point_id, run_sweep
 
 KEY = "tip.hydroelastic_modulus"
@@ -55,7 +55,7 @@ def swept(tmp_path_factory):
 
 
 def test_sweep_refuses_bad_specs_before_starting(tmp_path):
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.studies.sweep import run_sweep
 
     with pytest.raises(ConfigError, match="at most two"):
@@ -71,7 +71,7 @@ def test_sweep_refuses_bad_specs_before_starting(tmp_path):
 def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path):
     import json
 
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.studies.sweep import point_id, run_sweep
 
     out = tmp_path / "s"
@@ -252,7 +252,7 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
     client (remote workers run elsewhere)."""
     from concurrent.futures import CancelledError
 
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.studies import sweep as sweep_mod
 
     class Lost:

@@ -47,7 +47,7 @@ from hydroilqr import Task
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.metrics import compute
 from hydroilqr.metrics.goals import evaluate
-from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.problem.variants import mismatch_overrides
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.multistart import perturbation
 from hydroilqr.studies.robustness import DEFAULT_NOISE

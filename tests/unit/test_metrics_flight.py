@@ -10,7 +10,7 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.metrics import flight, validate_task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monkeypatch):

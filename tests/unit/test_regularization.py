@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hydroilqr import Task
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import loop
 from hydroilqr.solver.regularization import after_step
 

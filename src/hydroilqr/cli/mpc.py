@@ -14,7 +14,8 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import DERIVATIVES
 
 HELP = "closed-loop MPC over hydroelastic contact"
 
@@ -228,7 +229,7 @@ def _print_summary(data: dict, settings, task) -> None:
             f"of the {settings.rate:g} Hz asked (--realtime: the plant ran on older plans "
             "while updates were late; the loop real-time factor is ~1 by construction)"
         )
-    from hydroilqr.control.mpc import SATURATION_WARNING
+    from hydroilqr.metrics.common import SATURATION_WARNING
 
     if data.get("saturated_fraction", 0.0) > SATURATION_WARNING:
         warn(

@@ -7,7 +7,8 @@ import math
 
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
 from hydroilqr.io.files import atomic_write
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
 

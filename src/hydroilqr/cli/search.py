@@ -13,7 +13,7 @@ from hydroilqr.cli.common import (
     load_task_from_args,
     print_goal,
 )
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
 

@@ -15,7 +15,8 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import DERIVATIVES
 
 # Multi-start's seed and perturbation size when --starts N is given without them (None on
 # the command line means "not given": they are refused without --starts).

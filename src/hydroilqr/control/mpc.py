@@ -42,17 +42,13 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.names import body_labels, find_body
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import (
-    MAX_STEPS,
-    ConfigError,
-    MPCConfig,
-    SolverConfig,
-    check_truth_overrides,
-    unknown_key,
-    validate_for_solve,
-    validate_mpc,
-    with_overrides,
-)
+from hydroilqr.problem.checks import MAX_STEPS, unknown_key
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import with_overrides
+from hydroilqr.problem.mpc import MPCConfig, PlannerSettings, validate_mpc
+from hydroilqr.problem.solver import SolverConfig
+from hydroilqr.problem.task import validate_for_solve
+from hydroilqr.problem.variants import check_truth_overrides
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.solution import PHASES, Solution, load_run_solution
 
@@ -79,14 +75,17 @@ class Push:
             raise ConfigError(f"--push {text!r}: expected TIME:BODY:FX,FY,FZ") from None
 
 
-def check_settings(settings: MPCConfig, task) -> np.ndarray | None:
+def check_settings(settings: MPCConfig, task, section_checked: bool = False) -> np.ndarray | None:
     """Raises ConfigError for settings that cannot run on ``task``; returns the warm-start
     plan's controls, U: [M, nu] (None without one). A task's ``ensemble:`` is not used: MPC
-    re-plans on the task's own model."""
+    re-plans on the task's own model. ``section_checked``: the settings are the task's own
+    ``mpc:`` section (``mpc_config(task)``), whose own checks ran when the task was built;
+    only those against the task run here."""
     dt = task.config.plant.time_step
     _check_timing(settings, dt)
     _check_iteration(settings)
-    validate_mpc(settings)  # the checks shared with a task file's mpc: section
+    if not section_checked:
+        validate_mpc(settings)  # the checks of a task file's mpc: section
     U_ref = plan_controls(settings, task) if settings.warm_start_plan else None
     _check_truth(settings, task, dt)
     _check_pushes(settings, task.dynamics.plant, simulation_step(settings, dt)[0])
@@ -221,14 +220,8 @@ def _check_truth(settings: MPCConfig, task, dt: float) -> None:
             f"--plant-time-step (mpc.plant_time_step) {h:g} s: the task's horizon "
             f"({task.steps * dt:g} s) is {task.steps * substeps} steps of it; at most {MAX_STEPS}"
         )
-    if settings.truth_overrides:
-        check_truth_overrides(settings.truth_overrides)
-        truth = with_overrides(task.config, settings.truth_overrides)
-        if truth.plant.time_step != dt:
-            raise ConfigError(
-                "--truth-set: plant.time_step of the simulated plant is set with "
-                "--plant-time-step (mpc.plant_time_step), not --truth-set"
-            )
+    # (the simulated plant's task is built, and checked, once: Truth)
+    check_truth_overrides(settings.truth_overrides, mpc=True)
     if settings.shrinking_horizon and int(round(settings.duration / dt)) > task.steps:
         raise ConfigError(
             f"mpc: a shrinking horizon ends with the task ({task.steps * dt:g} s); the "
@@ -442,14 +435,14 @@ class Controller:
         self,
         task,
         horizon_steps: int,
-        settings: MPCConfig | None = None,
+        settings: PlannerSettings | None = None,
         solver: SolverConfig | None = None,
         U_ref: np.ndarray | None = None,
     ):
         """``solver``: the solver settings of the first, full plan (default: the task's);
         later updates search fewer step sizes (``settings.line_search_steps``). ``U_ref``:
         the controls of a warm-start plan by time step, [M, nu] (``check_settings``)."""
-        settings = settings or MPCConfig()
+        settings = settings or PlannerSettings()  # (the planner's part of an MPCConfig)
         self.task = task
         self.dyn = task.dynamics
         self.cost = task.cost
@@ -733,9 +726,6 @@ class Controller:
         return X
 
 
-SATURATION_WARNING = 0.2  # fraction of clipped commands that earns a warning (as playback)
-
-
 class Truth:
     """The simulated plant being controlled (its own Drake context), with external pushes."""
 
@@ -842,7 +832,7 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     if settings is None:
         settings = mpc_config(task)
     dt = task.dynamics.dt
-    U_ref = check_settings(settings, task)
+    U_ref = check_settings(settings, task, section_checked=_as_checked(settings, task))
     planner = planning_task(task, settings)
     N = max(2, int(round(settings.horizon / dt)))
     if settings.shrinking_horizon:
@@ -852,7 +842,7 @@ def prepare(task, settings: MPCConfig | None = None) -> ClosedLoop:
     solver = controller_solver(planner.config.solver, settings)
     if not settings.derivatives:  # recorded as the method in use (the caller's is unchanged)
         settings = dataclasses.replace(settings, derivatives=solver.derivatives)
-    ctrl = Controller(planner, N, settings, solver, U_ref)
+    ctrl = Controller(planner, N, PlannerSettings.of(settings), solver, U_ref)
     h, _ = simulation_step(settings, dt)
     try:
         truth = Truth(task, settings.truth_overrides, h)
@@ -868,6 +858,17 @@ def run_mpc(task, settings: MPCConfig | None = None, on_update=None) -> MPCResul
     the settings). ``on_update(k, n)``: called with the time steps simulated so far and in
     all."""
     return prepare(task, settings).run(on_update)
+
+
+def _as_checked(settings: MPCConfig, task) -> bool:
+    """Whether the settings ``validate_mpc`` checks (the planner's and the goal) are the task's
+    own ``mpc:`` section's, checked when the task was built (e.g. the command line changed
+    only the loop's rate or duration); a warm-start plan's path is compared as given."""
+
+    def checked_part(m: MPCConfig) -> tuple:
+        return dataclasses.replace(PlannerSettings.of(m), warm_start_plan=""), m.goal
+
+    return checked_part(settings) == checked_part(task.config.mpc)
 
 
 def controller_solver(solver: SolverConfig, settings: MPCConfig) -> SolverConfig:

@@ -62,7 +62,7 @@ from hydroilqr.metrics.common import contact_pairs, floating_block, floating_nam
 from hydroilqr.metrics.contacts import state_step
 from hydroilqr.metrics.registry import Metric, Report, register
 from hydroilqr.model.contacts import runs
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
 DIAGONAL = ((0, 3), (1, 2))  # FL+HR, FR+HL

@@ -200,9 +200,9 @@ def _rollout(x0, Ubar, Xbar, K, kappa, eps):
 def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     """Same result as ``autodiff.autodiff_serial`` on X: [N, nx], U: [N, nu]: the steps are
     dealt out to ``workers`` chunks in turn (steps i, i + workers, ...; the first chunk computed
-    here), so that steps in contact, which cost several times more, spread evenly. (Contiguous
-    chunks left one process idle while the other finished a stance phase: a 22-step cheetah
-    call took 76-148 ms instead of 67-133 ms, measured 2026-11-24.) Raises Unavailable."""
+    here), so that steps in contact, which cost several times more, spread evenly (contiguous
+    chunks left one process idle while the other finished a stance phase). Raises
+    Unavailable."""
 
     pool(dyn, workers)
     if not started(dyn):

@@ -28,8 +28,10 @@ from hydroilqr.io.environment import environment
 from hydroilqr.io.files import atomic_savez, content_hash
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, SolverConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.guess import GUESS_KEYWORDS
 from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_MODEL_BYTES, check_npz, read_bounded
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import stopping
 from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import solve

@@ -1,6 +1,6 @@
 """A task's sampling search: its spline space, the rollout and cost of a sample, the search.
 
-``SearchSpace(task)`` reads the task's ``search:`` section (``problem.config.SearchConfig``):
+``SearchSpace(task)`` reads the task's ``search:`` section (``problem.search.SearchConfig``):
 K knots per actuator of a spline of ``order`` over the horizon, in one of two spaces:
 
 - ``torque``: the spline is the actuators' command at each step's time, U: [N, nu]
@@ -29,7 +29,7 @@ import numpy as np
 
 from hydroilqr.model.pd import actuated_indices, pd_rollout
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import SearchConfig
+from hydroilqr.problem.search import SearchConfig
 from hydroilqr.solver import sampling, splines
 from hydroilqr.solver.solution import Solution
 

@@ -53,7 +53,9 @@ from hydroilqr.model.plant import SimulationError, hydroelastic_kind
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import output_dir
 from hydroilqr.problem.capabilities import drake_has_tamsi, no_tamsi_message
-from hydroilqr.problem.config import ConfigError, DerivativeMethod, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.solver import DerivativeMethod
 from hydroilqr.solver.ilqr import backward_pass
 from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES

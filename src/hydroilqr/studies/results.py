@@ -27,7 +27,7 @@ from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.output.report import json_safe, output_dir
-from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.problem.variants import mismatch_overrides
 from hydroilqr.studies.robustness import table
 
 DEFAULT_TASKS = (

@@ -45,7 +45,8 @@ from hydroilqr.metrics.goals import judge_loop
 from hydroilqr.model.derivatives import num_threads
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.multistart import perturbation, solve_start
 

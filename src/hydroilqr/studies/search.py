@@ -38,7 +38,7 @@ from distributed import wait
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.metrics.goals import evaluate as evaluate_goal
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import load_task
+from hydroilqr.problem.load import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.cluster import kill_workers, open_client
