@@ -418,8 +418,8 @@ def search_table(results: Sequence[TaskResult], context: Context) -> Section | N
         "iLQR alone: `hydroilqr robustness TASK` (with the task's approach stage, from its "
         "guess perturbed by a hair); search + polish: `hydroilqr robustness TASK --search` "
         "(the task's search with seed k - 1 in run k, then iLQR from its best samples, as "
-        "`hydroilqr solve` runs it). Run times are of one Dask worker each, two at once, on a "
-        "machine shared with other work (see each record's load below)."
+        "`hydroilqr solve` runs it). Run times are of one Dask worker each, several at once, on "
+        "a machine that may be shared with other work (each record's load is below)."
     )
     return Section("search", "Search across basins", "\n".join([*parts, note]), rates_json(rates))
 
