@@ -114,11 +114,12 @@ def _parser(func):
 @pytest.fixture(scope="module")
 def receding_run(tmp_path_factory):
     from hydroilqr.model.task import Task
+    from hydroilqr.output.results import checkpointer
     from hydroilqr.solver import api
 
     d = tmp_path_factory.mktemp("rh")
     task = Task.load("cartpole-wall", SMOKE_RH)
-    api.solve(task, checkpoint_dir=d)
+    api.solve(task, checkpoint_dir=d, on_checkpoint=checkpointer(d))
     return task, d
 
 
@@ -400,10 +401,11 @@ def test_cli_resume_from_nan_checkpoint_is_one_line(tmp_path):
     sets[-1:] = [sets[-1], "--set=solver.max_iterations=1"]
     # a checkpoint only: the run was interrupted after its first window
     from hydroilqr.model.task import Task
+    from hydroilqr.output.results import checkpointer
     from hydroilqr.solver import api
 
     task = Task.load("cartpole-wall", [s.split("=", 1)[1] for s in sets])
-    api.solve(task, checkpoint_dir=tmp_path)
+    api.solve(task, checkpoint_dir=tmp_path, on_checkpoint=checkpointer(tmp_path))
     ck = tmp_path / receding.CHECKPOINT
     with np.load(ck) as z:
         X = z["X"].copy()

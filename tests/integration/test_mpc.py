@@ -338,10 +338,10 @@ def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
 
 
 def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
-    from hydroilqr.control import mpc
+    from hydroilqr.control import ilqr_planner
     from hydroilqr.model.plant import SimulationError
 
-    real, calls = mpc.ilqr_solve, []
+    real, calls = ilqr_planner.ilqr_solve, []
 
     def third_fails(*args, **kwargs):
         calls.append(1)
@@ -349,7 +349,7 @@ def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
             raise SimulationError("this update's solve failed")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(mpc, "ilqr_solve", third_fails)
+    monkeypatch.setattr(ilqr_planner, "ilqr_solve", third_fails)
     res = run_mpc(Task.load("cartpole-wall"), MPCConfig(duration=0.1, rate=50.0, horizon=0.2))
     assert res.failures == 1
     assert len(res.derivative_steps) == len(res.reused_prediction) == len(res.solve_seconds)

@@ -242,6 +242,10 @@ def _print_result(data: dict, wall_seconds: float) -> None:
         f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}{which}; "
         f"saturated commands {100 * data['saturated_fraction']:.1f}%"
     )
+    from hydroilqr.metrics import report_lines  # (loaded with the playback already)
+
+    for line in report_lines(data.get("reports") or {}, "executed"):
+        console.print(line, soft_wrap=True)
 
 
 def _fmt(v) -> str:

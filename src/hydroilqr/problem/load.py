@@ -122,6 +122,6 @@ def validate(cfg: TaskConfig) -> None:
     validate_goal(cfg.goal)
     validate_cost(cfg.cost)
     validate_receding_horizon(cfg.receding_horizon)
-    validate_search(cfg.search, cfg.steps, cfg.receding_horizon is not None)
+    validate_search(cfg.search, cfg.steps)
     if isinstance(cfg.initial_guess, PositionGuess):
         validate_position_guess(cfg.initial_guess)

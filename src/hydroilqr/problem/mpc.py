@@ -6,10 +6,11 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from hydroilqr.problem.checks import unknown_key
+from hydroilqr.problem.checks import MAX_STEPS, unknown_key
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.goal import GoalCheck, validate_goal
 from hydroilqr.problem.receding import WARM_START_TAILS
+from hydroilqr.problem.search import MAX_SEARCH_SAMPLES
 from hydroilqr.problem.solver import DERIVATIVES
 
 # mpc.candidates
@@ -79,6 +80,14 @@ class PlannerSettings:
     # kept on in the loop, so that the plans keep looking for contact. The time grid, the
     # state and the inputs stay the task's; the simulated robot and the goal are the task's.
     plan_overrides: list[str] = field(default_factory=list)
+    # The planner: ilqr; sampling (the task's search: settings over the horizon, warm-started
+    # by the previous best spline shifted); hybrid (the sampler's best, then at most
+    # iterations_per_update iLQR iterations on it, cut by deadline with --realtime)
+    planner: str = "ilqr"
+    samples: int = 0  # sampling / hybrid: rollouts per sampling iteration (0: search.samples)
+    sampling_iterations: int = 1  # per update (the first plan: search.iterations)
+    knots: int = 0  # spline knots over the horizon (0: search.knots)
+    sampling_workers: int = 0  # processes that roll samples out, this one included (0: cores)
 
     @classmethod
     def of(cls, settings):
@@ -131,8 +140,12 @@ def validate_mpc(m: MPCConfig) -> None:
     validate_planner(m)
 
 
+MPC_PLANNERS = ("ilqr", "sampling", "hybrid")  # mpc.planner
+
+
 def validate_planner(m: PlannerSettings) -> None:
     """The planner's settings that need no plant."""
+    _validate_sampler(m)
     if not 0 <= m.deadline <= 1:
         raise ConfigError(
             f"mpc.deadline: a fraction of the control period in [0, 1], got {m.deadline}"
@@ -171,3 +184,20 @@ def validate_planner(m: PlannerSettings) -> None:
         raise ConfigError(
             "mpc.derivative_reuse_tolerance / derivative_steps_per_update: must be >= 0"
         )
+
+
+def _validate_sampler(m: PlannerSettings) -> None:
+    """mpc.planner and the sampling planners' keys."""
+    if m.planner not in MPC_PLANNERS:
+        raise ConfigError(
+            f"mpc.planner: expected one of {', '.join(MPC_PLANNERS)}, got {m.planner!r}"
+        )
+    for name, ok, rule in (
+        ("samples", m.samples == 0 or 2 <= m.samples <= MAX_SEARCH_SAMPLES,
+         f"0 (search.samples) or from 2 to {MAX_SEARCH_SAMPLES}"),
+        ("sampling_iterations", 1 <= m.sampling_iterations <= 1000, "from 1 to 1000"),
+        ("knots", 0 <= m.knots <= MAX_STEPS, "0 (search.knots) or more"),
+        ("sampling_workers", 0 <= m.sampling_workers <= 1024, "from 0 (one per core) to 1024"),
+    ):  # fmt: skip
+        if not ok:
+            raise ConfigError(f"mpc.{name}: must be {rule}, got {getattr(m, name)!r}")

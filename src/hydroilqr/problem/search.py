@@ -49,15 +49,30 @@ class SearchConfig:
     # ``hydroilqr robustness --noise``)
     robust_noise: float = 1e-9
     batches: int = 0  # evaluation batches per iteration (0: one per worker)
+    # receding-horizon search (long motions): windows of this many steps (0: the whole
+    # horizon at once), each keeping its first shift_steps (0: half the window); knots and
+    # iterations are per window
+    window_steps: int = 0
+    shift_steps: int = 0
 
 
-def validate_search(sc: SearchConfig | None, steps: int, receding_horizon: bool) -> None:
+def check_searchable(cfg) -> None:
+    """``hydroilqr search`` / ``solve`` / ``robustness --search`` of a task (a TaskConfig)
+    with a ``search:`` section: ConfigError for a receding-horizon solve (its windows are
+    iLQR's; a search's are ``search.window_steps``). ``mpc.planner: sampling`` reads the
+    section on any task."""
+    if cfg.search is not None and cfg.receding_horizon is not None:
+        raise ConfigError(
+            "search: a receding-horizon task cannot be searched (one horizon only; set "
+            "receding_horizon=null and search.window_steps for a search window by window)"
+        )
+
+
+def validate_search(sc: SearchConfig | None, steps: int) -> None:
     """ConfigError naming the first invalid ``search:`` setting (none: nothing to check) of a
-    task of ``steps`` time steps (``receding_horizon``: solved window by window)."""
+    task of ``steps`` time steps."""
     if sc is None:
         return
-    if receding_horizon:
-        raise ConfigError("search: a receding-horizon task cannot be searched (one horizon only)")
     for key, value, choices in (
         ("method", sc.method, SEARCH_METHODS),
         ("space", sc.space, SEARCH_SPACES),
@@ -77,6 +92,13 @@ def validate_search(sc: SearchConfig | None, steps: int, receding_horizon: bool)
         ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
         ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
         ("robust_runs", 1 <= sc.robust_runs <= 100, "from 1 to 100"),
+        ("knots", sc.knots <= (sc.window_steps or steps), "at most search.window_steps"),
+        ("window_steps", sc.window_steps >= 0, ">= 0 (0: the whole horizon at once)"),
+        (
+            "shift_steps",
+            0 <= sc.shift_steps <= max(sc.window_steps, 0),
+            "from 0 (half the window) to search.window_steps",
+        ),  # fmt: skip
     ):
         if not ok:
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")

@@ -38,10 +38,12 @@ def solve(
     checkpoint_dir: str | Path | None = None,
     on_resolve=None,
     stop_on_interrupt: bool = False,
+    on_checkpoint=None,
 ) -> Solution:
     """Solves a task (a Task, or a built-in task name / task file path): one iLQR solve over
-    the horizon, or the receding-horizon schedule if the task has one (checkpointed to
-    ``checkpoint_dir`` after every resolve).
+    the horizon, or the receding-horizon schedule if the task has one (continuing the
+    checkpoint in ``checkpoint_dir`` if there is one; ``on_checkpoint(state)`` after every
+    resolve: ``output.results.checkpointer(directory)`` saves it there).
 
     ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
     state (default: the task's; a quaternion in it that is not of unit norm is normalized, as
@@ -85,7 +87,9 @@ def solve(
                 f"U0 of a receding-horizon task is its first window's guess: shape [{W}, "
                 f"{task.dynamics.nu}], got {np.shape(U0)}"
             )
-        return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver, U0)
+        return solve_receding(
+            task, callbacks, checkpoint_dir, on_resolve, solver, U0, on_checkpoint
+        )
     x0, U0 = _start(task, U0, x0)
     if task.config.ensemble:  # (not with continuation or receding_horizon: config.validate)
         return solve_ensemble(task, U0, x0, solver, callbacks, stop_on_interrupt)

@@ -67,6 +67,7 @@ class SamplingResult:
     history: list[dict] = field(default_factory=list)
     interrupted: bool = False
     seconds: float = 0.0
+    windows: list[dict] = field(default_factory=list)  # a receding search's windows
 
     @property
     def samples(self) -> int:

@@ -62,10 +62,11 @@ def held(task_ref: dict):
     return _HELD[key]
 
 
-def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
-    """Runs on a worker: the costs of a batch of commands on its held plant."""
+def evaluate_batch(task_ref: dict, commands: list, x0=None, t0=None) -> list[float]:
+    """Runs on a worker: the costs of a batch of commands on its held plant, from x0 at t0
+    (default: the task's start; a receding search's window gives its own)."""
     task, space = held(task_ref)
-    return [space.cost(task, c) for c in commands]
+    return [space.cost(task, c, x0, t0) for c in commands]
 
 
 def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
@@ -124,7 +125,7 @@ class DaskEvaluator:
 
         return check
 
-    def __call__(self, commands: list) -> list[float]:
+    def __call__(self, commands: list, x0=None, t0=None) -> list[float]:
         if self.lost is not None:
             return [math.inf] * len(commands)
         n = max(1, min(self.batches, len(commands)))
@@ -134,6 +135,8 @@ class DaskEvaluator:
                 evaluate_batch,
                 self.task_ref,
                 commands[a:b],
+                x0,
+                t0,
                 pure=False,
                 key=f"search-{self.calls}-{i}",
             )

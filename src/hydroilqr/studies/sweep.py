@@ -38,11 +38,16 @@ from distributed import as_completed
 
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.io.environment import code_version, environment
-from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import output_dir
 from hydroilqr.output.results import write_sweep_point
+from hydroilqr.output.studies import (
+    COMPUTED_LOG,
+    write_sweep_plots,
+    write_sweep_spec,
+    write_sweep_tables,
+)
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.files import TASKS_DIR, task_file
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
@@ -55,7 +60,6 @@ from hydroilqr.studies.sweep_points import (
     EXTRA_COLUMNS,
     MAX_POINTS,
     POINT_COLUMNS,
-    _adopt_older_point,
     _error_text,
     check_numeric_params,
     columns,
@@ -65,8 +69,8 @@ from hydroilqr.studies.sweep_points import (
     point_id,
     point_intact,
     solve_point,
+    sweep_table,
     table_rows,
-    write_tables,
 )
 
 __all__ = [
@@ -87,7 +91,7 @@ __all__ = [
     "run_sweep",
     "solve_point",
     "table_rows",
-    "write_tables",
+    "sweep_table",
 ]
 
 
@@ -207,11 +211,12 @@ def run_sweep(
         "environment": environment(command),  # of this process (points: see their code column)
     }
     _check_same_sweep(out, spec)
-    atomic_write(out / "sweep_spec.json", json.dumps(spec, indent=1))
+    write_sweep_spec(out, spec)
 
     sw = _Sweep(task_arg, cfg_arg, bool(smoke), overrides, keys, points, out, spec, metric_cols)
     todo = sw.load_done(retry_failed, monitor)
     sw.load_earlier()
+    sw.load_log()
     n_failed0 = sum(r.get("status") != "ok" for r in sw.rows.values())
     monitor.message(
         f"[bold]sweep[/bold] {task_cfg.name}: "
@@ -302,6 +307,7 @@ class _Sweep:
     metric_cols: list
     rows: dict[str, dict] = field(default_factory=dict)
     earlier_rows: list[dict] = field(default_factory=list)
+    log: str | None = None  # computed.log: one line per point computed by any run
 
     def __post_init__(self) -> None:
         self.points_dir = self.out / "points"
@@ -311,7 +317,6 @@ class _Sweep:
         """Reads the points already computed into ``rows``; the indices of those to compute."""
         todo: list[int] = []
         for i, pid in enumerate(self.ids):
-            _adopt_older_point(self.points_dir, self.points[i], pid)
             r = load_point(self.points_dir, pid)
             if r is not None and not point_intact(self.points_dir, r):
                 monitor.message(
@@ -342,9 +347,16 @@ class _Sweep:
     def ordered(self) -> list[dict]:
         return [self.rows[pid] for pid in self.ids if pid in self.rows] + self.earlier_rows
 
+    def load_log(self) -> None:
+        """computed.log of earlier runs (None: no run computed a point here yet)."""
+        path = self.out / COMPUTED_LOG
+        if path.exists():
+            self.log = read_bounded(path, "computed log", MAX_JSON_BYTES).decode(errors="replace")
+
     def write_tables(self, rows: list[dict]) -> None:
         missing = len(self.points) - len(self.rows)
-        write_tables(self.out, self.spec, self.keys, rows, missing, self.metric_cols)
+        cols, trs, doc = sweep_table(self.spec, self.keys, rows, missing, self.metric_cols)
+        write_sweep_tables(self.out, cols, trs, doc, self.log)
 
 
 def _compute(sw: _Sweep, todo: list[int], scheduler, workers, monitor, n_failed0, code):
@@ -438,8 +450,7 @@ def _record(sw: _Sweep, fut, i: int, monitor: SweepMonitor, code: str) -> bool:
     write_sweep_point(sw.points_dir, result)
     row = result["row"]
     sw.rows[sw.ids[i]] = row
-    with open(sw.out / "computed.log", "a") as fh:
-        fh.write(f"{sw.ids[i]}\t{row.get('status')}\t{time.time():.0f}\n")
+    sw.log = (sw.log or "") + f"{sw.ids[i]}\t{row.get('status')}\t{time.time():.0f}\n"
     monitor.finished(sw.ids[i], row, sw.keys)
     sw.write_tables(sw.ordered())
     return True
@@ -448,6 +459,11 @@ def _record(sw: _Sweep, fut, i: int, monitor: SweepMonitor, code: str) -> bool:
 def _plot(sw: _Sweep, params: list[tuple[str, list]], all_rows: list[dict], task_cfg) -> list:
     """sweep.png and the sweep plots of the task's metrics (e.g. the cart-pole's
     snapshots.png); the names written."""
+    return write_sweep_plots(sw.out, lambda d: _draw(d, sw, params, all_rows, task_cfg))
+
+
+def _draw(directory: Path, sw: _Sweep, params, all_rows: list[dict], task_cfg) -> list:
+    """Draws the sweep's plots into ``directory``; their names."""
     keys = sw.keys
     grid_values = [
         sorted({r[f"param:{k}"] for r in all_rows}, key=float) if sw.earlier_rows else v
@@ -456,11 +472,11 @@ def _plot(sw: _Sweep, params: list[tuple[str, list]], all_rows: list[dict], task
     panels = goal_panels(task_cfg.goal)
     panels += [p for p in metrics_mod.sweep_panels(task_cfg.metrics) if p[0] not in task_cfg.goal]
     plot_sweep(
-        sw.out / "sweep.png", task_cfg.name, keys, all_rows, grid_values, panels, task_cfg.goal
+        directory / "sweep.png", task_cfg.name, keys, all_rows, grid_values, panels, task_cfg.goal
     )
     wrote = ["sweep.png"]
     for name, plot in metrics_mod.sweep_plots(task_cfg.metrics):
-        if plot(sw.out / name, sw.points_dir, task_cfg, keys, all_rows):
+        if plot(directory / name, sw.points_dir, task_cfg, keys, all_rows):
             wrote.append(name)
     return wrote
 

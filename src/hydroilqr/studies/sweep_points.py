@@ -4,10 +4,7 @@
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
-import itertools
 import json
 import math
 import os
@@ -22,7 +19,7 @@ from distributed import get_worker
 
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.io.environment import code_version
-from hydroilqr.io.files import atomic_write, content_hash
+from hydroilqr.io.files import content_hash
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import judge
 from hydroilqr.model.task import Task
@@ -164,50 +161,14 @@ def _canonical(v: Any) -> Any:
     return v
 
 
-def point_id(values: dict[str, Any], spelled: dict[str, str] | None = None) -> str:
-    """Stable file name for a point: readable prefix + hash of the exact values. ``spelled``:
-    the values' text as hashed (default: numbers in one form, since 1000000 and 1e6 build the
-    same task; sweeps before 2026-11-23 hashed ``repr`` of the value as typed)."""
-    canon = json.dumps(
-        spelled or {k: repr(_canonical(v)) for k, v in values.items()},
-        sort_keys=True,
-    )
+def point_id(values: dict[str, Any]) -> str:
+    """Stable file name for a point: readable prefix + hash of the exact values (numbers in
+    one form, since 1000000 and 1e6 build the same task)."""
+    canon = json.dumps({k: repr(_canonical(v)) for k, v in values.items()}, sort_keys=True)
     digest = hashlib.sha1(canon.encode()).hexdigest()[:10]
     label = "_".join(f"{k.split('.')[-1][:12]}{v:.4g}" for k, v in values.items())
     label = "".join(c if c.isalnum() or c in "._-+" else "-" for c in label)
     return f"{label}_{digest}"
-
-
-def _older_ids(values: dict[str, Any]) -> list[str]:
-    """The ids an older sweep gave these values (each number hashed as typed: int or float)."""
-
-    forms = []
-    for v in values.values():
-        f = {repr(v)}
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            f.add(repr(float(v)))
-            if float(v).is_integer():
-                f.add(repr(int(v)))
-        forms.append(sorted(f))
-    keys = list(values)
-    ids = {point_id(values, dict(zip(keys, combo))) for combo in itertools.product(*forms)}
-    return sorted(ids - {point_id(values)})
-
-
-def _adopt_older_point(points_dir: Path, values: dict[str, Any], pid: str) -> None:
-    """Renames an older sweep's files for these values to the current id (kept, not redone)."""
-    if (points_dir / f"{pid}.json").exists():
-        return
-    for old in _older_ids(values):
-        r = load_point(points_dir, old)
-        if r is None:
-            continue
-        r["id"] = pid
-        if (points_dir / f"{old}.npz").exists():
-            os.replace(points_dir / f"{old}.npz", points_dir / f"{pid}.npz")
-        atomic_write(points_dir / f"{pid}.json", json.dumps(r, indent=1))
-        (points_dir / f"{old}.json").unlink()
-        return
 
 
 # ------------------------------------------------------------------------------------------
@@ -357,14 +318,16 @@ def table_rows(param_keys: list[str], rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_tables(
-    out: Path,
+def sweep_table(
     spec: dict,
     param_keys: list[str],
     rows: list[dict],
     pending: int,
     metric_columns: tuple[list, list] = ([], []),
-) -> None:
+) -> tuple[list[str], list[dict], dict]:
+    """The sweep's table of ``rows`` (``pending`` points still missing): (its columns, its
+    rows sorted by the swept values, sweep.json's dict); ``output.studies.write_sweep_tables``
+    writes them."""
     # Sorted by the swept values (points of earlier runs and of an extended grid interleave).
     trs = sorted(
         table_rows(param_keys, rows),
@@ -373,12 +336,6 @@ def write_tables(
         ),
     )
     cols = columns(param_keys, rows, metric_columns)
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=cols + ["id"], extrasaction="ignore")
-    w.writeheader()
-    for r in trs:
-        w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols + ["id"]})
-    atomic_write(out / "sweep.csv", buf.getvalue())
     failed = sum(r.get("status") != "ok" for r in rows)
     doc = {
         **spec,
@@ -391,4 +348,4 @@ def write_tables(
         "columns": cols,
         "points": trs,
     }
-    atomic_write(out / "sweep.json", json.dumps(json_safe(doc), indent=1))
+    return cols, trs, doc
