@@ -129,6 +129,10 @@ def run(args) -> int:
     summary = _write_results(
         task, sol, out, args, wall, extra, srun.result.costs if srun else None
     )  # Ctrl+C: after the set
+    if srun is not None and srun.lost:
+        from hydroilqr.cli.search import workers_lost
+
+        return workers_lost(srun, out, _kept_at_interrupt(srun).replace(" before Ctrl+C", ""))
     if srun is not None and srun.interrupted:
         console.print(f"interrupted: {out} holds {_kept_at_interrupt(srun)}")
         print_goal(summary["goal"], args.smoke, "the plan kept at Ctrl+C")
@@ -314,7 +318,13 @@ def _search_then_polish(task, args):
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
         chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"
-        console.print(f"select ({sc.select}): {chosen}")
+        held = [
+            f"polish {r.index} {r.robust['met']} of {r.robust['runs']}"
+            for r in srun.polished
+            if getattr(r, "robust", None)
+        ]
+        how = f" (perturbed re-solves meeting the goal: {', '.join(held)})" if held else ""
+        console.print(f"select ({sc.select}): {chosen}{how}", soft_wrap=True)
     return srun
 
 

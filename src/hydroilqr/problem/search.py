@@ -10,7 +10,7 @@ from hydroilqr.problem.errors import ConfigError
 SEARCH_METHODS = ("predictive", "cem", "mppi")  # search.method
 SEARCH_SPACES = ("torque", "position")  # search.space
 SEARCH_ORDERS = (0, 1, 3)  # search.order: zero-order hold, linear, cubic
-SEARCH_SELECTS = ("goal", "cost", "transfer")  # search.select
+SEARCH_SELECTS = ("goal", "cost", "transfer", "robust")  # search.select
 MAX_SEARCH_SAMPLES = 100_000  # samples of one search iteration
 
 
@@ -41,8 +41,13 @@ class SearchConfig:
     seed: int = 0
     polish: int = 1  # solve: iLQR from the best this-many distinct samples (0: search only)
     # goal: the first polished plan meeting the goal, else the lowest cost; cost: the lowest
-    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it
+    # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it;
+    # robust: the one whose perturbed re-solves (robust_runs, robust_noise) meet it most often
     select: str = "goal"
+    robust_runs: int = 3  # select robust: re-solves per polished candidate that meets the goal
+    # select robust: each re-solve's relative perturbation of the candidate's torques (as
+    # ``hydroilqr robustness --noise``)
+    robust_noise: float = 1e-9
     batches: int = 0  # evaluation batches per iteration (0: one per worker)
     # receding-horizon search (long motions): windows of this many steps (0: the whole
     # horizon at once), each keeping its first shift_steps (0: half the window); knots and
@@ -86,6 +91,7 @@ def validate_search(sc: SearchConfig | None, steps: int) -> None:
         ("seed", sc.seed >= 0, ">= 0"),
         ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
         ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
+        ("robust_runs", 1 <= sc.robust_runs <= 100, "from 1 to 100"),
         ("knots", sc.knots <= (sc.window_steps or steps), "at most search.window_steps"),
         ("window_steps", sc.window_steps >= 0, ">= 0 (0: the whole horizon at once)"),
         (
@@ -104,6 +110,7 @@ def validate_search(sc: SearchConfig | None, steps: int) -> None:
         ("temperature", 0 < sc.temperature < math.inf, "a finite number > 0"),
         ("kp", 0 <= sc.kp < math.inf and (sc.kp > 0 or sc.space != "position"), "finite, > 0"),
         ("kd", 0 <= sc.kd < math.inf, "a finite number >= 0"),
+        ("robust_noise", 0 < sc.robust_noise < math.inf, "a finite number > 0"),
     ):
         if not ok:  # (NaN fails every comparison)
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")

@@ -47,7 +47,7 @@ def apply_smoke(data: dict[str, Any], shrink: dict[str, Any]) -> dict[str, Any]:
 
 
 #: What --smoke makes of a ``search:`` section (keys the smoke section sets itself win).
-SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1}
+SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1, "robust_runs": 1}
 
 
 def shrink_search(shrunk: dict[str, Any], shrink: dict[str, Any]) -> None:

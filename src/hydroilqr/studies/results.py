@@ -339,7 +339,9 @@ def kernel_table(docs: Sequence[dict]) -> str:
     for doc in docs:
         blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
         kernels += [blas] if blas not in kernels else []
-        kind = "closed loop" if doc.get("mpc") else "solve"
+        kind = (
+            "closed loop" if doc.get("mpc") else "search + polish" if doc.get("search") else "solve"
+        )
         for t in doc["tasks"]:
             cell = f"{t['goal_met']} of {t['runs']}" if t["goal_declared"] else "no goal"
             cells = rows.setdefault((t["task"], kind, doc.get("seed", 0)), {})
@@ -377,6 +379,84 @@ def _robustness_source(doc: dict) -> str:
             else "."
         )
     )
+
+
+def search_table(results: Sequence[TaskResult], context: Context) -> Section | None:
+    """Per task with a ``hydroilqr robustness --search`` record under OUT/robustness: the goal's
+    pass rate of iLQR alone (its records without --search) beside that of search + polish,
+    per BLAS kernel set, and the median wall time of one search + polish run; then the
+    search's samples per second with each number of workers (``hydroilqr search TASK
+    --throughput 1,2 --out OUT/search/TASK``: OUT/search/**/throughput.json)."""
+    root = Path(context.out)
+    docs = [json.loads(p.read_text()) for p in sorted(root.glob("robustness/**/robustness.json"))]
+    docs = [d for d in docs if not d.get("smoke") and not d.get("mpc")]
+    rates: dict[tuple, dict] = {}
+    for doc in docs:
+        blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
+        for t in doc["tasks"]:
+            cell = rates.setdefault((t["task"], blas), {})
+            key = "search" if doc.get("search") else "alone"
+            cell.setdefault(key, []).append(f"{t['goal_met']} of {t['runs']}")
+            if doc.get("search"):
+                secs = sorted(r.get("seconds", 0.0) for r in t.get("results", []))
+                cell.setdefault("seconds", []).append(secs[len(secs) // 2] if secs else None)
+    rows = [
+        f"| `{task}` | {blas} | {', '.join(c.get('alone', ['-']))} | {', '.join(c['search'])} | "
+        + ", ".join("-" if v is None else f"{v:.0f}" for v in c["seconds"])
+        + " |"
+        for (task, blas), c in sorted(rates.items())
+        if "search" in c
+    ]
+    if not rows:
+        return None
+    head = (
+        "| task | kernels | goal met, iLQR alone | goal met, search + polish | "
+        "s per search + polish run (median) |\n|---|---|---|---|---|"
+    )
+    parts = [head, *rows, "", *_throughput_rows(root)]
+    note = (
+        "iLQR alone: `hydroilqr robustness TASK` (with the task's approach stage, from its "
+        "guess perturbed by a hair); search + polish: `hydroilqr robustness TASK --search` "
+        "(the task's search with seed k - 1 in run k, then iLQR from its best samples, as "
+        "`hydroilqr solve` runs it). Run times are of one Dask worker each, several at once, on "
+        "a machine that may be shared with other work (each record's load is below)."
+    )
+    return Section("search", "Search across basins", "\n".join([*parts, note]), rates_json(rates))
+
+
+def rates_json(rates: dict) -> list[dict]:
+    return [{"task": t, "blas_core": b, **c} for (t, b), c in sorted(rates.items())]
+
+
+def _throughput_rows(root: Path) -> list[str]:
+    """The samples-per-second table of every throughput.json under OUT/search ([] if none)."""
+    lines = []
+    for path in sorted(root.glob("search/**/throughput.json")):
+        doc = json.loads(path.read_text())
+        env = doc.get("environment") or {}
+        rows = doc.get("rows") or []
+        base = rows[0]["samples_per_second"] if rows else None
+        for r in rows:
+            lines.append(
+                f"| `{doc.get('task')}` | {r['workers']} | {r['samples_per_second']:.1f} | "
+                f"{r['samples_per_second'] / base:.2f}x | "
+                f"{1e3 * r['batch_overhead_seconds']:.0f} | {100 * r['cpu_share']:.0f}% | "
+                f"{env.get('blas_core') or 'unknown'}, load {env.get('load_average', '?')} |"
+            )
+    if not lines:
+        return []
+    head = (
+        "| task | workers | samples/s | vs 1 worker | batch overhead ms | "
+        "share of a core per worker | kernels, load |\n|---|---|---|---|---|---|---|"
+    )
+    note = (
+        "Samples per second of the search's rollouts with 1 and 2 local workers, measured "
+        "side by side in one run (`hydroilqr search TASK --throughput 1,2`); the batch "
+        "overhead is an empty batch's round trip. A share of a core below 100% means the "
+        "machine was busy with other work: the ratio then says more about that than about "
+        "the workers."
+    )
+    return [head, *lines, "", note, ""]
 
 
 def _ratio(v) -> str:
@@ -456,6 +536,7 @@ SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | list[Section]
     transfer_table,
     mismatch_table,
     robustness_table,
+    search_table,
     bench_table,
 ]
 
