@@ -86,12 +86,21 @@ def test_gait_report_section_links_the_gait_diagram(tmp_path):
     task = Task.load("cheetah-trot-1.0", smoke=True)
     U = task.initial_guess(task.steps)
     X = task.dynamics.rollout(task.x0, U)
-    sol = SimpleNamespace(t=task.dynamics.dt * np.arange(len(X)), X=X, U=U, extra={})
+    K = np.zeros((len(U), U.shape[1], X.shape[1]))
+    sol = SimpleNamespace(t=task.dynamics.dt * np.arange(len(X)), X=X, U=U, K=K, extra={})
     r = results.TaskResult("cheetah-trot-1.0", task, sol, metrics.compute(task, sol), 1.0)
     ctx = results.Context(command="hydroilqr results", smoke=True, out=str(tmp_path))
+    loop = tmp_path / "mpc" / "cheetah-trot-1.0"  # a closed loop run into the results dir
+    loop.mkdir(parents=True)
+    (loop / "mpc.json").write_text(json.dumps({"planner": "sampling", "metrics": r.metrics}))
     (section,) = results.metric_reports([r], ctx)
     assert section.title == "Gaits" and "stance slip m/s" in section.markdown
     assert "[gait.png](results/cheetah-trot-1.0/gait.png)" in section.markdown
+    # issue 52 item 3: the plan, its playback and the closed loop, each a row
+    motions = [row["motion"] for row in section.data]
+    assert motions == ["plan", "playback", "closed loop (sampling)"]
+    plan, played, looped = section.data
+    assert looped["v m/s"] == plan["v m/s"] != "-" and played["v m/s"] != "-"
     assert (tmp_path / "results" / "cheetah-trot-1.0" / "gait.png").exists()
     assert results.metric_reports([], ctx) == []
 
@@ -136,3 +145,40 @@ def test_each_robustness_part_names_its_python_and_drake(tmp_path):
     context = Context(command="hydroilqr results", smoke=False, out=str(tmp_path))
     text = robustness_table([], context).markdown
     assert "Python 3.11.7, Drake 1.51.1" in text and "Python 3.12.1, Drake 1.56.0" in text
+
+
+def test_the_search_section_puts_ilqr_alone_beside_search_and_polish(tmp_path):
+    """A task with a ``robustness --search`` record: its pass rate beside iLQR alone's, per
+    kernel set, with the median run time; the throughput records' samples per second with
+    each number of workers. No search record: no section."""
+    from hydroilqr.studies.results import Context, kernel_table, search_table
+
+    def record(met: int, search: bool, blas: str, seconds=(10.0, 30.0, 20.0)) -> dict:
+        runs = [{"index": i, "seconds": s} for i, s in enumerate(seconds, 1)]
+        task = {"task": "p", "goal_declared": True, "goal_met": met, "runs": 10, "results": runs}
+        doc = {"tasks": [task], "environment": {"blas_core": blas}, "noise": 1e-9, "runs": 10}
+        return {**doc, **({"search": True} if search else {})}
+
+    def put(name: str, doc: dict, kind: str = "robustness") -> None:
+        (tmp_path / kind / name).mkdir(parents=True)
+        (
+            tmp_path / kind / name / f"{kind if kind == 'robustness' else 'throughput'}.json"
+        ).write_text(json.dumps(doc))
+
+    context = Context(command="hydroilqr results", smoke=False, out=str(tmp_path))
+    put("p", record(2, False, "Haswell"))
+    assert search_table([], context) is None
+    put("p-search", record(9, True, "Haswell"))
+    put("p-search-skylakex", record(10, True, "SkylakeX"))
+    rows = [
+        {"workers": n, "samples_per_second": sps, "batch_overhead_seconds": 0.01,
+         "cpu_share": 0.5}
+        for n, sps in ((1, 100.0), (2, 170.0))
+    ]  # fmt: skip
+    put("p", {"task": "p", "rows": rows, "environment": {"blas_core": "Haswell"}}, "search")
+    md = search_table([], context).markdown
+    assert "| `p` | Haswell | 2 of 10 | 9 of 10 | 20 |" in md
+    assert "| `p` | SkylakeX | - | 10 of 10 | 20 |" in md
+    assert "| `p` | 2 | 170.0 | 1.70x | 10 | 50% |" in md
+    docs = [json.loads(p.read_text()) for p in sorted(tmp_path.glob("robustness/*/*.json"))]
+    assert "| `p` | search + polish | 0 | 9 of 10 |" in kernel_table(docs)

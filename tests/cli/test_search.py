@@ -40,10 +40,10 @@ def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch):
 
     real = studies_search.DaskEvaluator.__call__
 
-    def interrupt_second(self, commands):
+    def interrupt_second(self, commands, *args):
         if self.calls == 1:
             raise KeyboardInterrupt
-        return real(self, commands)
+        return real(self, commands, *args)
 
     monkeypatch.setattr(studies_search.DaskEvaluator, "__call__", interrupt_second)
     out = tmp_path / "run"
@@ -66,3 +66,41 @@ def test_bad_search_input_is_one_line(tmp_path, capsys):
     rc = main(["solve", "cartpole-wall", "--set", "search.method=cem", "--starts", "2"])
     out, err = capsys.readouterr()
     assert rc == 2 and "search: section" in err
+
+
+def test_every_worker_lost_is_one_line_and_keeps_the_best(tmp_path, monkeypatch, capsys):
+    """Every Dask worker gone mid-search (``gather_within`` gives up): the best sample so far
+    is written, one line on stderr says why, exit 3."""
+    from hydroilqr.studies import search as studies_search
+
+    real = studies_search.gather_within
+    calls = []
+
+    def lose_second(client, futures, patience=60.0, poll=1.0):
+        calls.append(1)
+        if len(calls) == 2:
+            raise studies_search.WorkersLost("every Dask worker was gone for 60 s")
+        return real(client, futures, patience, poll)
+
+    monkeypatch.setattr(studies_search, "gather_within", lose_second)
+    out = tmp_path / "run"
+    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5", "--workers", "1"]
+    assert main([*argv, "--no-replay", "--out", str(out)]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "every Dask worker was gone" in err[0] and str(out) in err[0]
+    s = json.loads((out / "summary.json").read_text())["search"]
+    assert s["workers_lost"] and len(s["history"]) == 2 and s["history"][1]["failed"] == 4
+
+
+def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path):
+    """The built-in with a search: section: `check` passes it, and `solve --smoke` runs its
+    (smoke-sized) search and polish and writes the result set with both."""
+    from hydroilqr.problem.files import list_tasks
+
+    assert "pusher-puck" in list_tasks()
+    assert main(["check", "pusher-puck"]) == 0
+    out = tmp_path / "run"
+    argv = ["solve", "pusher-puck", "--smoke", "--workers", "1", "--no-replay"]
+    assert main([*argv, "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())["search"]
+    assert s["settings"]["space"] == "position" and len(s["polish"]["results"]) == 1

@@ -3,15 +3,15 @@ seeding, the PD+ law shared with playback, the search settings' refusals, Dask w
 
 import dataclasses
 import math
-from pathlib import Path
+import time
 
 import numpy as np
 import pytest
 
-from hydroilqr.problem.config import ConfigError, SearchConfig, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.search import SearchConfig
 from hydroilqr.solver import sampling, splines
-
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 # ---------------------------------------------------------------------------- splines
 
@@ -203,6 +203,9 @@ def test_samples_stay_within_the_bounds():
         ("search.temperature=0", "search.temperature"),
         ("search.select=robustly", "search.select"),
         ("search.seed=-1", "search.seed"),
+        ("search.robust_runs=0", "search.robust_runs"),
+        ("search.robust_noise=0", "search.robust_noise"),
+        ("search.robust_noise=nan", "search.robust_noise"),
     ],
 )
 def test_bad_search_settings_are_refused_in_one_line(override, words):
@@ -309,14 +312,103 @@ def test_select_by_goal_cost_or_transfer():
     assert select([r(0, math.inf, None)], "goal") is None
 
 
+def test_select_robust_takes_the_plan_whose_perturbed_resolves_meet_the_goal():
+    from hydroilqr.studies.search import PolishResult, select
+
+    class _Sol:
+        def __init__(self, cost):
+            self.final_cost = cost
+
+    def r(i, met, held=None):
+        out = PolishResult(index=i, solution=_Sol(1.0 + i), goal={"met": met})
+        out.robust = None if held is None else {"runs": 3, "met": held}
+        return out
+
+    rs = [r(0, False), r(1, True, 1), r(2, True, 3), r(3, True, 3)]
+    assert select(rs, "robust") == 2  # the most re-solves meeting the goal, the first of equals
+    assert select([r(0, True, 0), r(1, True, 0)], "robust") == 0  # none held: as goal
+    assert select([r(0, False), r(1, False)], "robust") == 0  # none met: the cheapest
+
+
+ROBUST = [
+    "num_steps=10",
+    "search.samples=4",
+    "search.iterations=2",
+    "search.knots=3",
+    "search.polish=2",
+    "search.select=robust",
+    "search.robust_runs=2",
+    "solver.max_iterations=20",
+    # a goal the smoke problem's polished plans meet, so that their re-solves run
+    "goal={final_angle_error_rad: {max: 10.0}}",
+]
+
+
+def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask():
+    """``select: robust`` on a smoke problem: each polished plan that meets the goal is
+    re-solved ``robust_runs`` times from its torques perturbed (the same perturbations the
+    robustness command draws), and the chosen plan is one of those; in a robustness run's own
+    process the same re-solves give the same counts."""
+    from hydroilqr.studies.search import perturbed_starts, run_search, search_start
+
+    ref = {"name": "cartpole-wall", "overrides": ROBUST, "config": None, "smoke": False}
+    run = run_search(ref, workers=2, polish=True)
+    met = [r for r in run.polished if r.goal.get("met") is True]
+    assert met, "the smoke problem's goal should be met by a polished plan"
+    for r in run.polished:
+        assert (r.robust is not None) == (r.goal.get("met") is True)
+        if r.robust is not None:
+            assert r.robust["runs"] == 2 and len(r.robust["goal_met"]) == 2
+            assert r.robust["met"] == sum(r.robust["goal_met"])
+    assert run.chosen in [r.index for r in met]
+    rec = run.record()["polish"]
+    assert rec["select"] == "robust" and "robust" in rec["results"][run.chosen]
+    task = load_task_obj(ref)
+    U0 = run.space.rollout(task, run.result.candidates[0].command).U
+    starts = perturbed_starts(task, run.space.settings, U0)
+    assert len(starts) == 2 and not np.array_equal(starts[0], U0)
+    assert np.allclose(starts[0], U0, rtol=1e-6, atol=1e-6)
+    here = search_start({**ref, "overrides": [*ROBUST, "search.seed=0"]}, 1, 0)
+    assert not here.error and here.goal.get("met") is True
+
+
+def load_task_obj(ref):
+    from hydroilqr.model.task import Task
+
+    return Task.load(ref["name"], ref["overrides"], ref["config"], ref["smoke"])
+
+
+def test_a_search_whose_workers_all_die_stops_with_its_best_so_far():
+    """Every worker gone: ``gather_within`` gives up after its patience (a plain gather would
+    wait forever), and the search ends with what it had."""
+    from hydroilqr.studies.cluster import open_client
+    from hydroilqr.studies.multistart import _close
+    from hydroilqr.studies.search import WorkersLost, gather_within
+
+    client, cluster = open_client(None, 1)
+    try:
+        assert gather_within(client, [client.submit(sum, [1, 2])], 5.0) == [3]
+        cluster.scale(0)
+        deadline = time.monotonic() + 60
+        while client.nthreads() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        fut = client.submit(sum, [3, 4], pure=False)
+        t0 = time.monotonic()
+        with pytest.raises(WorkersLost, match="every Dask worker was gone for 1 s"):
+            gather_within(client, [fut], patience=1.0, poll=0.2)
+        assert time.monotonic() - t0 < 30
+    finally:
+        _close(client, cluster)
+
+
 def test_pusher_puck_searches_in_position_space_from_a_still_start():
-    """The example whose search: section solve runs: out of contact at the start, its
+    """The built-in whose search: section solve runs: out of contact at the start, its
     smoke-sized search (local evaluation) keeps the start posture as its first knot and
     never ends above its nominal's cost."""
     from hydroilqr.model.task import Task
     from hydroilqr.solver.search import run_search
 
-    task = Task.load(str(EXAMPLES / "pusher-puck.yaml"), smoke=True)
+    task = Task.load("pusher-puck", smoke=True)
     assert task.config.search.space == "position" and task.config.goal
     space, res = run_search(task)
     assert np.array_equal(res.best.knots[0], task.x0[space.qi])
@@ -331,7 +423,7 @@ def test_a_robustness_run_with_search_searches_with_its_own_seed_and_polishes():
     from hydroilqr.solver.search import run_search
     from hydroilqr.studies.search import search_start
 
-    name = str(EXAMPLES / "pusher-puck.yaml")
+    name = "pusher-puck"
     ref = {"name": name, "overrides": ["search.polish=1"], "config": None, "smoke": True}
     r = search_start(ref, 2, 3)  # run 2 of seed 3: the search's seed 4
     assert not r.error and r.solution is not None and "met" in r.goal

@@ -13,7 +13,7 @@ from hydroilqr.model.activations import Bounds, Identity, SoftMin, Sum, Target
 from hydroilqr.model.residuals import RESIDUALS
 from hydroilqr.model.terms import Term, softmin
 from hydroilqr.model.windows import Ramp, Terminal, Window
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from tests.conftest import edit, write_case
 
 # Every term type on the Kinova arm and its ball (a quaternion floating body), with the
@@ -352,7 +352,7 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
         ({"name": "t", "type": "effort_limits", "margin": -1},
          "cost.terms.t.margin: must be >= 0 (N·m or N inside each effort limit)"),
         ({"name": "t", "type": "effort_limits", "terminal": True},
-         "cost.terms.t.terminal: an effort_limits term prices each step's controls"),
+         "cost.terms.t.terminal: an effort_limits term prices every step"),
         ({"name": "t", "type": "effort_limits", "joints": ["j"]},
          "cost.terms.t.joints: an effort_limits term has no joints"),
         ({"name": "t", "type": "height", "body": "b", "min": 0, "margin": 0.1},

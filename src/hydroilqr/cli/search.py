@@ -9,17 +9,23 @@ from hydroilqr.cli.common import (
     add_task_args,
     command_line,
     console,
+    err_console,
     load_task_from_args,
     print_goal,
 )
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.search import check_searchable
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
 
 
 def setup(p) -> None:
     add_task_args(p)
-    p.add_argument("--out", help="output directory (default runs/TASK-search, ...-smoke)")
+    p.add_argument(
+        "--out",
+        help="output directory (default runs/TASK-search, ...-smoke; with --throughput "
+        "runs/TASK-throughput, for throughput.json)",
+    )
     p.add_argument(
         "--scheduler", metavar="ADDRESS", help="an existing Dask scheduler (default: a local one)"
     )
@@ -47,6 +53,7 @@ def searched_task(args):
     """(task, extra overrides): a task without a ``search:`` section searches with the
     defaults (the section is added, so --smoke shrinks it as it would a written one)."""
     task = load_task_from_args(args)
+    check_searchable(task.config)
     if task.config.search is not None:
         return task, []
     extra = ["search.method=cem"]
@@ -68,6 +75,7 @@ def run(args) -> int:
         return _throughput(task, args, extra)
     from hydroilqr.output import report
     from hydroilqr.output.progress import SearchProgress
+    from hydroilqr.solver.search import total_iterations
     from hydroilqr.studies.search import run_search
 
     out = Path(args.out or f"runs/{task.name}-search{'-smoke' if args.smoke else ''}")
@@ -80,11 +88,13 @@ def run(args) -> int:
         f"on {where} -> {out}"
     )
     t0 = time.perf_counter()
-    with SearchProgress(sc.iterations, console) as prog:
+    with SearchProgress(total_iterations(task.config), console) as prog:
         srun = run_search(task_ref(args, extra), args.scheduler, args.workers, prog.update)
     wall = time.perf_counter() - t0
     print_search_line(srun, wall)
     summary = write(task, srun, out, args, wall)
+    if srun.lost:
+        return workers_lost(srun, out, "the best sample found before")
     if srun.interrupted:
         console.print(f"interrupted: {out} holds the best sample found before Ctrl+C")
         print_goal(summary["goal"], args.smoke, "the best sample kept at Ctrl+C")
@@ -92,10 +102,20 @@ def run(args) -> int:
     return print_goal(summary["goal"], args.smoke, "the best sample, as searched")
 
 
+def workers_lost(srun, out: Path, kept: str) -> int:
+    """One line on stderr when every Dask worker was lost (``SearchRun.lost``): exit 3."""
+    err_console.print(f"hydroilqr: {srun.lost}; {out} holds {kept}", soft_wrap=True)
+    return 3
+
+
 def print_search_line(srun, wall: float) -> None:
     r = srun.result
+    if r.windows:  # (a window's nominal prices that window only)
+        head = f"search: {len(r.windows)} windows, the stitched plan's cost {r.best.cost:.6g},"
+    else:
+        head = f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g})"
     console.print(
-        f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g}) after "
+        f"{head} after "
         f"{len(r.history)} iterations, {r.samples} samples in {r.seconds:.1f} s "
         f"({r.samples / max(r.seconds, 1e-9):.1f} samples/s on {srun.workers} worker(s)); "
         f"{wall:.1f} s in all",
@@ -126,6 +146,8 @@ def write(task, srun, out: Path, args, wall: float) -> dict:
 
 
 def _throughput(task, args, extra: list[str]) -> int:
+    from hydroilqr.io.environment import environment
+    from hydroilqr.output import report
     from hydroilqr.studies.search import throughput
 
     if args.scheduler:
@@ -139,6 +161,8 @@ def _throughput(task, args, extra: list[str]) -> int:
     if not counts or min(counts) < 1 or max(counts) > 256:
         raise ConfigError(f"--throughput: 1 to 256 workers each, got {args.throughput!r}")
     samples = task.config.search.samples
+    out = Path(args.out or f"runs/{task.name}-throughput")
+    report.output_dir(out, task.name)
     console.print(f"{task.name}: {samples} samples x 3 rounds per worker count {counts}")
     rows = throughput(task_ref(args, extra), counts, samples)
     base = rows[0]["samples_per_second"]
@@ -150,4 +174,7 @@ def _throughput(task, args, extra: list[str]) -> int:
             f"{1e3 * r['cpu_seconds_per_sample']:.1f} CPU ms per sample, each worker got "
             f"{100 * r['cpu_share']:.0f}% of a core"
         )
+    doc = {"task": task.name, "rows": rows, "environment": environment(command_line(args))}
+    report.write_json(out / "throughput.json", doc)
+    console.print(f"wrote {out}/throughput.json")
     return 0

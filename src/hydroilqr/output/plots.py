@@ -5,6 +5,7 @@ plots of metrics live with their metric (``hydroilqr.metrics``)."""
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +59,8 @@ def plot_search(costs: np.ndarray, path: Path, title: str) -> None:
             np.full(costs.shape[1], i), np.maximum(finite[i], 1e-300), ".", color="0.7", ms=2
         )
     if costs.size:
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # (a row of failed rollouts)
             ax.semilogy(its, np.nanmedian(finite, axis=1), "-", color="C1", label="median sample")
             ax.semilogy(its, np.fmin.accumulate(np.nanmin(finite, axis=1)), "o-", ms=3,
                         color="C0", label="best so far")  # fmt: skip

@@ -23,11 +23,11 @@ from pathlib import Path
 from hydroilqr import Task, metrics, solve
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
-from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.output.report import json_safe, output_dir
-from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.output.studies import write_results_page
+from hydroilqr.problem.variants import mismatch_overrides
 from hydroilqr.studies.robustness import table
 
 DEFAULT_TASKS = (
@@ -339,7 +339,9 @@ def kernel_table(docs: Sequence[dict]) -> str:
     for doc in docs:
         blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
         kernels += [blas] if blas not in kernels else []
-        kind = "closed loop" if doc.get("mpc") else "solve"
+        kind = (
+            "closed loop" if doc.get("mpc") else "search + polish" if doc.get("search") else "solve"
+        )
         for t in doc["tasks"]:
             cell = f"{t['goal_met']} of {t['runs']}" if t["goal_declared"] else "no goal"
             cells = rows.setdefault((t["task"], kind, doc.get("seed", 0)), {})
@@ -379,33 +381,143 @@ def _robustness_source(doc: dict) -> str:
     )
 
 
+def search_table(results: Sequence[TaskResult], context: Context) -> Section | None:
+    """Per task with a ``hydroilqr robustness --search`` record under OUT/robustness: the goal's
+    pass rate of iLQR alone (its records without --search) beside that of search + polish,
+    per BLAS kernel set, and the median wall time of one search + polish run; then the
+    search's samples per second with each number of workers (``hydroilqr search TASK
+    --throughput 1,2 --out OUT/search/TASK``: OUT/search/**/throughput.json)."""
+    root = Path(context.out)
+    docs = [json.loads(p.read_text()) for p in sorted(root.glob("robustness/**/robustness.json"))]
+    docs = [d for d in docs if not d.get("smoke") and not d.get("mpc")]
+    rates: dict[tuple, dict] = {}
+    for doc in docs:
+        blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
+        for t in doc["tasks"]:
+            cell = rates.setdefault((t["task"], blas), {})
+            key = "search" if doc.get("search") else "alone"
+            cell.setdefault(key, []).append(f"{t['goal_met']} of {t['runs']}")
+            if doc.get("search"):
+                secs = sorted(r.get("seconds", 0.0) for r in t.get("results", []))
+                cell.setdefault("seconds", []).append(secs[len(secs) // 2] if secs else None)
+    rows = [
+        f"| `{task}` | {blas} | {', '.join(c.get('alone', ['-']))} | {', '.join(c['search'])} | "
+        + ", ".join("-" if v is None else f"{v:.0f}" for v in c["seconds"])
+        + " |"
+        for (task, blas), c in sorted(rates.items())
+        if "search" in c
+    ]
+    if not rows:
+        return None
+    head = (
+        "| task | kernels | goal met, iLQR alone | goal met, search + polish | "
+        "s per search + polish run (median) |\n|---|---|---|---|---|"
+    )
+    parts = [head, *rows, "", *_throughput_rows(root)]
+    note = (
+        "iLQR alone: `hydroilqr robustness TASK` (with the task's approach stage, from its "
+        "guess perturbed by a hair); search + polish: `hydroilqr robustness TASK --search` "
+        "(the task's search with seed k - 1 in run k, then iLQR from its best samples, as "
+        "`hydroilqr solve` runs it). Run times are of one Dask worker each, several at once, on "
+        "a machine that may be shared with other work (each record's load is below)."
+    )
+    return Section("search", "Search across basins", "\n".join([*parts, note]), rates_json(rates))
+
+
+def rates_json(rates: dict) -> list[dict]:
+    return [{"task": t, "blas_core": b, **c} for (t, b), c in sorted(rates.items())]
+
+
+def _throughput_rows(root: Path) -> list[str]:
+    """The samples-per-second table of every throughput.json under OUT/search ([] if none)."""
+    lines = []
+    for path in sorted(root.glob("search/**/throughput.json")):
+        doc = json.loads(path.read_text())
+        env = doc.get("environment") or {}
+        rows = doc.get("rows") or []
+        base = rows[0]["samples_per_second"] if rows else None
+        for r in rows:
+            lines.append(
+                f"| `{doc.get('task')}` | {r['workers']} | {r['samples_per_second']:.1f} | "
+                f"{r['samples_per_second'] / base:.2f}x | "
+                f"{1e3 * r['batch_overhead_seconds']:.0f} | {100 * r['cpu_share']:.0f}% | "
+                f"{env.get('blas_core') or 'unknown'}, load {env.get('load_average', '?')} |"
+            )
+    if not lines:
+        return []
+    head = (
+        "| task | workers | samples/s | vs 1 worker | batch overhead ms | "
+        "share of a core per worker | kernels, load |\n|---|---|---|---|---|---|---|"
+    )
+    note = (
+        "Samples per second of the search's rollouts with 1 and 2 local workers, measured "
+        "side by side in one run (`hydroilqr search TASK --throughput 1,2`); the batch "
+        "overhead is an empty batch's round trip. A share of a core below 100% means the "
+        "machine was busy with other work: the ratio then says more about that than about "
+        "the workers."
+    )
+    return [head, *lines, "", note, ""]
+
+
 def _ratio(v) -> str:
     """A speed-up cell: '1.5x', or '-' where the bench file has none (an older bench.json)."""
     return "-" if v is None else f"{v:.1f}x"
 
 
 def metric_reports(results: Sequence[TaskResult], context: Context) -> list[Section]:
-    """A table per metric that declares a report (``Metric.report``), one row per task that
-    computes it; the report's figures are written beside the page (``OUT/results/TASK/``) and
-    linked from the row."""
+    """A table per metric that declares a report (``Metric.report``), rows per task that
+    computes it: its plan, the plan's PD+ playback at full speed on the finer simulation
+    (``hydroilqr playback RUN --speed 1``) and, where one was run into the results directory
+    (``hydroilqr mpc TASK --out OUT/mpc/TASK``), its latest closed loop (``loop_reports``);
+    the report's figures are written beside the page (``OUT/results/TASK/``) and linked from
+    the plan's row."""
     sections = []
     for name, rep in metrics.reports():
         rows, data = [], []
         for r in results:
             if name not in r.task.config.metrics:
                 continue
-            cells = [f"`{r.name}`", *(fn(r.metrics) for _, fn in rep.columns)]
             links = _report_figures(r, rep.figures, context)
-            rows.append("| " + " | ".join(_cell(c) for c in [*cells, links]) + " |")
-            data.append({"task": r.name, **{h: c for (h, _), c in zip(rep.columns, cells[1:])}})
+            for kind, m in _report_motions(r, context):
+                cells = [f"`{r.name}`", kind, *(fn(m) for _, fn in rep.columns)]
+                fig = links if kind == "plan" else ""
+                rows.append("| " + " | ".join(_cell(c) for c in [*cells, fig]) + " |")
+                data.append(
+                    {"task": r.name, "motion": kind,
+                     **{h: c for (h, _), c in zip(rep.columns, cells[2:])}}
+                )  # fmt: skip
         if not rows:
             continue
-        headers = ["task", *(h for h, _ in rep.columns), "figures"]
+        headers = ["task", "motion", *(h for h, _ in rep.columns), "figures"]
         md = "\n".join(
-            [rep.intro, "", "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers), *rows]
-        )
+            [rep.intro + REPORT_MOTIONS, "", "| " + " | ".join(headers) + " |",
+             "|" + "---|" * len(headers), *rows]
+        )  # fmt: skip
         sections.append(Section(f"report_{name}", rep.title, md, data))
     return sections
+
+
+REPORT_MOTIONS = (
+    " Rows: `plan` the solved plan; `playback` the plan executed by PD+ at full speed on the "
+    "finer simulation (`hydroilqr playback RUN --speed 1`); `closed loop` the latest "
+    "`hydroilqr mpc TASK --out OUT/mpc/TASK` in the results directory, if any (its command "
+    "and planner in its mpc.json)."
+)
+
+
+def _report_motions(r: TaskResult, context: Context) -> list[tuple[str, dict]]:
+    """(motion, metrics) of a task's report rows: the plan, its playback, a closed loop."""
+    out = [("plan", r.metrics)]
+    try:
+        pb = playback(r.task, r.sol, PlaybackSettings(speed=1.0))
+        out.append(("playback", executed_goal(r.task, r.sol, pb)["metrics"]))
+    except Exception as e:  # noqa: BLE001 - a failed playback is a row saying so
+        out.append(("playback", {"error": f"{type(e).__name__}: {e}"[:200]}))
+    path = Path(context.out) / "mpc" / r.name / "mpc.json"
+    if path.is_file():
+        doc = json.loads(path.read_text())
+        out.append((f"closed loop ({doc.get('planner', 'ilqr')})", doc.get("metrics") or {}))
+    return out
 
 
 def _report_figures(r: TaskResult, figures: Sequence[str], context: Context) -> str:
@@ -424,6 +536,7 @@ SECTIONS: list[Callable[[Sequence[TaskResult], Context], Section | list[Section]
     transfer_table,
     mismatch_table,
     robustness_table,
+    search_table,
     bench_table,
 ]
 
@@ -575,8 +688,4 @@ def generate(
     env["command"] = context.command
     md, page = render(results, context, env, sections)
     page["wall_seconds"] = round(time.perf_counter() - wall0, 1)  # (the next run's estimate)
-    paths = {
-        "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
-        "md": atomic_write(out / "results.md", md),
-    }
-    return paths
+    return write_results_page(out, page, md)

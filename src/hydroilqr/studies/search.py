@@ -11,10 +11,17 @@ the same samples, costs and best with any number of workers.
 torques (as Dask jobs too) and ``select`` picks among them: the first (lowest search cost)
 whose plan meets the task's goal, else the lowest final cost (``search.select: goal``); the
 lowest final cost (``cost``); the first whose PD+ playback at half speed on the finer
-simulation meets the goal, else as ``goal`` (``transfer``).
+simulation meets the goal, else as ``goal`` (``transfer``); among those that meet the goal,
+the one whose ``search.robust_runs`` perturbed re-solves (iLQR from its torques perturbed by a
+relative ``search.robust_noise``, as ``hydroilqr robustness`` perturbs a guess) meet it most
+often, the first on a tie, else as ``goal`` (``robust``).
 
 ``throughput(task_ref, worker_counts, ...)`` measures samples per second with each number of
 workers side by side, and the fixed cost of a batch.
+
+A cluster that loses every worker does not stall a search: ``gather_within`` gives up once
+the scheduler has had no worker for ``WORKERLESS_SECONDS``, and the search ends there with
+the best found so far (``SearchRun.lost`` says why).
 """
 
 from __future__ import annotations
@@ -26,15 +33,16 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+from distributed import wait
 
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.metrics.goals import evaluate as evaluate_goal
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import load_task
+from hydroilqr.problem.load import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.cluster import kill_workers, open_client
-from hydroilqr.studies.multistart import StartResult, _close
+from hydroilqr.studies.multistart import StartResult, _close, perturbation
 from hydroilqr.studies.robustness import played_back
 
 #: Per worker process: the task and search space of the last task reference it evaluated.
@@ -54,10 +62,11 @@ def held(task_ref: dict):
     return _HELD[key]
 
 
-def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
-    """Runs on a worker: the costs of a batch of commands on its held plant."""
+def evaluate_batch(task_ref: dict, commands: list, x0=None, t0=None) -> list[float]:
+    """Runs on a worker: the costs of a batch of commands on its held plant, from x0 at t0
+    (default: the task's start; a receding search's window gives its own)."""
     task, space = held(task_ref)
-    return [space.cost(task, c) for c in commands]
+    return [space.cost(task, c, x0, t0) for c in commands]
 
 
 def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
@@ -67,18 +76,58 @@ def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
     return costs, time.process_time() - c0
 
 
+#: A search whose cluster has had no worker for this long stops with its best so far.
+WORKERLESS_SECONDS = 60.0
+
+
+class WorkersLost(RuntimeError):
+    """Every Dask worker was gone for ``WORKERLESS_SECONDS``: the jobs cannot finish."""
+
+
+def gather_within(client, futures: list, patience: float = WORKERLESS_SECONDS, poll=1.0):
+    """``client.gather(futures)``, or WorkersLost once the scheduler has had no worker for
+    ``patience`` seconds in a row (a plain gather then waits forever)."""
+    since = None
+    while True:
+        try:
+            wait(futures, timeout=poll)
+            return client.gather(futures)
+        except TimeoutError:
+            pass
+        if client.nthreads():
+            since = None
+            continue
+        since = time.monotonic() if since is None else since
+        if time.monotonic() - since >= patience:
+            raise WorkersLost(f"every Dask worker was gone for {patience:g} s")
+
+
 class DaskEvaluator:
     """``evaluate(commands) -> costs`` over a Dask client: ``batches`` batches per call (0:
-    one per worker), gathered in order."""
+    one per worker), gathered in order. When every worker is gone (``gather_within``) the
+    call's costs are inf and ``lost`` says why; ``stop`` then ends the search."""
 
-    def __init__(self, client, task_ref: dict, batches: int = 0):
+    def __init__(self, client, task_ref: dict, batches: int = 0, patience=WORKERLESS_SECONDS):
         self.client = client
         self.task_ref = task_ref
         self.workers = max(1, len(client.scheduler_info().get("workers", {})))
         self.batches = batches or self.workers
         self.calls = 0
+        self.patience = patience
+        self.lost: str | None = None
 
-    def __call__(self, commands: list) -> list[float]:
+    def stop(self, on_iteration=None):
+        """``on_iteration`` for the search: True (stop) once the workers are lost."""
+
+        def check(info) -> bool:
+            asked = bool(on_iteration(info)) if on_iteration is not None else False
+            return asked or self.lost is not None
+
+        return check
+
+    def __call__(self, commands: list, x0=None, t0=None) -> list[float]:
+        if self.lost is not None:
+            return [math.inf] * len(commands)
         n = max(1, min(self.batches, len(commands)))
         bounds = np.linspace(0, len(commands), n + 1).round().astype(int)
         futures = [
@@ -86,16 +135,20 @@ class DaskEvaluator:
                 evaluate_batch,
                 self.task_ref,
                 commands[a:b],
+                x0,
+                t0,
                 pure=False,
                 key=f"search-{self.calls}-{i}",
             )
             for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))
         ]
         self.calls += 1
-        costs: list[float] = []
-        for part in self.client.gather(futures):
-            costs += part
-        return costs
+        try:
+            parts = gather_within(self.client, futures, self.patience)
+        except WorkersLost as e:
+            self.lost = str(e)
+            return [math.inf] * len(commands)
+        return [c for part in parts for c in part]
 
 
 def load(task_ref: dict) -> Task:
@@ -113,15 +166,18 @@ class SearchRun:
     polished: list = field(default_factory=list)  # StartResult per candidate
     chosen: int | None = None  # index into polished
     polish_interrupted: bool = False  # Ctrl+C during the polish: the finished ones kept
+    lost: str | None = None  # every worker gone: why the search or polish stopped early
 
     @property
     def interrupted(self) -> bool:
-        return bool(self.result.interrupted or self.polish_interrupted)
+        return bool(self.result.interrupted or self.polish_interrupted) and self.lost is None
 
     def record(self) -> dict:
         """summary.json's ``search``: the search (``solver.search.record``), and the polish."""
         out = search_mod.record(self.space, self.result)
         out["workers"] = self.workers
+        if self.lost is not None:
+            out["workers_lost"] = self.lost
         if self.polished or self.polish_interrupted:
             out["polish"] = {
                 "select": self.space.settings.select,
@@ -155,14 +211,15 @@ def run_search(
         ev = DaskEvaluator(
             client, task_ref, task.config.search.batches if task.config.search else 0
         )
-        space, result = search_mod.run_search(task, ev, on_iteration=on_iteration)
+        space, result = search_mod.run_search(task, ev, on_iteration=ev.stop(on_iteration))
         run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
+        run.lost = ev.lost
         if polish and not result.interrupted and space.settings.polish > 0:
-            run.polished, run.polish_interrupted = _polish(
-                client, task, task_ref, space, result, on_polish
+            run.polished, run.polish_interrupted, run.lost = _polish(
+                client, task, task_ref, space, result, on_polish, ev.patience
             )
             run.chosen = select(run.polished, space.settings.select)
-        if run.interrupted and cluster is not None:
+        if (run.interrupted or run.lost) and cluster is not None:
             kill_workers(cluster)  # (their unfinished batches or solves are abandoned)
     except KeyboardInterrupt:
         if cluster is not None:
@@ -176,15 +233,36 @@ def run_search(
 @dataclass
 class PolishResult(StartResult):
     """A polished candidate; with ``select: transfer`` also its plan's playback
-    (``studies.robustness.played_back``: goal_met on the executed motion, resting_gap)."""
+    (``studies.robustness.played_back``: goal_met on the executed motion, resting_gap);
+    with ``select: robust`` its perturbed re-solves ({runs, met, goal_met: [per re-solve]})."""
 
     transfer: dict | None = None
+    robust: dict | None = None
 
     def record(self) -> dict:
         out = super().record()
         if self.transfer is not None:
             out["transfer"] = self.transfer
+        if self.robust is not None:
+            out["robust"] = self.robust
         return out
+
+
+def perturbed_starts(task, settings, U0: np.ndarray) -> list[np.ndarray]:
+    """``select: robust``: the ``robust_runs`` perturbed copies of a candidate's torques U0:
+    [N, nu] its re-solves start from (``multistart.perturbation``, seeded by the search's
+    seed and the re-solve's number 1..robust_runs)."""
+    limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
+    return [
+        perturbation(U0, limits, settings.robust_noise, settings.seed, k)
+        for k in range(1, settings.robust_runs + 1)
+    ]
+
+
+def robust_record(resolves: list) -> dict:
+    """A candidate's re-solves in plain data: how many ran and met the goal."""
+    met = [r.goal.get("met") is True for r in resolves]
+    return {"runs": len(resolves), "met": int(sum(met)), "goal_met": met}
 
 
 def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False):
@@ -212,33 +290,49 @@ def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = Fals
     return res
 
 
-def _polish(client, task, task_ref, space, result, on_polish) -> tuple[list, bool]:
+def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLESS_SECONDS):
     """iLQR from each candidate's torques as Dask jobs: (results in candidate order,
-    interrupted). Ctrl+C keeps the ones that had finished."""
-    futures = []
-    for i, cand in enumerate(result.candidates):
-        U0 = space.rollout(task, cand.command).U
-        transfer = space.settings.select == "transfer"
-        futures.append(
-            client.submit(polish_one, task_ref, U0, i, transfer, pure=False, key=f"polish-{i}")
-        )
+    interrupted, why the workers were lost or None); with ``select: robust``, each plan that
+    meets the goal is then re-solved from perturbed torques (``perturbed_starts``). Ctrl+C or
+    the loss of every worker keeps the ones that had finished."""
+    cfg = space.settings
+    transfer = cfg.select == "transfer"
+    starts = [space.rollout(task, cand.command).U for cand in result.candidates]
+    futures = [
+        client.submit(polish_one, task_ref, U0, i, transfer, pure=False, key=f"polish-{i}")
+        for i, U0 in enumerate(starts)
+    ]
     out: list[StartResult] = []
+    again: dict = {}
     try:
         for fut in futures:
-            r = fut.result()
+            (r,) = gather_within(client, [fut], patience)
             out.append(r)
             if on_polish is not None:
                 on_polish(r)
+            if cfg.select == "robust" and r.goal.get("met") is True:
+                again[r.index] = [  # (while the other candidates' polishes run)
+                    client.submit(
+                        polish_one, task_ref, U, r.index, pure=False, key=f"re-{r.index}-{k}"
+                    )
+                    for k, U in enumerate(perturbed_starts(task, cfg, starts[r.index]), 1)
+                ]
+        for r in out:
+            if r.index in again:
+                r.robust = robust_record(gather_within(client, again[r.index], patience))
     except KeyboardInterrupt:
-        return out, True
-    return out, False
+        return out, True, None
+    except WorkersLost as e:
+        return out, True, str(e)
+    return out, False, None
 
 
 def select(polished: list, how: str = "goal") -> int | None:
     """The chosen polished plan, the candidates in order of search cost: ``goal``: the first
     whose goal is met, else the lowest final cost; ``cost``: the lowest final cost;
-    ``transfer``: the first whose playback meets the goal, else as ``goal``. None if none
-    finished."""
+    ``transfer``: the first whose playback meets the goal, else as ``goal``; ``robust``: of
+    those whose goal is met, the one whose perturbed re-solves meet it most often (the first
+    on a tie), else as ``goal``. None if none finished."""
     ok = [r for r in polished if math.isfinite(r.cost)]
     if not ok:
         return None
@@ -246,7 +340,11 @@ def select(polished: list, how: str = "goal") -> int | None:
         moved = [r for r in ok if (getattr(r, "transfer", None) or {}).get("goal_met") is True]
         if moved:
             return moved[0].index
-    if how in ("goal", "transfer"):
+    if how == "robust":
+        held = [r for r in ok if r.goal.get("met") is True and getattr(r, "robust", None)]
+        if held:  # (max keeps the first of equals: the lower search cost)
+            return max(held, key=lambda r: r.robust["met"]).index
+    if how in ("goal", "transfer", "robust"):
         met = [r for r in ok if r.goal.get("met") is True]
         if met:
             return met[0].index
@@ -327,11 +425,7 @@ def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
         ref = dict(task_ref, overrides=[*task_ref["overrides"], f"search.seed={seed + k - 1}"])
         task = load(ref)
         space, result = search_mod.run_search(task)
-        transfer = space.settings.select == "transfer"
-        polished = [
-            polish_one(ref, space.rollout(task, c.command).U, i, transfer)
-            for i, c in enumerate(result.candidates)
-        ]
+        polished = _polish_here(task, ref, space, result)
         chosen = select(polished, space.settings.select)
         if chosen is None:
             raise RuntimeError("no polished candidate finished: " + polished[0].error)
@@ -342,3 +436,18 @@ def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
         res.error = f"{type(e).__name__}: {first}"[:300]
     res.seconds = time.perf_counter() - t0
     return res
+
+
+def _polish_here(task, task_ref: dict, space, result) -> list:
+    """``_polish`` in this process (a Dask job's own): each candidate's polish, and with
+    ``select: robust`` its perturbed re-solves."""
+    cfg = space.settings
+    out = []
+    for i, c in enumerate(result.candidates):
+        U0 = space.rollout(task, c.command).U
+        r = polish_one(task_ref, U0, i, cfg.select == "transfer")
+        if cfg.select == "robust" and r.goal.get("met") is True:
+            again = [polish_one(task_ref, U, i) for U in perturbed_starts(task, cfg, U0)]
+            r.robust = robust_record(again)
+        out.append(r)
+    return out
