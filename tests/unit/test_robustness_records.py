@@ -102,7 +102,6 @@ def searched_tasks() -> frozenset:
 #: are reported by the next test, not hidden: it fails once a task here meets the bar (then
 #: the entry goes), and the test after it fails on any shortfall of a task not listed.
 KNOWN_SHORT = {
-    "hopper-forward": "issue 49: seed 0 meets its goal in 7 of 10 under both kernel sets",
     "pusher-puck": "issue 51: search + polish meets its goal in 7 of 10 under both kernel sets",
 }
 

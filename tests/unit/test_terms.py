@@ -61,6 +61,8 @@ CASES = {
          "max": 0.0, "weight": 3.0, "softmin": 1.0e-4},
     ],
     "joint_limits": [{"name": "limits", "type": "joint_limits", "margin": 1.0, "weight": 3.0}],
+    "effort_limits": [{"name": "effort", "type": "effort_limits", "margin": 2.0, "weight": 3.0,
+                       "after": 0.01}],
     "slip": [
         {"name": "ballslip", "type": "slip", "body": "ball", "radius": 0.05, "clearance": 0.5,
          "weight": 3.0},
@@ -129,13 +131,81 @@ def test_every_registered_term_type_has_cases():
     assert set(RESIDUALS) <= set(CASES)
 
 
+def assert_control_jacobians_match_central_differences(terms, U, kind: str) -> None:
+    """J = ∂r/∂u of each control term of type ``kind`` (a residual of the controls) at the
+    steps of its window, against central differences of its residual over every control."""
+    _, parts = terms._control_evaluate(U, 0.0, True)
+    checked = 0
+    for term, (f, _, J) in zip(terms.control_terms, parts):
+        if term.cfg.type != kind:
+            continue
+        for k in np.flatnonzero(f[:, 0] > 0):
+
+            def residual(u, k=k, term=term):
+                return term.evaluate(terms.kin, u, 0.0, False)[0]
+
+            np.testing.assert_allclose(J[k], _fd(residual, U[k]), atol=1e-8, err_msg=term.name)
+            checked += 1
+    assert checked, f"no {kind} term with a positive weight factor"
+
+
+def _beyond_limits(task) -> np.ndarray:
+    """Controls [N, nu] of which some lie beyond the Gen3's effort limits (39 and 9 N m) and
+    some inside, none at a bound of the effort term (a kink)."""
+    rng = np.random.default_rng(5)
+    lim = task.dynamics.effort_limits
+    return lim * rng.choice([-1.5, -0.5, 0.3, 1.2, 2.0], size=(N, lim.size))
+
+
 @pytest.mark.parametrize("kind", sorted(RESIDUALS))
 def test_residual_jacobian_matches_central_differences(kinova, kind):
     """Over the registry: every term type's Jacobian (position, orientation, velocity incl.
-    its q-dependence, height, distance, joint limits, slip incl. its height weight) against
-    central differences of its residual, with its cases' options."""
+    its q-dependence, height, distance, joint limits, slip incl. its height weight; the
+    effort limits' in u) against central differences of its residual, with its cases'
+    options."""
     task, X, _ = kinova
-    assert_jacobians_match_central_differences(task.cost.task_terms, X, kind)
+    if RESIDUALS[kind].controls:
+        U = _beyond_limits(task)
+        assert_control_jacobians_match_central_differences(task.cost.task_terms, U, kind)
+    else:
+        assert_jacobians_match_central_differences(task.cost.task_terms, X, kind)
+
+
+def test_control_term_gradient_and_gauss_newton_hessian(kinova):
+    """l_u of the whole cost (R + the effort term) against central differences of the
+    total cost over U with commands beyond the limits; l_uu: 2 R dt, plus 2 w dt on each
+    command beyond its bound in the term's window (after 0.01 s: steps 1 and 2)."""
+    task, X, _ = kinova
+    cost = task.cost
+    U = _beyond_limits(task)
+    quad = cost.quadratize(X, U)
+    lu_fd = _fd(lambda V: cost.total(X, V), U)
+    np.testing.assert_allclose(quad.lu, lu_fd, rtol=1e-7, atol=1e-7 * np.abs(lu_fd).max())
+    dt = task.config.plant.time_step
+    lim = task.dynamics.effort_limits
+    beyond = (np.abs(U) > lim - 2.0) & (np.arange(N) >= 1)[:, None]
+    diag = np.einsum("kii->ki", quad.luu)
+    np.testing.assert_allclose(diag, 2 * cost.r + 2 * 3.0 * dt * beyond, rtol=1e-12)
+    assert np.count_nonzero(quad.luu - np.einsum("ki,ij->kij", diag, np.eye(lim.size))) == 0
+
+
+def test_effort_limits_term_reads_the_model_limits_with_a_margin(kinova):
+    """The Gen3 limits its joints to 39 N m (1-4) and 9 N m (5-7); the term costs the part
+    of each command beyond its limit less the margin, in the breakdown under its name."""
+    task, X, _ = kinova
+    terms = task.cost.task_terms
+    (t,) = terms.control_terms
+    np.testing.assert_allclose(t.residual.upper, np.array([39] * 4 + [9] * 3) - 2.0)
+    np.testing.assert_allclose(t.residual.lower, -t.residual.upper)
+    u = np.array([0.0, 40.0, -38.0, 10.0, 5.0, -8.0, 7.5])
+    r, J, _ = t.evaluate(terms.kin, u, 0.0, True)
+    np.testing.assert_allclose(r, [0.0, 3.0, -1.0, 0.0, 0.0, -1.0, 0.5])
+    assert J.shape == (7, 7)
+    U = np.tile(u, (N, 1))
+    dt = task.config.plant.time_step
+    br = task.cost.breakdown(X, U)
+    assert br["terms.effort"] == pytest.approx(2 * 3.0 * dt * r @ r)  # steps 1 and 2
+    assert task.cost.breakdown(X, np.zeros((N, 7)))["terms.effort"] == 0.0
 
 
 def test_term_gradient_and_gauss_newton_hessian(kinova):
@@ -171,7 +241,8 @@ def test_windows_ramps_and_breakdown(kinova):
     np.testing.assert_array_equal(terms.windows(N, 0.01)[0][names.index("apart")], [1, 0, 0, 0])
     br = task.cost.breakdown(X, U)
     assert sum(br.values()) == pytest.approx(task.cost.total(X, U), rel=1e-12)
-    assert set(names) == {k.split(".", 1)[1] for k in br if k.startswith("terms.")}
+    names_u = [t.name for t in terms.control_terms]
+    assert set(names + names_u) == {k.split(".", 1)[1] for k in br if k.startswith("terms.")}
     rep = terms.report(X)
     assert rep["lift"]["step"] == N and rep["lift"]["error"] == pytest.approx(
         max(0.0, 0.5 - rep["lift"]["final"])
@@ -278,6 +349,12 @@ def test_unknown_model_names_are_one_line_config_errors(tmp_path, term, message)
          "cost.terms.t.margin: must be >= 0"),
         ({"name": "t", "type": "joint_limits", "body": "b"},
          "cost.terms.t.body: a joint_limits term has no body"),
+        ({"name": "t", "type": "effort_limits", "margin": -1},
+         "cost.terms.t.margin: must be >= 0 (N·m or N inside each effort limit)"),
+        ({"name": "t", "type": "effort_limits", "terminal": True},
+         "cost.terms.t.terminal: an effort_limits term prices every step"),
+        ({"name": "t", "type": "effort_limits", "joints": ["j"]},
+         "cost.terms.t.joints: an effort_limits term has no joints"),
         ({"name": "t", "type": "height", "body": "b", "min": 0, "margin": 0.1},
          "cost.terms.t.margin: a height term has no margin"),
         ({"name": "t", "type": "slip", "body": "b"}, "cost.terms.t.clearance: required"),
@@ -526,3 +603,18 @@ def test_a_ramp_is_linear_over_its_window_up_to_the_tasks_end():
     np.testing.assert_allclose(f, 0.5 * np.array([0.0, 1.0, 1.5, 2.0, 2.5, 0.0]))
     on, f = Terminal().factors(times, 0.5, end_time=1.0)
     np.testing.assert_array_equal(f, [0, 0, 0, 0, 0, 1.0])
+
+
+def test_check_lists_a_term_on_the_controls_with_its_cost(kinova):
+    """``hydroilqr check``'s term list (terms_on_guess) has the effort term, with its cost on
+    the guess (the guess's commands: none beyond the limits) and no error of a state."""
+    from hydroilqr.metrics.terms import terms_on_guess
+
+    task, _, _ = kinova
+    rows = {r["name"]: r for r in terms_on_guess(task)}
+    effort = rows["effort"]
+    assert effort["type"] == "effort_limits" and effort["controls"] and effort["error"] is None
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
+    assert effort["cost"] == task.cost.breakdown(X, U)["terms.effort"]
+    assert set(rows) == {t["name"] for t in TERMS}

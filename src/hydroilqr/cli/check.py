@@ -396,6 +396,7 @@ def _simulation(r: dict) -> None:
         )
     for t in r.get("terms") or []:  # cost.terms on the guess's rollout over the horizon
         err = "outside its window" if t["error"] is None else f"|r| = {t['error']:.4g}"
+        err = "on the commands" if t.get("controls") else err
         stages = "".join(
             f"; continuation[{i}]: weight {_weight(w)}"
             for i, w in (t.get("stage_weights") or {}).items()

@@ -27,15 +27,20 @@ def term_metrics(task, sol) -> dict:
 
 def terms_on_guess(task) -> list[dict]:
     """Each task-space term on the rollout of the task's initial guess over its horizon (or
-    first window): name, type, cost, error and final (as in ``report``); ``hydroilqr check``
-    lists them. Empty for a task without terms."""
+    first window): name, type, cost, error and final (as in ``report``; a term on the controls:
+    its cost, no error or final); ``hydroilqr check`` lists them. Empty for a task without
+    terms."""
     terms = task.cost.task_terms
     if terms is None:
         return []
-    X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
+    U = task.initial_guess(task.steps)
+    X = task.dynamics.rollout(task.x0, U)
     report = terms.report(X, 0.0)
+    for t in terms.control_terms:  # terms on the controls: their cost on the guess only
+        cost = terms.breakdown(X, 0.0, U)[f"terms.{t.name}"]
+        report[t.name] = {"cost": cost, "error": None, "final": None, "controls": True}
     out = []
-    for t in terms.terms:
+    for t in terms.terms + terms.control_terms:
         r = report.get(t.name, {"cost": 0.0, "error": None, "final": None})
         out.append(
             {

@@ -22,7 +22,8 @@ receding-horizon window (the paper's public cheetah code sets its target this wa
 Task-space terms (``cost.terms``: positions, velocities and heights of points on bodies, frame
 orientations, distances between geometries; ``model/terms.py``) are added to these when a task
 has them (``task_terms``): their costs to each step's, their Gauss-Newton derivatives to l_x
-and l_xx, their values to ``breakdown`` as ``terms.<name>``. Without them nothing changes.
+and l_xx (a term on the controls, ``effort_limits``: to l_u and l_uu), their values to
+``breakdown`` as ``terms.<name>``. Without them nothing changes.
 """
 
 from __future__ import annotations
@@ -258,6 +259,8 @@ class QuadraticCost:
             c[N] = R[N] @ (self.qf * R[N])
             if self.task_terms is not None:
                 c += self.task_terms.stage_costs(X, t0)
+                if self.task_terms.control_terms:
+                    c[:N] += self.task_terms.control_costs(U, t0)
         return c
 
     def total(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> float:
@@ -278,7 +281,7 @@ class QuadraticCost:
                 out[name] = float(np.sum(R[N, idx] ** 2 * self.qf[idx]))
         out["R"] = float(np.sum(U**2 * self.r))
         if self.task_terms is not None:
-            out.update(self.task_terms.breakdown(X, t0))
+            out.update(self.task_terms.breakdown(X, t0, U))
         return out
 
     def quadratize(self, X: np.ndarray, U: np.ndarray, t0: float = 0.0) -> Quadratization:
@@ -309,6 +312,9 @@ class QuadraticCost:
         luu = np.zeros((N, U.shape[1], U.shape[1]))
         iu = np.arange(U.shape[1])
         luu[:, iu, iu] = 2.0 * self.r
+        if self.task_terms is not None and self.task_terms.control_terms:
+            tu, tuu = self.task_terms.control_quadratize(U, t0)
+            lu, luu = lu + tu, luu + tuu
         return Quadratization(lx, lxx, lu, luu)
 
 

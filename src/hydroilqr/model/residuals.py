@@ -31,6 +31,14 @@ weighted square) and a time shaping (window, ramp, terminal); see there for the 
   that slides while it is down, or moves horizontally while it is low, costs; one that is
   ``clearance`` above the ground moves freely. No clock and no reference: it asks stance feet
   to stay put and swing feet to lift before they travel.
+* ``effort_limits``: a residual of the controls, not the state: ``s = u_i`` for each actuator
+  with a finite effort limit (the model's ``<effort>`` or the task's ``actuators:``), against
+  ``Bounds`` [−e_i + margin, e_i − margin]. Drake applies a command beyond its limit at the
+  limit, so the step's derivative in that command is 0 (model/derivatives.py): a plan that
+  leans on clipped commands has inputs its linear model cannot use. The term prices the part
+  of a command beyond its bound, so plans keep their commands where they act. Its ``value``
+  and ``jacobian`` take u (``controls = True``) and ∂s/∂u: [size, nu]; model/terms.py adds it
+  to l_u and l_uu at the steps 0..N-1.
 
 Jacobians: of positions with respect to q̇ (``JacobianWrtVariable.kQDot``: the partials in q
 itself, also for quaternion coordinates, which Drake normalizes), for an orientation the
@@ -63,6 +71,7 @@ from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.terms import (
     AXES,
     DistanceTerm,
+    EffortLimitsTerm,
     HeightTerm,
     JointLimitsTerm,
     OrientationTerm,
@@ -202,6 +211,8 @@ class Residual:
     shared context. ``start`` runs once at the initial state (for ``relative_to_start``)."""
 
     config: ClassVar[type[TermConfig]]  # its term type: the task format's keys and checks
+    #: True for a residual of the controls u (``value``/``jacobian`` take u, not x).
+    controls: ClassVar[bool] = False
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         self.cfg = cfg
@@ -469,6 +480,38 @@ class JointLimits(Residual):
     def jacobian(self, kin, x, aux):
         J = np.zeros((self.size, kin.nx))
         J[np.arange(self.size), self.coords] = 1.0
+        return J
+
+
+@register
+class EffortLimits(Residual):
+    config = EffortLimitsTerm
+    controls = True
+
+    def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
+        """The actuators with finite effort limits and their bounds (``margin`` inside)."""
+        super().__init__(cfg, kin, key)
+        limits = np.asarray(kin.dynamics.effort_limits, float)
+        self.actuators = np.flatnonzero(np.isfinite(limits))
+        if self.actuators.size == 0:
+            raise ConfigError(f"{key}: no actuator has an effort limit (model or actuators:)")
+        lim = limits[self.actuators]
+        if np.any(cfg.margin >= lim):
+            raise ConfigError(f"{key}.margin: {cfg.margin} is not below every effort limit")
+        self.lower, self.upper = -lim + cfg.margin, lim - cfg.margin
+        self.nu = limits.size
+        self.sel = list(range(self.actuators.size))
+
+    def activation(self):
+        return Bounds(self.lower, self.upper)
+
+    def value(self, kin, u, time):
+        s = np.asarray(u, float)[self.actuators]
+        return s, s, None
+
+    def jacobian(self, kin, u, aux):
+        J = np.zeros((self.size, self.nu))
+        J[np.arange(self.size), self.actuators] = 1.0
         return J
 
 

@@ -14,6 +14,11 @@ Derivatives are Gauss-Newton, ``l_x = 2 f Jᵀ W r`` and ``l_xx = 2 f Jᵀ W J``
 context (of its own diagram context, for the geometry queries) is reused for every step; a
 state is set once per step for all terms. Times are the task's (``t_k = t0 + k·dt``), so
 windows and moving targets hold across receding-horizon windows.
+
+A residual of the controls (``Residual.controls``: ``effort_limits``) is a term on u_k at the
+steps 0..N-1 of its window instead (``control_terms``): its costs are added to those steps'
+(``control_costs``), its Gauss-Newton derivatives ``l_u = 2 f Jᵀ W r`` and ``l_uu = 2 f Jᵀ W J``
+(J = ∂r/∂u) to the cost's (``control_quadratize``); the state's terms do not see it.
 """
 
 from __future__ import annotations
@@ -57,7 +62,8 @@ class Term:
         return self.residual.size
 
     def evaluate(self, kin: Kinematics, x: np.ndarray, time: float, jac: bool):
-        """(r [m], J [m, nx] or None, the measured quantity) at the state x set in ``kin``."""
+        """(r [m], J [m, nx] or None, the measured quantity) at the state x set in ``kin``
+        (a residual of the controls: x is u, J [m, nu])."""
         s, measured, aux = self.residual.value(kin, x, time)
         r, d = self.shape(s)
         if not jac:
@@ -65,7 +71,8 @@ class Term:
         if d is None:
             return r, self.residual.jacobian(kin, x, aux), measured
         if not d.any():  # inside its bounds: no Jacobian needed
-            return r, np.zeros((self.size, kin.nx)), measured
+            cols = self.residual.nu if self.residual.controls else kin.nx
+            return r, np.zeros((self.size, cols)), measured
         return r, d[:, None] * self.residual.jacobian(kin, x, aux), measured
 
 
@@ -105,9 +112,12 @@ class TaskSpaceTerms:
         self.dt = dt
         self.running_cost_dt = running_cost_dt
         self.end_time = float(end_time)
-        self.terms = [build_term(c, self.kin) for c in configs]
+        built = [build_term(c, self.kin) for c in configs]
+        self.terms = [t for t in built if not t.residual.controls]
+        #: terms on the controls (``Residual.controls``), priced at the steps 0..N-1
+        self.control_terms = [t for t in built if t.residual.controls]
         # [n_terms, 1]: terms that cost something (weight 0: left out of the cost's evaluation)
-        self._weighted = np.array([bool(np.any(t.weights)) for t in self.terms])[:, None]
+        self._weighted = np.array([bool(np.any(t.weights)) for t in self.terms], bool)[:, None]
         self.kin.set(np.asarray(x0, float))
         for t in self.terms:
             t.residual.start(self.kin)
@@ -172,10 +182,52 @@ class TaskSpaceTerms:
                 out[i] = t.aggregate.spread(c, active[i] & (factor[i] > 0))
         return out
 
-    def breakdown(self, X: np.ndarray, t0: float = 0.0) -> dict[str, float]:
-        """``terms.<name>`` -> the term's cost along X."""
+    def breakdown(self, X: np.ndarray, t0: float = 0.0, U=None) -> dict[str, float]:
+        """``terms.<name>`` -> the term's cost along X (and the control terms' along U:
+        [N, nu], when given)."""
         c = self._costs(X, t0)
-        return {f"terms.{t.name}": float(np.sum(c[i])) for i, t in enumerate(self.terms)}
+        out = {f"terms.{t.name}": float(np.sum(c[i])) for i, t in enumerate(self.terms)}
+        if U is not None:
+            for t, ct in zip(self.control_terms, self._control_evaluate(U, t0, False)[0]):
+                out[f"terms.{t.name}"] = float(np.sum(ct))
+        return out
+
+    # ------------------------------------------------------------- terms on the controls
+    def _control_evaluate(self, U: np.ndarray, t0: float, jac: bool):
+        """Per control term: its costs [N] at the steps 0..N-1, and with ``jac`` (factor
+        [N, 1], R [N, m], J [N, m, nu]) for the derivatives."""
+        U = np.asarray(U, float)
+        N = U.shape[0]
+        scale = self.dt if self.running_cost_dt else 1.0
+        times = self._times(N, t0)
+        costs, parts = [], []
+        for t in self.control_terms:
+            _, factor = t.time.factors(times, scale, self.end_time)
+            f = factor[:N]
+            R = np.zeros((N, t.size))
+            J = np.zeros((N, t.size, U.shape[1])) if jac else None
+            for k in np.flatnonzero(f > 0):
+                r, Jk, _ = t.evaluate(self.kin, U[k], float(times[k]), jac)
+                R[k] = r
+                if jac:
+                    J[k] = Jk
+            with np.errstate(over="ignore", invalid="ignore"):
+                costs.append(t.quadratic.costs(f, R))
+            parts.append((f[:, None], R, J))
+        return costs, parts
+
+    def control_costs(self, U: np.ndarray, t0: float = 0.0) -> np.ndarray:
+        """The control terms' cost at each step: [N] (zeros without control terms)."""
+        return np.sum(self._control_evaluate(U, t0, False)[0], axis=0) + np.zeros(len(U))
+
+    def control_quadratize(self, U: np.ndarray, t0: float = 0.0):
+        """Gauss-Newton lu: [N, nu] and luu: [N, nu, nu] of the control terms along U."""
+        N, nu = np.shape(U)
+        lu, luu = np.zeros((N, nu)), np.zeros((N, nu, nu))
+        for t, (f, R, J) in zip(self.control_terms, self._control_evaluate(U, t0, True)[1]):
+            lu += t.quadratic.gradient(f, J, R)
+            luu += t.quadratic.hessian(f, J)
+        return lu, luu
 
     def quadratize(self, X: np.ndarray, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """Gauss-Newton lx: [N+1, nx] and lxx: [N+1, nx, nx] of the terms along X."""

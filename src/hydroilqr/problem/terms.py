@@ -380,3 +380,24 @@ class JointLimitsTerm(TermConfig):
             raise ConfigError(f"{key}.margin: must be >= 0 (rad or m inside each limit)")
         if any(not isinstance(j, str) or not j for j in self.joints):
             raise ConfigError(f"{key}.joints: expected joint names, got {self.joints!r}")
+
+
+@register_term_type
+@dataclass
+class EffortLimitsTerm(TermConfig):
+    """``effort_limits``: a term on the controls: each command kept ``margin`` inside its
+    actuator's effort limit (the model's ``<effort>`` or ``actuators:``)."""
+
+    kind: ClassVar[str] = "effort_limits"
+
+    # How far inside each actuator's effort limit the cost starts (N·m or N).
+    margin: float = 0.0
+
+    def check(self, key: str) -> None:
+        """The margin (>= 0); it prices every step's controls (no terminal, no softmin)."""
+        check_weight(self.margin, self.margin, f"{key}.margin", False)
+        if self.margin < 0:
+            raise ConfigError(f"{key}.margin: must be >= 0 (N·m or N inside each effort limit)")
+        for what in ("terminal", "softmin"):
+            if getattr(self, what):
+                raise ConfigError(f"{key}.{what}: an effort_limits term prices every step")
