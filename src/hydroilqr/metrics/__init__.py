@@ -108,7 +108,8 @@ def summary_lines(m: dict, units: dict | None = None) -> list[str]:
             f"note: {m['commands_beyond_limits']} planned commands exceed their actuator's "
             f"effort limit (up to {ratio[0]:.3g} times the limit, {ratio[1]}); the plant "
             "applies the limit there, so "
-            "the trajectory is what the clipped command gives (the cost prices the command)"
+            "the trajectory is what the clipped command gives and the optimizer sees no effect of "
+            "the excess; an effort_limits cost term keeps commands inside the limits"
         )
     if m.get("final_error"):
         lines.append(
