@@ -26,12 +26,14 @@ def test_the_start_stands_still_on_a_flat_foot_and_the_base_pitches():
     plant = task.dynamics.plant
     i_z, i_pitch = (plant.GetJointByName(n).position_start() for n in ("base_z", "base_pitch"))
     assert task.dynamics.nu == 3 and i_pitch not in SearchSpace(task).qi
-    # the search's nominal (the start posture held by the PD law) stands: the torso stays up
-    # and level, the foot stays put
+    # the guess (the start posture held by a tracking rollout) stands still on the flat foot
+    X = task.dynamics.rollout(task.x0, task.initial_guess(task.steps))
+    assert np.abs(X[:, :nq] - task.x0[:nq]).max() < 0.01
+    # the search's nominal (the same posture as PD targets, gravity compensation as the
+    # feed-forward) sags but does not fall: the torso stays above the cost's `low` bound
     space = SearchSpace(task)
     r = space.rollout(task, space.decode(space.nominal(task)))
-    assert r.X[:, i_z].min() > task.x0[i_z] - 0.1
-    assert np.abs(r.X[:, i_pitch]).max() < 0.1
+    assert r.X[:, i_z].min() > 0.85 and np.abs(r.X[:, i_pitch]).max() < 0.3
 
 
 def test_smoke_search_and_polish_report_the_flight_goal():
