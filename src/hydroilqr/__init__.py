@@ -21,16 +21,16 @@ if not _sys.flags.utf8_mode and _locale.getpreferredencoding(False).lower() in (
 # The public API, imported on first use (``import hydroilqr`` stays cheap: the command line
 # can refuse bad input before Drake is loaded).
 _API = {
-    "ConfigError": "hydroilqr.problem.config",
+    "ConfigError": "hydroilqr.problem.errors",
     "DerivativeMethod": "hydroilqr.model.derivatives",
     "Dynamics": "hydroilqr.model.plant",
     "IterationInfo": "hydroilqr.solver.ilqr",
     "IterationTable": "hydroilqr.output.progress",
     "SimulationError": "hydroilqr.model.plant",
     "Solution": "hydroilqr.solver.solution",
-    "SolverConfig": "hydroilqr.problem.config",
+    "SolverConfig": "hydroilqr.problem.solver",
     "Task": "hydroilqr.model.task",
-    "TaskConfig": "hydroilqr.problem.config",
+    "TaskConfig": "hydroilqr.problem.task",
     "explain": "hydroilqr.solver.explain",
     "linearize": "hydroilqr.model.derivatives",
     "solve": "hydroilqr.solver.api",

@@ -20,6 +20,8 @@ def test_bench_smoke_writes_json_and_plot(tmp_path):
             "bench",
             "cartpole-wall",
             "--smoke",
+            "--set",
+            "num_steps=60",  # (into contact by then: free and contact steps both timed)
             "--iterations",
             "2",
             "--fast",
@@ -237,7 +239,7 @@ def test_bench_without_tamsi_runs_the_other_paths_and_says_why(tmp_path, monkeyp
 
     monkeypatch.setattr(bench, "drake_has_tamsi", lambda: False)
     out = tmp_path / "bench"
-    argv = ["bench", "cartpole-wall", "--smoke", "--iterations", "2"]
+    argv = ["bench", "cartpole-wall", "--smoke", "--set", "num_steps=60", "--iterations", "2"]
     rc = main([*argv, "--fast", "solver.derivatives=forward", "--out", str(out)])
     printed = capsys.readouterr().out
     assert rc == 0

@@ -376,7 +376,8 @@ def test_nesting_a_task_cannot_mean_is_one_line(tmp_path, capsys, depth, block):
 
 def test_values_that_are_no_yaml_data_are_refused_naming_the_key():
     """From Python: a complex number (or another object) where any data is allowed."""
-    from hydroilqr.problem.config import ConfigError, task_from_dict
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.load import task_from_dict
 
     for section, value, where in (
         ("metric_params", {"x": 1 + 2j}, "metric_params.x"),

@@ -36,7 +36,7 @@ def test_a_failed_command_leaves_no_empty_output_directory(tmp_path, monkeypatch
 
 def test_debug_variable_shows_tracebacks_for_config_errors(monkeypatch):
     from hydroilqr.cli import main
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     monkeypatch.setenv("HYDROILQR_DEBUG", "1")
     with pytest.raises(ConfigError):

@@ -121,3 +121,23 @@ def test_settings_the_loop_would_not_apply_as_asked_are_refused(tmp_path, capsys
     rc = cli.main([*argv, *option])
     cap = capsys.readouterr()
     assert_one_line(rc, cap.out, cap.err, needle)
+
+
+def test_mpc_with_the_sampling_planner_records_its_samples(tmp_path, capsys):
+    """``--planner sampling`` (issue 52): the loop runs, mpc.json names the planner and the
+    samples each update took; a bad sampler setting is one line before any work."""
+    import json
+
+    from hydroilqr.cli import main
+
+    small = ["--set", "search.samples=4", "--set", "search.iterations=2", "--set",
+             "search.knots=2", "--set", "mpc.sampling_workers=1"]  # fmt: skip
+    out = tmp_path / "s"
+    argv = ["mpc", "cartpole-wall", "--smoke", "--planner", "sampling", "--duration", "0.03"]
+    assert main([*argv, *small, "--no-replay", "--out", str(out)]) == 0
+    doc = json.loads((out / "mpc.json").read_text())
+    assert doc["planner"] == "sampling" and doc["sampling"]["samples_per_update_mean"] == 4
+    assert "sampler (sampling): 4 samples per update" in capsys.readouterr().out
+    rc = main([*argv, *small, "--set", "mpc.samples=1", "--out", str(tmp_path / "t")])
+    cap = capsys.readouterr()
+    assert_one_line(rc, cap.out, cap.err, "mpc.samples")

@@ -9,7 +9,7 @@ def test_a_plan_being_played_is_not_replaced_and_playback_dirs_hold_no_runs(tmp_
     import json
 
     from hydroilqr.output import report
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     run = tmp_path / "run"
     run.mkdir()
@@ -163,7 +163,7 @@ def test_a_truth_step_off_the_tasks_grid_is_named_as_the_option():
     """The task's own check of its horizon under the truth's step, worded for the option."""
     from hydroilqr import Task
     from hydroilqr.control.playback import PlaybackSettings, truth_config
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     task = Task.load("cartpole-wall")  # 2 s, no num_steps: the horizon must be whole steps
     with pytest.raises(ConfigError, match=r"^playback truth-time-step 0.003 s: horizon"):

@@ -86,12 +86,21 @@ def test_gait_report_section_links_the_gait_diagram(tmp_path):
     task = Task.load("cheetah-trot-1.0", smoke=True)
     U = task.initial_guess(task.steps)
     X = task.dynamics.rollout(task.x0, U)
-    sol = SimpleNamespace(t=task.dynamics.dt * np.arange(len(X)), X=X, U=U, extra={})
+    K = np.zeros((len(U), U.shape[1], X.shape[1]))
+    sol = SimpleNamespace(t=task.dynamics.dt * np.arange(len(X)), X=X, U=U, K=K, extra={})
     r = results.TaskResult("cheetah-trot-1.0", task, sol, metrics.compute(task, sol), 1.0)
     ctx = results.Context(command="hydroilqr results", smoke=True, out=str(tmp_path))
+    loop = tmp_path / "mpc" / "cheetah-trot-1.0"  # a closed loop run into the results dir
+    loop.mkdir(parents=True)
+    (loop / "mpc.json").write_text(json.dumps({"planner": "sampling", "metrics": r.metrics}))
     (section,) = results.metric_reports([r], ctx)
     assert section.title == "Gaits" and "stance slip m/s" in section.markdown
     assert "[gait.png](results/cheetah-trot-1.0/gait.png)" in section.markdown
+    # issue 52 item 3: the plan, its playback and the closed loop, each a row
+    motions = [row["motion"] for row in section.data]
+    assert motions == ["plan", "playback", "closed loop (sampling)"]
+    plan, played, looped = section.data
+    assert looped["v m/s"] == plan["v m/s"] != "-" and played["v m/s"] != "-"
     assert (tmp_path / "results" / "cheetah-trot-1.0" / "gait.png").exists()
     assert results.metric_reports([], ctx) == []
 

@@ -40,14 +40,25 @@ def test_summary_counts_the_goal_and_each_check():
 
 def test_transfer_summary_counts_the_played_back_goal_and_the_resting_gaps():
     runs = [_run(k, True, [("a", True)]) for k in (1, 2, 3)]
-    runs[0].transfer = {"goal_met": True, "failed_checks": [], "resting_gap": 0.01}
-    runs[1].transfer = {"goal_met": False, "failed_checks": ["a"], "resting_gap": 0.3}
+    runs[0].transfer = {
+        "goal_met": True,
+        "failed_checks": [],
+        "values": {"a": 0.01},
+        "resting_gap": 0.01,
+    }
+    runs[1].transfer = {
+        "goal_met": False,
+        "failed_checks": ["a"],
+        "values": {"a": 0.04},
+        "resting_gap": 0.3,
+    }
     runs[2].transfer = {"error": "SimulationError: diverged"}
     s = summarize("t", runs)
     assert s["transfer"] == {
         "played": 3,
         "goal_met": 1,
         "failed": 1,
+        "executed_values": {"a": {"min": 0.01, "median": 0.025, "max": 0.04}},
         "median_resting_gap": 0.155,
         "max_resting_gap": 0.3,
     }
@@ -76,7 +87,9 @@ def test_a_perturbed_plan_is_played_back_as_the_transfer_section_plays_it():
     pb = playback(task, sol, PlaybackSettings(**HALF_SPEED))
     gap = pb.metrics["object"]["resting_gap"]
     assert r.transfer["resting_gap"] == gap  # the same plan, played back the same way
-    assert r.transfer["goal_met"] == executed_goal(task, sol, pb)["goal"]["met"]
+    goal = executed_goal(task, sol, pb)["goal"]
+    assert r.transfer["goal_met"] == goal["met"]
+    assert r.transfer["values"] == {c["metric"]: c["value"] for c in goal["checks"]}
 
 
 def test_perturbation_is_relative_reproducible_and_differs_per_run():
@@ -88,11 +101,12 @@ def test_perturbation_is_relative_reproducible_and_differs_per_run():
 
 
 def test_receding_task_takes_its_first_windows_guess():
-    task = Task.load("cheetah-trot-1.0", smoke=True)
+    one = ["receding_horizon.resolves=1"]  # (the first window is the one U0 seeds)
+    task = Task.load("cheetah-trot-1.0", one, smoke=True)
     W = task.config.receding_horizon.window_steps
     U0 = task.initial_guess(W)
     same = solve(task, U0=U0)
-    again = solve(Task.load("cheetah-trot-1.0", smoke=True))
+    again = solve(Task.load("cheetah-trot-1.0", one, smoke=True))
     assert np.array_equal(same.X, again.X)
     try:
         solve(task, U0=U0[:-1])
@@ -104,7 +118,9 @@ def test_receding_task_takes_its_first_windows_guess():
 
 def test_robustness_command_writes_pass_rates_and_the_results_section(tmp_path, capsys):
     out = tmp_path / "docs"
+    small = ["num_steps=30", "solver.max_iterations=3"]  # (what is asked is the record's shape)
     argv = ["robustness", "cartpole-wall", "--smoke", "--runs", "2", "--workers", "2"]
+    argv += [f"--set={s}" for s in small]
     assert cli.main([*argv, "--transfer", "--out", str(out / "robustness")]) == 0
     text = capsys.readouterr().out
     assert "cartpole-wall run 1:" in text and "cartpole-wall run 2:" in text
@@ -114,7 +130,10 @@ def test_robustness_command_writes_pass_rates_and_the_results_section(tmp_path, 
     assert [r["index"] for r in t["results"]] == [1, 2]
     assert doc["noise"] == 1e-9 and doc["environment"]["drake"]
     assert doc["command"].startswith("hydroilqr robustness cartpole-wall")
-    page = results.generate(["cartpole-wall"], out=out, smoke=True)
+    # (the page's robustness section alone: the others are tests/cli/test_results.py's)
+    page = results.generate(
+        ["cartpole-wall"], out=out, smoke=True, overrides=small, sections=[results.robustness_table]
+    )
     md = page["md"].read_text()
     assert "## Robustness to last-bit differences" in md and "equally valid local minima" in md
     # --transfer: each plan also played back
@@ -155,8 +174,9 @@ def test_one_worker_runs_one_solve_at_a_time_and_each_solves_threads_are_stated(
     from hydroilqr.model.derivatives import num_threads
     from hydroilqr.studies.robustness import run_robustness
 
-    ref = {"label": "c", "name": "cartpole-wall", "overrides": [], "config": None, "smoke": True}
-    report = run_robustness([ref], runs=3, workers=1)
+    small = ["num_steps=30", "solver.max_iterations=3"]  # (how the solves end is not asked)
+    ref = {"label": "c", "name": "cartpole-wall", "overrides": small, "config": None, "smoke": True}
+    report = run_robustness([ref], runs=2, workers=1)
     assert report["workers"] == 1 and report["most_solves_at_once"] == 1
     (task,) = report["tasks"]
     runs = task["results"]
@@ -169,7 +189,7 @@ def test_one_worker_runs_one_solve_at_a_time_and_each_solves_threads_are_stated(
 def test_the_spread_of_each_check_shows_how_close_the_runs_came():
     """Issue 54, item 6: "3 of 3" with one run 1.3 mm inside a 20 mm limit says so."""
     from hydroilqr.metrics.goals import evaluate
-    from hydroilqr.problem.config import GoalCheck
+    from hydroilqr.problem.goal import GoalCheck
     from hydroilqr.studies.robustness import spread_lines
 
     goal = {"target_error_m": GoalCheck(max=0.02)}

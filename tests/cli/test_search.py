@@ -40,10 +40,10 @@ def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch):
 
     real = studies_search.DaskEvaluator.__call__
 
-    def interrupt_second(self, commands):
+    def interrupt_second(self, commands, *args):
         if self.calls == 1:
             raise KeyboardInterrupt
-        return real(self, commands)
+        return real(self, commands, *args)
 
     monkeypatch.setattr(studies_search.DaskEvaluator, "__call__", interrupt_second)
     out = tmp_path / "run"

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from hydroilqr import IterationTable, Solution, Task, cli, solve
-from hydroilqr.problem.config import ConfigError, SolverConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.loop import solve as ilqr_solve
 from tests.conftest import ACROBOT_TASK as TASK
 from tests.conftest import BASE, assert_one_line, edit, write_case, write_task
@@ -232,7 +233,7 @@ def test_one_run_per_output_directory_at_a_time(tmp_path):
     import time
 
     from hydroilqr.output.report import output_dir
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     out = tmp_path / "shared"
     holder = subprocess.Popen(
@@ -343,7 +344,7 @@ def test_overflowing_cost_is_an_error_not_a_finish(tmp_path, capsys):
 
 
 def test_a_run_directory_named_like_the_task_is_not_a_task_file(tmp_path, monkeypatch):
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     monkeypatch.chdir(tmp_path)
     (tmp_path / "cartpole-wall").mkdir()  # e.g. `solve cartpole-wall --out cartpole-wall`

@@ -163,7 +163,9 @@ def test_killed_while_writing_results_leaves_one_complete_set(tmp_path):
     assert _solve_in_a_process(str(write_task(tmp_path)), out).returncode == 0
     first, npz = summary(out), (out / "solution.npz").read_bytes()
     task = str(write_task(tmp_path, solver={"max_iterations": 3}))
-    for step in ("staged", "journal", "retire:0", "install:1", "installed"):
+    # Killed before the journal and half-way through installing: a solve's commit is
+    # io.rundir's (tests/unit/test_rundir.py kills one at every step of it).
+    for step in ("staged", "install:1"):
         proc = _solve_in_a_process(task, out, step)
         assert proc.returncode == -9, proc.stderr
         rundir.recover(out)

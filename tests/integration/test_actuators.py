@@ -9,7 +9,8 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.control.playback import PlaybackSettings, _pd_check, actuated_joints, playback
 from hydroilqr.model.plant import Dynamics
-from hydroilqr.problem.config import ConfigError, with_overrides
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import with_overrides
 from tests.conftest import rollout_plan
 
 NO_ROTORS = [f"actuators.joint_{i}.rotor_inertia=0" for i in range(1, 8)]

@@ -138,7 +138,7 @@ def test_script_without_main_guard_runs_once_with_worker_processes(tmp_path):
 
 
 def test_audit_cases_round_trip_overrides_resolver_and_truthy_callbacks(task):
-    from hydroilqr.problem.config import yaml_value
+    from hydroilqr.problem.files import yaml_value
 
     kin = Task.load("kinova-forward", smoke=True)  # sets num_steps
     again = Task.from_dict(kin.config.to_dict(), base_dir=kin.config.base_dir)
@@ -304,7 +304,7 @@ def test_a_continuation_reports_the_initial_cost_on_the_task_model():
 
 
 def test_a_dict_task_extends_a_file_relative_to_its_base_dir(tmp_path):
-    from hydroilqr.problem.config import TASKS_DIR
+    from hydroilqr.problem.files import TASKS_DIR
 
     data = {"extends": "cartpole-wall.yaml", "name": "soft"}
     data["geometry"] = {"tip": {"hydroelastic_modulus": 1e5}}

@@ -8,7 +8,8 @@ import pytest
 
 from hydroilqr import Task, linearize
 from hydroilqr.metrics import compute
-from hydroilqr.problem.config import list_tasks
+from hydroilqr.output.results import checkpointer
+from hydroilqr.problem.files import list_tasks
 from hydroilqr.solver.api import solve
 from hydroilqr.solver.receding import CHECKPOINT
 
@@ -24,7 +25,7 @@ def smoke_run(tmp_path_factory):
     """An uninterrupted smoke run (3 resolves of a 10-step window), checkpointed."""
     out = tmp_path_factory.mktemp("full")
     task = Task.load("cheetah-trot-1.0", smoke=True)
-    sol = solve(task, checkpoint_dir=out)
+    sol = solve(task, checkpoint_dir=out, on_checkpoint=checkpointer(out))
     return task, sol, out
 
 
@@ -50,7 +51,9 @@ def _interrupt_after(resolves: int, task, directory) -> None:
             raise _Stop
 
     with pytest.raises(_Stop):
-        solve(task, checkpoint_dir=directory, on_resolve=stop)
+        solve(
+            task, checkpoint_dir=directory, on_checkpoint=checkpointer(directory), on_resolve=stop
+        )
 
 
 def test_tasks_listed_and_paper_setup():
@@ -199,7 +202,12 @@ def test_resume_equals_uninterrupted(smoke_run, tmp_path):
     task = Task.load("cheetah-trot-1.0", smoke=True)
     assert load_checkpoint(task, tmp_path).done == 2
     seen = []  # only the missing resolve is computed
-    resumed = solve(task, checkpoint_dir=tmp_path, on_resolve=lambda d, t, s: seen.append(d))
+    resumed = solve(
+        task,
+        checkpoint_dir=tmp_path,
+        on_checkpoint=checkpointer(tmp_path),
+        on_resolve=lambda d, t, s: seen.append(d),
+    )
     assert seen == [3]
     np.testing.assert_array_equal(resumed.X, full.X)
     np.testing.assert_array_equal(resumed.U, full.U)
@@ -238,7 +246,7 @@ def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
     import json
     import shutil
 
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     _, _, full_dir = smoke_run
     shutil.copy(full_dir / CHECKPOINT, tmp_path / CHECKPOINT)
@@ -249,7 +257,11 @@ def test_resume_refuses_a_checkpoint_whose_parts_disagree(smoke_run, tmp_path):
     arrays["meta"] = np.array(json.dumps(meta))
     np.savez(tmp_path / CHECKPOINT, **arrays)
     with pytest.raises(ConfigError, match="disagree with each other"):
-        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
+        solve(
+            Task.load("cheetah-trot-1.0", smoke=True),
+            checkpoint_dir=tmp_path,
+            on_checkpoint=checkpointer(tmp_path),
+        )
 
 
 def test_pair_sync_names_the_gait():
@@ -302,14 +314,19 @@ def test_foot_load_standing_carries_the_weight():
 
 
 def test_checkpoint_of_other_settings_refused(tmp_path):
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.solver.receding import load_checkpoint
 
     def stop(done, total, sol):
         raise _Stop
 
     with pytest.raises(_Stop):
-        solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path, on_resolve=stop)
+        solve(
+            Task.load("cheetah-trot-1.0", smoke=True),
+            checkpoint_dir=tmp_path,
+            on_checkpoint=checkpointer(tmp_path),
+            on_resolve=stop,
+        )
     other = Task.load("cheetah-trot-1.0", ["cost.R=0.02"], smoke=True)
     with pytest.raises(ConfigError, match="different run"):
         load_checkpoint(other, tmp_path)
@@ -351,7 +368,8 @@ def test_resume_refuses_a_checkpoint_whose_model_file_changed(tmp_path):
     changed would stitch two models into one trajectory."""
     import shutil
 
-    from hydroilqr.problem.config import TASKS_DIR, ConfigError
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.files import TASKS_DIR
     from hydroilqr.solver.receding import load_checkpoint
 
     model = tmp_path / "cheetah.sdf"
@@ -380,7 +398,11 @@ def test_a_run_resumed_in_another_environment_says_so(tmp_path, monkeypatch):
         receding, "numeric_environment", lambda: {**here, "blas_core": "Haswell-elsewhere"}
     )
     assert "blas_core" in receding.environment_change(st)
-    sol = solve(Task.load("cheetah-trot-1.0", smoke=True), checkpoint_dir=tmp_path)
+    sol = solve(
+        Task.load("cheetah-trot-1.0", smoke=True),
+        checkpoint_dir=tmp_path,
+        on_checkpoint=checkpointer(tmp_path),
+    )
     envs = sol.extra["environments"]
     assert [e["from_resolve"] for e in envs] == [0, 1]
     assert envs[1]["environment"]["blas_core"] == "Haswell-elsewhere"
@@ -477,7 +499,8 @@ def test_solve_says_which_windows_started_cold(monkeypatch, tmp_path, capsys):
         return U, X, len(calls) == 2
 
     monkeypatch.setattr(receding, "_warm_start", second_cold)
-    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), "--no-replay"])
+    two = ["--set", "receding_horizon.resolves=2", "--no-replay"]  # (the second starts cold)
+    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), *two])
     assert rc == 0
     assert (
         "note: 1 window(s) started from the initial guess (resolves 1)" in capsys.readouterr().out
@@ -494,12 +517,13 @@ def test_solve_says_how_many_windows_were_rescued(monkeypatch, tmp_path, capsys)
         return sol
 
     monkeypatch.setattr(receding, "_rescued", second_rescued)
-    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), "--no-replay"])
+    two = ["--set", "receding_horizon.resolves=2", "--no-replay"]  # (the second is rescued)
+    rc = cli.main(["solve", "cheetah-trot-1.0", "--smoke", "--out", str(tmp_path), *two])
     assert rc == 0
     out = capsys.readouterr().out
     assert "note: 1 window(s) ended above 2x the recent windows' median cost" in out
     summary = __import__("json").loads((tmp_path / "summary.json").read_text())
-    assert [bool(r.get("rescue")) for r in summary["extra"]["resolves"]] == [False, True, False]
+    assert [bool(r.get("rescue")) for r in summary["extra"]["resolves"]] == [False, True]
 
 
 def _first_window(task):

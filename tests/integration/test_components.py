@@ -9,7 +9,7 @@ import pytest
 from hydroilqr import Task
 from hydroilqr.metrics import compute, validate_task
 from hydroilqr.metrics.goals import evaluate
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 URDF = """<?xml version="1.0"?>
 <robot name="slider">

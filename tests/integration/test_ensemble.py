@@ -12,7 +12,8 @@ from hydroilqr import Task, solve
 from hydroilqr.metrics import validate_task
 from hydroilqr.model.derivatives import Linearizer
 from hydroilqr.model.ensemble import EnsembleCost, EnsembleDynamics, EnsembleLinearizer
-from hydroilqr.problem.config import ConfigError, SolverConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.loop import solve as ilqr_solve
 from hydroilqr.solver.robust import ensemble_problem
 from tests.conftest import ACROBOT_TASK
@@ -175,7 +176,7 @@ def test_member_that_changes_the_time_step_is_refused(task):
         validate_task(nested)
     assert "\n" not in str(e.value)
     from hydroilqr.control.mpc import check_settings
-    from hydroilqr.problem.config import MPCConfig
+    from hydroilqr.problem.mpc import MPCConfig
 
     # mpc: the nominal model
     check_settings(MPCConfig(), task.with_overrides({"ensemble": [HEAVY]}))

@@ -70,7 +70,7 @@ def test_the_guide_shows_the_task_file_as_it_is():
 
     import yaml
 
-    from hydroilqr.problem.config import task_file
+    from hydroilqr.problem.files import task_file
 
     guide = (Path(__file__).resolve().parents[2] / "docs" / "guide.md").read_text()
     section = guide[guide.index("## From no contact to contact") :]

@@ -10,7 +10,7 @@ import numpy as np
 from hydroilqr import Task, solve
 from hydroilqr.metrics import compute
 from hydroilqr.metrics.goals import evaluate
-from hydroilqr.problem.config import PositionGuess
+from hydroilqr.problem.guess import PositionGuess
 
 
 def test_the_start_stands_still_and_the_guess_is_positions_whose_rollout_hops():

@@ -121,7 +121,7 @@ def test_tail_from_a_multi_row_guess_takes_the_rows_of_its_time_steps(tmp_path):
 
 
 def test_shrinking_horizon_longer_than_task_is_a_config_error():
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     task = Task.load("kinova-forward", smoke=True)
     with pytest.raises(ConfigError, match="shrinking horizon"):

@@ -10,7 +10,9 @@ from hydroilqr import Task
 from hydroilqr.cli import main
 from hydroilqr.cli.common import GOAL_NOT_MET
 from hydroilqr.control.mpc import Controller, Push, check_settings, mpc_config, prepare, run_mpc
-from hydroilqr.problem.config import TASKS_DIR, ConfigError, MPCConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.files import TASKS_DIR
+from hydroilqr.problem.mpc import MPCConfig
 
 
 def test_mpc_lockstep_brings_pole_up_and_reports_timing():
@@ -267,7 +269,7 @@ def test_mpc_metrics_are_those_of_the_simulated_plant(tmp_path):
 
 def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
     from hydroilqr.control.mpc import run_mpc
-    from hydroilqr.problem.config import MPCConfig
+    from hydroilqr.problem.mpc import MPCConfig
 
     # Tilted away from the wall: a smooth, contact-free run. (Tilted into the wall, which of
     # the two ends nearer upright flipped between gravities -12 and -14: contact luck.)
@@ -288,7 +290,7 @@ def test_mpc_feedback_helps_under_mismatch_and_warm_start_uses_it():
 
 def test_realtime_latency_is_felt():
     from hydroilqr.control.mpc import run_mpc
-    from hydroilqr.problem.config import MPCConfig
+    from hydroilqr.problem.mpc import MPCConfig
 
     task = Task.load("cartpole-wall")
     kw = dict(duration=0.3, rate=50.0, horizon=0.2)
@@ -300,7 +302,7 @@ def test_realtime_latency_is_felt():
 def test_mpc_applies_the_plan_policy(monkeypatch):
     from hydroilqr.control import mpc
     from hydroilqr.control.mpc import run_mpc
-    from hydroilqr.problem.config import MPCConfig
+    from hydroilqr.problem.mpc import MPCConfig
 
     plans = []
     real = mpc.Controller.update
@@ -336,10 +338,10 @@ def test_the_simulated_plant_gets_torques_clipped_to_the_effort_limits():
 
 
 def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
-    from hydroilqr.control import mpc
+    from hydroilqr.control import ilqr_planner
     from hydroilqr.model.plant import SimulationError
 
-    real, calls = mpc.ilqr_solve, []
+    real, calls = ilqr_planner.ilqr_solve, []
 
     def third_fails(*args, **kwargs):
         calls.append(1)
@@ -347,7 +349,7 @@ def test_a_failed_update_keeps_the_per_update_records_aligned(monkeypatch):
             raise SimulationError("this update's solve failed")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(mpc, "ilqr_solve", third_fails)
+    monkeypatch.setattr(ilqr_planner, "ilqr_solve", third_fails)
     res = run_mpc(Task.load("cartpole-wall"), MPCConfig(duration=0.1, rate=50.0, horizon=0.2))
     assert res.failures == 1
     assert len(res.derivative_steps) == len(res.reused_prediction) == len(res.solve_seconds)
@@ -417,7 +419,7 @@ def test_the_simulated_robot_steps_on_its_own_time_step():
     """Issue 38: the plant runs at a finer step than the plan; at the plan's own step the loop
     is the default one bit for bit; a step that does not divide the plan's is refused."""
     from hydroilqr.control.mpc import check_settings, run_mpc
-    from hydroilqr.problem.config import MPCConfig
+    from hydroilqr.problem.mpc import MPCConfig
 
     task = Task.load("cartpole-wall")
     dt = task.config.plant.time_step

@@ -8,7 +8,7 @@ import pytest
 from hydroilqr import Task, solve
 from hydroilqr.metrics import compute, validate_task
 from hydroilqr.metrics.goals import evaluate
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_kinova_reach_smoke_solve_reduces_the_hand_error_and_reports_its_goal_metric():

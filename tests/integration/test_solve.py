@@ -7,14 +7,15 @@ import pytest
 
 from hydroilqr import Task, solve
 from hydroilqr.model.state import StateLayout
-from hydroilqr.problem.config import ConfigError, SolverConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.ilqr import backward_pass
 from hydroilqr.solver.loop import solve as ilqr_solve
 
 
 def test_falling_body_falls(tmp_path):
     """A discrete plant's step must really advance (drake-notes: sampled-output-port trap)."""
-    from hydroilqr.problem.config import TASKS_DIR
+    from hydroilqr.problem.files import TASKS_DIR
 
     task = Task.from_dict(
         {
@@ -70,7 +71,7 @@ def test_blown_up_step_is_a_simulation_error(cartpole):
 
 
 def test_cost_reference_tracks_a_solved_run(tmp_path):
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     task = Task.load("cartpole-wall", ["num_steps=20", "solver.max_iterations=3"])
     sol = solve(task)

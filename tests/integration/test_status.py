@@ -18,7 +18,7 @@ FAR = ["initial_state.ball_position=[2.0, 0.0, 0.0984]"]  # out of the arm's rea
     ],
 )
 def test_a_task_whose_cost_has_no_terms_is_refused(data):
-    from hydroilqr.problem.config import task_file
+    from hydroilqr.problem.files import task_file
 
     task = Task.from_dict(data, base_dir=task_file("kinova-forward").parent)  # a plant: fine
     with pytest.raises(ConfigError, match=r"^cost: no terms") as e:

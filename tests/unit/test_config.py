@@ -1,4 +1,5 @@
-"""problem.config: task files, overrides, --set, extends, smoke sections, ranges."""
+"""problem/ (load, files, overrides, smoke and the sections): task files, overrides, --set,
+extends, smoke sections, ranges."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import pytest
 import yaml
 
 from hydroilqr import Task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from tests.conftest import BASE, edit, write_case
 
 
@@ -28,7 +29,8 @@ from tests.conftest import BASE, edit, write_case
     ],
 )  # fmt: skip
 def test_settings_that_cannot_run_are_refused(override, needle):
-    from hydroilqr.problem.config import ConfigError, load_task
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.load import load_task
 
     extra = ["solver.regularization_min=1e-6"] if "regularization_max" in override else []
     with pytest.raises(ConfigError, match=needle.replace(".", r"\.")):
@@ -36,7 +38,7 @@ def test_settings_that_cannot_run_are_refused(override, needle):
 
 
 def test_settings_at_the_edges_of_their_ranges_are_accepted():
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     ok = [
         "solver.short_step=0",  # 0 = always shrink after a success (documented)
@@ -57,7 +59,7 @@ def test_settings_at_the_edges_of_their_ranges_are_accepted():
 
 
 def test_a_child_task_num_steps_wins_over_its_base_horizon(tmp_path):
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     urdf = "package://drake/examples/pendulum/Pendulum.urdf"
     (tmp_path / "base.yaml").write_text(
@@ -68,7 +70,8 @@ def test_a_child_task_num_steps_wins_over_its_base_horizon(tmp_path):
 
 
 def test_geometry_overrides_by_dotted_name_and_shorthand_errors():
-    from hydroilqr.problem.config import ConfigError, load_task
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.load import load_task
 
     cfg = load_task("cartpole-wall", ["geometry.my.tip.friction=0.3"])
     assert cfg.geometry["my.tip"].friction == 0.3  # a geometry name with a dot in it
@@ -115,7 +118,8 @@ def test_sibling_defaults_agree():
 
 def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length_wins(tmp_path):
     from hydroilqr import Task
-    from hydroilqr.problem.config import TASKS_DIR, ConfigError
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.files import TASKS_DIR
 
     (tmp_path / "orphan.yaml").write_text("extends: nope.yaml\n")
     with pytest.raises(ConfigError, match="orphan.yaml: extends: no such file"):
@@ -130,7 +134,7 @@ def test_extends_names_the_child_of_a_missing_parent_and_the_childs_smoke_length
 
 def test_set_with_both_horizon_and_num_steps_is_refused_like_a_task_file():
     from hydroilqr import Task
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     with pytest.raises(ConfigError, match="horizon or num_steps, not both"):
         Task.load("cartpole-wall", ["horizon=0.3", "num_steps=7"])
@@ -148,7 +152,7 @@ def test_set_smoke_keys_change_what_smoke_applies():
 
 
 def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkeypatch):
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     monkeypatch.chdir(tmp_path)  # it became str(cwd): "cannot read <cwd>/solution.npz"
     cfg = load_task("cartpole-wall", ['cost.reference=""', 'mpc.warm_start_plan=""'])
@@ -156,7 +160,8 @@ def test_set_an_empty_path_means_none_not_the_working_directory(tmp_path, monkey
 
 
 def test_set_smoke_length_or_whole_section_changes_what_smoke_applies():
-    from hydroilqr.problem.config import ConfigError, load_task
+    from hydroilqr.problem.errors import ConfigError
+    from hydroilqr.problem.load import load_task
 
     # kinova's smoke section gives num_steps: 10; a --set smoke.horizon was silently ignored
     cfg = load_task("kinova-forward", ["smoke.horizon=0.05"], smoke=True)
@@ -178,7 +183,7 @@ def test_overrides_and_shortcuts():
 
 def test_extends_across_directories_keeps_base_paths(tmp_path):
     """A base in another directory keeps resolving its own relative model and guess paths."""
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     base_dir, child_dir = tmp_path / "shared", tmp_path / "mine"
     base_dir.mkdir()
@@ -225,7 +230,7 @@ def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
     geoms = {1: ("Sphere", "arm"), 2: ("Sphere", "base"), 3: ("arm", "base"), 4: ("Box", "arm")}
     assert geometry_hits("Sphere", geoms) == [1, 2]  # every geometry of that name
     assert geometry_hits("base/Sphere", geoms) == [2]
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
 
     with pytest.raises(ConfigError, match="ambiguous"):
         geometry_hits("arm", geoms)  # body arm, and a collision named arm on base
@@ -233,7 +238,7 @@ def test_geometry_keys_by_body_collision_name_or_both(tmp_path, capsys):
 
 
 def test_a_later_layer_horizon_wins_over_an_earlier_num_steps(tmp_path):
-    from hydroilqr.problem.config import load_task
+    from hydroilqr.problem.load import load_task
 
     path = write_case(tmp_path, BASE)  # num_steps: 5 at dt 0.02
     extra = tmp_path / "extra.yaml"
@@ -266,11 +271,12 @@ def test_tamsi_is_refused_where_the_drake_has_none(monkeypatch, capsys):
     from pydrake.multibody.plant import DiscreteContactApproximation
 
     from hydroilqr import cli
-    from hydroilqr.problem import capabilities, config
+    from hydroilqr.problem import capabilities
+    from hydroilqr.problem import plant as plant_section
     from tests.conftest import assert_one_line
 
     assert capabilities.drake_has_tamsi() == hasattr(DiscreteContactApproximation, "kTamsi")
-    monkeypatch.setattr(config, "drake_has_tamsi", lambda: False)
+    monkeypatch.setattr(plant_section, "drake_has_tamsi", lambda: False)
     with pytest.raises(ConfigError, match=r"TAMSI.*Drake 1\.56 and older"):
         Task.load("cartpole-wall", ["plant.contact_approximation=tamsi"])
     Task.load("cartpole-wall", ["plant.contact_approximation=sap"])  # the others still load

@@ -4,11 +4,11 @@ import pytest
 
 from hydroilqr import ConfigError, Task
 from hydroilqr.metrics.goals import evaluate, lookup, verdict_line
-from hydroilqr.problem.config import GoalCheck
+from hydroilqr.problem.goal import GoalCheck
 
 
 def test_every_builtin_task_declares_a_goal():
-    from hydroilqr.problem.config import list_tasks
+    from hydroilqr.problem.files import list_tasks
 
     for name in list_tasks():
         assert Task.load(name, smoke=True).config.goal, name

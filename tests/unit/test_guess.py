@@ -9,7 +9,8 @@ import pytest
 
 from hydroilqr import Task, cli
 from hydroilqr.model.guess import position_guess
-from hydroilqr.problem.config import ConfigError, PositionGuess
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.guess import PositionGuess
 
 # The finger of finger-wheel moves in a horizontal plane (no gravity work); this path brushes
 # the wheel at the end.

@@ -7,7 +7,7 @@ from hydroilqr import Task
 from hydroilqr.model.cost import Quadratization
 from hydroilqr.model.state import StateLayout
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver.ilqr import backward_pass
 from hydroilqr.solver.loop import solve as ilqr_solve
 
@@ -126,7 +126,7 @@ def test_line_search_kernel_accepts_a_descent_step_and_respects_the_deadline():
     import time as _time
 
     from hydroilqr.model.derivatives import linearize
-    from hydroilqr.problem.config import SolverConfig
+    from hydroilqr.problem.solver import SolverConfig
     from hydroilqr.solver.ilqr import backward_pass, line_search
 
     task = Task.load("cartpole-wall", ["num_steps=30"])

@@ -79,14 +79,58 @@ def test_a_deliberate_upward_import_is_caught(tmp_path):
     for pkg in ("problem", "model"):
         (tmp_path / pkg).mkdir()
         (tmp_path / pkg / "__init__.py").write_text("")
-    (tmp_path / "model" / "plant.py").write_text("from hydroilqr.problem import config\n")
-    (tmp_path / "problem" / "config.py").write_text(
+    (tmp_path / "model" / "plant.py").write_text("from hydroilqr.problem import task\n")
+    (tmp_path / "problem" / "task.py").write_text(
         "def late():\n    from hydroilqr.model.plant import Dynamics\n    return Dynamics\n"
     )
-    assert violations(tmp_path) == ["problem imports model (problem/config.py)"]
+    assert violations(tmp_path) == ["problem imports model (problem/task.py)"]
 
 
-@pytest.mark.parametrize("module", ["hydroilqr.cli", "hydroilqr.problem.config"])
+# Inside problem/, bottom to top: a module imports modules of its rank or lower only. The
+# sections (one module per task-file section) know nothing of how a task file is loaded.
+PROBLEM_RANK = {
+    "errors": 0,
+    "capabilities": 0,
+    "checks": 1,  # small checks the sections share
+    "inputs": 1,  # bounded reads of user files
+    **dict.fromkeys(
+        ["goal", "guess", "solver", "receding", "search", "terms", "playback", "plant"], 2
+    ),
+    "cost": 3,  # holds the terms
+    "mpc": 3,  # holds its goal
+    "task": 4,  # TaskConfig: every section
+    "typed": 5,  # the loading pipeline: typed building, ...
+    "paths": 5,
+    "files": 6,  # ... YAML files and extends, ...
+    "overrides": 7,  # ... dotted keys, ...
+    "variants": 8,  # ... continuation, ensemble, mismatch (dotted overrides themselves), ...
+    "smoke": 8,
+    "load": 9,  # ... where the library takes a task in (and validates it)
+    "schema": 9,
+}
+
+
+def problem_imports(src: Path) -> list[tuple[str, str]]:
+    """(module, imported module) for every import of a module of problem/ by another."""
+    edges = []
+    for f in sorted((src / "problem").glob("*.py")):
+        tree = ast.parse(f.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                "hydroilqr.problem."
+            ):
+                edges.append((f.stem, node.module.split(".")[2]))
+    return edges
+
+
+def test_the_sections_of_problem_import_nothing_of_the_loading_pipeline():
+    modules = {f.stem for f in (SRC / "problem").glob("*.py")} - {"__init__"}
+    assert modules == set(PROBLEM_RANK), "a module of problem/ the rank table does not place"
+    upward = [(a, b) for a, b in problem_imports(SRC) if PROBLEM_RANK[a] < PROBLEM_RANK[b]]
+    assert upward == []
+
+
+@pytest.mark.parametrize("module", ["hydroilqr.cli", "hydroilqr.problem.load"])
 def test_the_command_line_and_the_config_load_no_drake(module):
     heavy = "('pydrake', 'matplotlib')"
     code = f"import sys, {module}; print(sorted(m for m in {heavy} if m in sys.modules))"

@@ -10,7 +10,7 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.metrics import flight, validate_task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monkeypatch):
@@ -35,11 +35,11 @@ def test_flights_are_the_runs_without_foot_contact_after_the_first_contact(monke
 
 def test_the_flight_metric_needs_a_foot_and_a_base():
     with pytest.raises(ConfigError, match="needs foot"):
-        validate_task(Task.load("hopper-forward", ["metric_params={base: torso}"]))
+        validate_task(Task.load("hopper-forward", ["num_steps=8", "metric_params={base: torso}"]))
     with pytest.raises(ConfigError, match="no body named .nothing. .known: world"):
-        validate_task(Task.load("hopper-forward", ["metric_params.base=nothing"]))
+        validate_task(Task.load("hopper-forward", ["num_steps=8", "metric_params.base=nothing"]))
     with pytest.raises(ConfigError, match="no collision geometry"):
-        validate_task(Task.load("hopper-forward", ["metric_params.foot=hand"]))
+        validate_task(Task.load("hopper-forward", ["num_steps=8", "metric_params.foot=hand"]))
 
 
 def test_flight_lengths_use_the_states_own_spacing(monkeypatch):

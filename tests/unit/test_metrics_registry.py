@@ -12,7 +12,7 @@ import pytest
 from hydroilqr import metrics
 from hydroilqr.metrics import validate_task
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_registry_declares_compute_plots_and_sweep_columns():

@@ -7,7 +7,7 @@ import pytest
 
 from hydroilqr.control.playback import PlanSampler, PlaybackSettings, feedforward, playback
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from tests.conftest import rollout_plan, write_task
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hydroilqr import Task
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import loop
 from hydroilqr.solver.regularization import after_step
 
@@ -55,7 +55,11 @@ def test_warm_started_line_search_starts_one_factor_above_the_last_accepted_step
         firsts.clear()
         task = Task.load(
             "cartpole-wall",
-            [f"solver.line_search_warm_start={str(warm).lower()}", "solver.derivatives=central"],
+            [
+                f"solver.line_search_warm_start={str(warm).lower()}",
+                "solver.derivatives=central",
+                "num_steps=50",  # (contact within 0.5 s: short steps taken)
+            ],
             smoke=True,
         )
         s = task.config.solver

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_output_dir_with_unreadable_results_is_left_alone(tmp_path):

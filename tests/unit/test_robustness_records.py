@@ -23,7 +23,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from hydroilqr.problem.config import list_tasks, load_task
+from hydroilqr.problem.files import list_tasks
+from hydroilqr.problem.load import load_task
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "robustness"
 MIN_RATE = 0.9

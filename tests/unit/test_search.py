@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hydroilqr.problem.config import ConfigError, SearchConfig, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.search import SearchConfig
 from hydroilqr.solver import sampling, splines
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

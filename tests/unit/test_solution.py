@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def test_solution_save_load_round_trip_keeps_every_field(tmp_path):
@@ -62,7 +62,8 @@ def test_absurd_lengths_and_non_finite_saved_plans_are_refused(tmp_path):
 
     from hydroilqr.control.mpc import check_settings
     from hydroilqr.model.task import Task
-    from hydroilqr.problem.config import MPCConfig, load_task
+    from hydroilqr.problem.load import load_task
+    from hydroilqr.problem.mpc import MPCConfig
     from hydroilqr.solver.solution import Solution
 
     for bad in (["horizon=2e6"], ["num_steps=20000000"]):

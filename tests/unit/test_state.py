@@ -7,7 +7,7 @@ import pytest
 
 from hydroilqr import Task
 from hydroilqr.model.state import StateLayout
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def _quat_layout():

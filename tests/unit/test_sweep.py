@@ -6,7 +6,7 @@ import pytest
 
 
 def test_parse_values_and_grid_edges():
-    from hydroilqr.problem.config import ConfigError
+    from hydroilqr.problem.errors import ConfigError
     from hydroilqr.studies.sweep import grid, parse_values
 
     assert parse_values("linspace:0:0.3:4") == [0.0, 0.1, 0.2, 0.3]  # not 0.09999999999999999
@@ -35,7 +35,7 @@ def test_a_sweep_point_has_its_goal_and_the_plot_a_goal_panel(tmp_path):
     """Issue 54, item 6: a goal column per point and the goal's metric plotted with its
     bound."""
     from hydroilqr.cli.sweep import describe
-    from hydroilqr.problem.config import GoalCheck
+    from hydroilqr.problem.goal import GoalCheck
     from hydroilqr.studies.sweep import goal_panels, plot_sweep, solve_point
 
     row = solve_point("cartpole-wall", None, True, {"solver.max_iterations": 1}, {}, "p0")["row"]

@@ -1,13 +1,15 @@
-"""A term type added outside the package (a toy residual registered here): the task format
-takes it (its keys, its checks, `hydroilqr schema`'s term types), the cost composes it with
-the activations and windows every term has, and the finite-difference Jacobian test of
-test_terms.py checks it without a test body of its own."""
+"""A term type added outside the package (a toy config type and residual registered here):
+the task format takes it (its keys, its checks, `hydroilqr schema`'s term types), the cost
+composes it with the activations and windows every term has, and the finite-difference
+Jacobian test of test_terms.py checks it without a test body of its own."""
 
 from __future__ import annotations
 
 import json
 import math
 import re
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -17,23 +19,35 @@ from hydroilqr.cli import main
 from hydroilqr.model.activations import Bounds, SoftMin
 from hydroilqr.model.residuals import RESIDUALS, Residual, register
 from hydroilqr.model.windows import Ramp, Window
-from hydroilqr.problem.config import TERM_TYPES, ConfigError, TermConfig, TermType
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.schema import task_schema
+from hydroilqr.problem.terms import TERM_TYPES, TermConfig
 from tests.unit.test_terms import N, assert_jacobians_match_central_differences
 
 
-def _check_toy(term: TermConfig, key: str) -> None:
-    if not term.body:
-        raise ConfigError(f"{key}.body: required")
-    if term.target is not None and not isinstance(term.target, (int, float)):
-        raise ConfigError(f"{key}.target: expected a number")
+@dataclass
+class ToyTerm(TermConfig):
+    """``toy``: the product of a point's x and y (m²) against a target or bounds."""
+
+    kind: ClassVar[str] = "toy"
+
+    body: str = ""
+    point: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    target: Any = None
+    min: float | None = None
+    max: float | None = None
+
+    def check(self, key: str) -> None:
+        if not self.body:
+            raise ConfigError(f"{key}.body: required")
+        if self.target is not None and not isinstance(self.target, (int, float)):
+            raise ConfigError(f"{key}.target: expected a number")
 
 
 class Toy(Residual):
     """r = p_x · p_y (m²) of a point P fixed on a body, against a target or bounds."""
 
-    kind = "toy"
-    spec = TermType("toy", frozenset({"body", "point", "target", "min", "max"}), _check_toy)
+    config = ToyTerm
 
     def __init__(self, cfg, kin, key):
         super().__init__(cfg, kin, key)
@@ -55,6 +69,12 @@ class Toy(Residual):
         Jp = kin.jq(self.frame, self.point)
         J[0, : kin.nq] = p[1] * Jp[0] + p[0] * Jp[1]
         return J
+
+
+def schema_term_types(schema: dict) -> list[str]:
+    """The term types a schema lists: one definition per type, each naming its type."""
+    refs = [r["$ref"].rsplit("/", 1)[1] for r in schema["definitions"]["TermConfig"]["anyOf"]]
+    return [t for r in refs for t in schema["definitions"][r]["properties"]["type"]["enum"]]
 
 
 @pytest.fixture
@@ -88,10 +108,13 @@ def test_a_registered_toy_term_is_checked_by_the_registrys_fd_test(toy):
 
 
 def test_the_task_format_takes_the_toy_type_its_keys_and_its_checks(toy, capsys):
-    assert "toy" in task_schema()["definitions"]["TermConfig"]["properties"]["type"]["enum"]
+    assert "toy" in schema_term_types(task_schema())
     assert main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
-    assert "toy" in schema["definitions"]["TermConfig"]["properties"]["type"]["enum"]
+    assert "toy" in schema_term_types(schema)
+    toy_keys = set(schema["definitions"]["ToyTerm"]["properties"])
+    assert {"body", "point", "target", "min", "max", "weight", "softmin"} <= toy_keys
+    assert "margin" not in toy_keys
     bad = [
         ({"name": "t", "type": "toy", "body": "gripper", "margin": 0.1},
          "cost.terms.t.margin: a toy term has no margin"),
@@ -104,6 +127,6 @@ def test_the_task_format_takes_the_toy_type_its_keys_and_its_checks(toy, capsys)
 
 def test_without_the_registration_the_type_is_unknown():
     assert "toy" not in RESIDUALS
-    assert "toy" not in task_schema()["definitions"]["TermConfig"]["properties"]["type"]["enum"]
+    assert "toy" not in schema_term_types(task_schema())
     with pytest.raises(ConfigError, match="cost.terms.xy.type: unknown term type"):
         Task.load("kinova-forward", smoke=True, overrides={"cost.terms": TOYS[:1]})

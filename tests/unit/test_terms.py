@@ -13,7 +13,7 @@ from hydroilqr.model.activations import Bounds, Identity, SoftMin, Sum, Target
 from hydroilqr.model.residuals import RESIDUALS
 from hydroilqr.model.terms import Term, softmin
 from hydroilqr.model.windows import Ramp, Terminal, Window
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from tests.conftest import edit, write_case
 
 # Every term type on the Kinova arm and its ball (a quaternion floating body), with the

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 
 from hydroilqr.cli.common import command_line, console
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 HELP = "iteration times: the paper's method vs the fastest configuration"
 

@@ -11,7 +11,8 @@ from rich.measure import Measurement
 from rich.table import Table
 
 from hydroilqr.cli.common import add_task_args, console, load_task_from_args, task_name_from_args
-from hydroilqr.problem.config import ConfigError, MPCConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.mpc import MPCConfig
 
 HELP = "validate a task and report its layout and contacts"
 

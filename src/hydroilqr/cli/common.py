@@ -8,7 +8,9 @@ import sys
 from rich.console import Console
 
 from hydroilqr.problem import inputs
-from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.guess import GUESS_KEYWORDS
+from hydroilqr.problem.load import load_task
 
 # Piped or logged output gets a wide console, so names that users copy into task files
 # (block, joint and geometry names in tables) are not cut to fit 80 columns.

@@ -14,7 +14,9 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.mpc import MPC_PLANNERS
+from hydroilqr.problem.solver import DERIVATIVES
 
 HELP = "closed-loop MPC over hydroelastic contact"
 
@@ -75,6 +77,13 @@ def setup(p) -> None:
         metavar="S",
         help="the simulated robot's time step, a divisor of the plan's plant.time_step "
         "(default: mpc.plant_time_step, 0 = the plan's)",
+    )
+    p.add_argument(
+        "--planner",
+        choices=MPC_PLANNERS,
+        help="the loop's planner: ilqr, sampling (the task's search: settings, warm-started "
+        "by the shifted best spline) or hybrid (iLQR iterations on the best sample); default "
+        "mpc.planner",
     )
     p.add_argument("--threads", type=int, help="threads for derivatives (default: mpc.threads)")
     p.add_argument(
@@ -151,6 +160,7 @@ def _settings(args):
         plant_time_step=args.plant_time_step,
         plan_overrides=list(task.config.mpc.plan_overrides) + list(args.plan_set or []),
         warm_start_plan=args.warm_start_plan,
+        planner=args.planner,
     )
     if args.horizon is not None and settings.shrinking_horizon:
         raise ConfigError(
@@ -171,9 +181,18 @@ def _output_dir(task, args):
 
 def _print_header(task, settings) -> None:
     horizon = "to the task's end" if settings.shrinking_horizon else f"{settings.horizon:g} s"
+    per_update = f"{settings.iterations_per_update} it/update"
+    if settings.planner != "ilqr":
+        sc = task.config.search
+        samples = settings.samples or (sc.samples if sc else 64)
+        per_update = (
+            f"planner {settings.planner}: {samples} samples x {settings.sampling_iterations} "
+            f"per update ({sc.space if sc else 'torque'} space)"
+            + (f" + up to {per_update} of iLQR" if settings.planner == "hybrid" else "")
+        )
     console.print(
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
-        f"{horizon}, {settings.iterations_per_update} it/update, "
+        f"{horizon}, {per_update}, "
         f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
     )
     if settings.truth_overrides:
@@ -214,6 +233,18 @@ def _print_summary(data: dict, settings, task) -> None:
         f"{data['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{data['realtime_factor']:.2f}"
     )
+    sp = data.get("sampling")
+    if sp:
+        console.print(
+            f"sampler ({data['planner']}): {sp['samples_per_update_mean']:.0f} samples per "
+            f"update in {1e3 * sp['sampling_seconds_p50']:.1f} ms (p50), "
+            f"{sp['samples_per_second']:.0f} samples/s"
+            + (
+                f", {sp['ilqr_iterations_mean']:.1f} iLQR it/update"
+                if sp["ilqr_iterations_mean"]
+                else ""
+            )  # fmt: skip
+        )
     phases = data.get("phase_seconds_mean") or {}
     if phases:  # where an update's time goes
         console.print(
@@ -228,7 +259,7 @@ def _print_summary(data: dict, settings, task) -> None:
             f"of the {settings.rate:g} Hz asked (--realtime: the plant ran on older plans "
             "while updates were late; the loop real-time factor is ~1 by construction)"
         )
-    from hydroilqr.control.mpc import SATURATION_WARNING
+    from hydroilqr.metrics.common import SATURATION_WARNING
 
     if data.get("saturated_fraction", 0.0) > SATURATION_WARNING:
         warn(
@@ -238,3 +269,5 @@ def _print_summary(data: dict, settings, task) -> None:
     units = metrics.final_error_units(task, data["metrics"])
     for line in metrics.summary_lines(data["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
+    for line in metrics.report_lines(data.get("reports") or {}, "closed loop"):
+        console.print(line, soft_wrap=True)

@@ -5,13 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from hydroilqr.cli.common import command_line, console, print_goal, warn
-from hydroilqr.problem.config import (
-    APPROXIMATIONS,
-    PLAYBACK_FEEDFORWARDS,
-    PLAYBACK_POLICIES,
-    ConfigError,
-    mismatch_overrides,
-)
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.plant import APPROXIMATIONS
+from hydroilqr.problem.playback import PLAYBACK_FEEDFORWARDS, PLAYBACK_POLICIES
+from hydroilqr.problem.variants import mismatch_overrides
 
 HELP = (
     "execute a solved trajectory open loop (PD+, paper §V) on a finer "
@@ -102,18 +99,19 @@ def setup(p) -> None:
 
 
 def run(args) -> int:
-    from hydroilqr.control.playback import advisories, playback
+    from hydroilqr.control.playback import advisories
     from hydroilqr.output.report import read_lock
     from hydroilqr.output.results import write_playback
 
     read_lock(Path(args.dir))  # no solve replaces the plan while it plays
-    task, sol, settings = _settings(args)
+    prepared = _settings(args)
+    task, sol, settings = prepared.task, prepared.sol, prepared.settings
     out = _output_dir(task, args)
     _print_header(task, sol, settings, out, args.mismatch)
     early = advisories(task.dynamics.plant, settings)
     for w in early:
         warn(w)
-    r = playback(task, sol, settings)
+    r = prepared.run()
     data = write_playback(  # Ctrl+C while it writes: after the set is complete
         task,
         r,
@@ -136,8 +134,9 @@ def run(args) -> int:
 
 
 def _settings(args):
-    """The solved run's task and solution, and the PlaybackSettings the options ask for."""
-    from hydroilqr.control.playback import PlaybackSettings, load_run
+    """The solved run's task and solution, and the PlaybackSettings the options ask for,
+    checked (``prepare``: the playback ready to run)."""
+    from hydroilqr.control.playback import PlaybackSettings, load_run, prepare
 
     pd_loop = {
         k: getattr(args, k)
@@ -167,9 +166,7 @@ def _settings(args):
         object=args.object,
         **({} if args.rest_max is None else {"rest_max": args.rest_max}),
     )
-    settings.validate()
-    settings.check_against(task, float(sol.t[-1] - sol.t[0]))
-    return task, sol, settings
+    return prepare(task, sol, settings)
 
 
 def _output_dir(task, args) -> Path:
@@ -245,6 +242,10 @@ def _print_result(data: dict, wall_seconds: float) -> None:
         f"joint RMS tracking error (max over joints) {data['joint_rms_error_max']:.3g}{which}; "
         f"saturated commands {100 * data['saturated_fraction']:.1f}%"
     )
+    from hydroilqr.metrics import report_lines  # (loaded with the playback already)
+
+    for line in report_lines(data.get("reports") or {}, "executed"):
+        console.print(line, soft_wrap=True)
 
 
 def _fmt(v) -> str:

@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 
 from hydroilqr.cli.common import console
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 HELP = "rewrite a solved run's replay.html from its solution (no solve), e.g. with another camera"
 

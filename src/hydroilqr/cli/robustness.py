@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import math
 
 from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
-from hydroilqr.io.files import atomic_write
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.search import check_searchable
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
 
@@ -102,6 +102,7 @@ def run(args) -> int:
     from hydroilqr.metrics import validate_task
     from hydroilqr.model.task import Task
     from hydroilqr.output.report import output_dir
+    from hydroilqr.output.studies import write_robustness
     from hydroilqr.studies.results import DEFAULT_TASKS
     from hydroilqr.studies.robustness import loop_settings
 
@@ -115,6 +116,8 @@ def run(args) -> int:
             prepare(task, loop_settings(task, args.smoke))
         if args.search and cfg.search is None:
             raise ConfigError(f"--search: {cfg.name} has no search: section")
+        if args.search:
+            check_searchable(cfg)
         refs.append(
             {
                 "label": cfg.name,
@@ -168,7 +171,7 @@ def run(args) -> int:
     report["command"] = command_line(args)
     report["smoke"] = bool(args.smoke)
     report["overrides"] = list(args.set)
-    path = atomic_write(out / "robustness.json", json.dumps(report, indent=1) + "\n")
+    path = write_robustness(out, report)
     console.print(table(report))
     console.print(_concurrency(report))
     spread = spread_lines(report)

@@ -12,7 +12,8 @@ from hydroilqr.cli.common import (
     load_task_from_args,
     print_goal,
 )
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.search import check_searchable
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
 
@@ -47,6 +48,7 @@ def searched_task(args):
     """(task, extra overrides): a task without a ``search:`` section searches with the
     defaults (the section is added, so --smoke shrinks it as it would a written one)."""
     task = load_task_from_args(args)
+    check_searchable(task.config)
     if task.config.search is not None:
         return task, []
     extra = ["search.method=cem"]
@@ -68,6 +70,7 @@ def run(args) -> int:
         return _throughput(task, args, extra)
     from hydroilqr.output import report
     from hydroilqr.output.progress import SearchProgress
+    from hydroilqr.solver.search import total_iterations
     from hydroilqr.studies.search import run_search
 
     out = Path(args.out or f"runs/{task.name}-search{'-smoke' if args.smoke else ''}")
@@ -80,7 +83,7 @@ def run(args) -> int:
         f"on {where} -> {out}"
     )
     t0 = time.perf_counter()
-    with SearchProgress(sc.iterations, console) as prog:
+    with SearchProgress(total_iterations(task.config), console) as prog:
         srun = run_search(task_ref(args, extra), args.scheduler, args.workers, prog.update)
     wall = time.perf_counter() - t0
     print_search_line(srun, wall)
@@ -94,8 +97,12 @@ def run(args) -> int:
 
 def print_search_line(srun, wall: float) -> None:
     r = srun.result
+    if r.windows:  # (a window's nominal prices that window only)
+        head = f"search: {len(r.windows)} windows, the stitched plan's cost {r.best.cost:.6g},"
+    else:
+        head = f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g})"
     console.print(
-        f"search: best cost {r.best.cost:.6g} (nominal {r.costs[0, 0]:.6g}) after "
+        f"{head} after "
         f"{len(r.history)} iterations, {r.samples} samples in {r.seconds:.1f} s "
         f"({r.samples / max(r.seconds, 1e-9):.1f} samples/s on {srun.workers} worker(s)); "
         f"{wall:.1f} s in all",

@@ -15,7 +15,9 @@ from hydroilqr.cli.common import (
     print_goal,
     warn,
 )
-from hydroilqr.problem.config import DERIVATIVES, ConfigError
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.search import check_searchable
+from hydroilqr.problem.solver import DERIVATIVES
 
 # Multi-start's seed and perturbation size when --starts N is given without them (None on
 # the command line means "not given": they are refused without --starts).
@@ -180,6 +182,7 @@ def _check_starts(task, args) -> None:
         raise ConfigError(
             "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
         )
+    check_searchable(task.config)
     if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
         raise ConfigError(
             f"{task.name} has a search: section (the search's best samples are the starts): "
@@ -286,6 +289,7 @@ def _search_then_polish(task, args):
     (studies/search.py), the plan chosen by ``search.select``: a SearchRun."""
     from hydroilqr.cli.search import print_search_line
     from hydroilqr.output.progress import SearchProgress
+    from hydroilqr.solver.search import total_iterations
     from hydroilqr.studies.search import run_search
 
     sc = task.config.search
@@ -305,7 +309,7 @@ def _search_then_polish(task, args):
         console.print(f"  polish {r.index}: {start_line(r.record())}", soft_wrap=True)
 
     t0 = time.perf_counter()
-    with SearchProgress(sc.iterations, console) as prog:
+    with SearchProgress(total_iterations(task.config), console) as prog:
         srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
@@ -447,6 +451,7 @@ def _solve(task, out: Path, restart: bool):
 
 def _solve_receding(task, out: Path, restart: bool):
     from hydroilqr.output.progress import ResolveProgress
+    from hydroilqr.output.results import checkpointer
     from hydroilqr.solver import api, receding
 
     rh = task.config.receding_horizon
@@ -463,7 +468,9 @@ def _solve_receding(task, out: Path, restart: bool):
         ck.unlink()
     with ResolveProgress(rh.resolves) as prog:
         try:
-            return api.solve(task, checkpoint_dir=out, on_resolve=prog.update)
+            return api.solve(
+                task, checkpoint_dir=out, on_resolve=prog.update, on_checkpoint=checkpointer(out)
+            )
         except KeyboardInterrupt:
             if ck.exists():
                 raise KeyboardInterrupt(
@@ -518,6 +525,8 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
     units = metrics_mod.final_error_units(task, summary["metrics"])
     for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
+    for line in metrics_mod.report_lines(summary.get("reports") or {}, "plan"):
+        console.print(line, soft_wrap=True)
     written = [p.name for p in report.solve_outputs(out) if p.is_file()]
     first = ["summary.json", "solution.npz"]
     console.print(f"wrote {out}/" + ", ".join(first + sorted(set(written) - set(first))))

@@ -9,7 +9,8 @@ import sys
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from hydroilqr.cli.common import add_task_args, command_line, console, task_name_from_args
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
 
 HELP = "solve a task over a grid of parameter values on Dask (e.g. paper Fig. 7)"
 

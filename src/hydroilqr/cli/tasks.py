@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from hydroilqr.cli.common import console
-from hydroilqr.problem.config import TASKS_DIR, list_tasks, load_raw
+from hydroilqr.problem.files import TASKS_DIR, list_tasks, load_raw
 
 HELP = "list the built-in tasks"
 

@@ -116,3 +116,25 @@ def summary_lines(m: dict, units: dict | None = None) -> list[str]:
             + ", ".join(f"{k}={fmt(v)}{units.get(k, '')}" for k, v in m["final_error"].items())
         )
     return lines
+
+
+def report_rows(names, m: dict) -> dict[str, dict[str, str]]:
+    """The results-page report rows (e.g. the cheetah's gait table) of a metrics dict, for a
+    task whose ``metrics:`` are ``names``: {metric name: {column header: cell}} (written into
+    summary.json, mpc.json and playback.json as ``reports``, so a plan, a closed loop and a
+    playback are read in one table)."""
+    if not isinstance(m, dict) or "error" in m:
+        return {}
+    return {
+        name: {header: fn(m) for header, fn in rep.columns}
+        for name, rep in reports()
+        if name in names
+    }
+
+
+def report_lines(rows: dict[str, dict[str, str]], what: str) -> list[str]:
+    """Console lines of ``report_rows``: one per report, ``what`` naming the motion."""
+    return [
+        f"{name} ({what}): " + ", ".join(f"{h} {c}" for h, c in cells.items())
+        for name, cells in rows.items()
+    ]

@@ -23,7 +23,7 @@ from matplotlib.patches import Circle, Rectangle
 from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.metrics.common import contact_pairs, geometry_ids, involves, signed_distance
 from hydroilqr.metrics.registry import Metric, register
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 plt = pyplot()
 

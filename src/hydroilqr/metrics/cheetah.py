@@ -62,7 +62,7 @@ from hydroilqr.metrics.common import contact_pairs, floating_block, floating_nam
 from hydroilqr.metrics.contacts import state_step
 from hydroilqr.metrics.registry import Metric, Report, register
 from hydroilqr.model.contacts import runs
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 FEET = ("FL_foot_collision", "FR_foot_collision", "HL_foot_collision", "HR_foot_collision")
 DIAGONAL = ((0, 3), (1, 2))  # FL+HR, FR+HL
@@ -256,7 +256,7 @@ def cheetah_metrics(task, sol) -> dict:
         "max_foot_faces": int(np.max(faces)) if faces.size else 0,
         "mean_foot_faces": float(np.mean(in_contact)) if in_contact.size else 0.0,
     }
-    resolves = (sol.extra or {}).get("resolves") or []
+    resolves = (getattr(sol, "extra", None) or {}).get("resolves") or []
     if resolves:
         out["iterations_per_resolve"] = float(np.mean([r["iterations"] for r in resolves]))
         out["resolve_seconds"] = float(np.mean([r["seconds"] for r in resolves]))

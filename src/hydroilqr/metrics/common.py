@@ -11,7 +11,7 @@ from hydroilqr.metrics.contacts import contact_metrics, plot_contacts
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.model.names import body_labels
 from hydroilqr.model.plant import named_geometries
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 # ------------------------------------------------------------------------------------------
 # Helpers over a trajectory
@@ -162,6 +162,11 @@ def default_metrics(task, sol) -> dict:
         "max_contact_faces": max_contact_faces(task, sol),
         **beyond_limits(task.dynamics, sol.U),
     }
+
+
+#: The fraction of clipped commands (``saturated_fraction`` of playback and MPC) that earns a
+#: warning.
+SATURATION_WARNING = 0.2
 
 
 def beyond_limits(dyn, U: np.ndarray) -> dict:

@@ -26,7 +26,7 @@ from hydroilqr.metrics.contacts import _cached, state_step
 from hydroilqr.metrics.registry import Metric, register
 from hydroilqr.model.contacts import runs
 from hydroilqr.model.names import find_body
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def _feet(task) -> list[str]:

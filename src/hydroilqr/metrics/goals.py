@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from hydroilqr.metrics.registry import compute
-from hydroilqr.problem.config import ConfigError, GoalCheck
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.goal import GoalCheck
 
 
 def lookup(metrics: dict, name: str) -> Any:

@@ -36,7 +36,7 @@ from hydroilqr.io.figures import pyplot, savefig
 from hydroilqr.io.files import file_name
 from hydroilqr.metrics.common import body_order, contact_pairs, floating_block, floating_name
 from hydroilqr.metrics.registry import Metric, register
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 _cache: dict = {}
 

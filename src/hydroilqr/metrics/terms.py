@@ -11,7 +11,7 @@ A goal can check them (``term_error.reach: {max: 0.02}``). Each term's cost is i
 from __future__ import annotations
 
 from hydroilqr.metrics.registry import Metric, register
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 def term_metrics(task, sol) -> dict:

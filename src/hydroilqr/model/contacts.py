@@ -9,7 +9,6 @@ import numpy as np
 from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.model.names import body_labels
-from hydroilqr.problem.config import TERM_TYPES
 
 
 def _normal_force_hydro(info) -> float:
@@ -257,9 +256,8 @@ def approach_terms(task) -> list[str]:
     names = []
     for t in tasks:
         for term in t.config.cost.terms:
-            pulls = term.max is not None or term.target is not None
-            approach = TERM_TYPES[term.type].approach  # (a distance: geometries toward contact)
-            if approach and pulls and np.any(np.asarray(term.weight, float) > 0):
+            pulls = term.pulls_toward_contact()  # (a distance's max or target)
+            if pulls and np.any(np.asarray(term.weight, float) > 0):
                 if term.name not in names:
                     names.append(term.name)
     return names

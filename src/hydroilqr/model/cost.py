@@ -36,7 +36,8 @@ import numpy as np
 from hydroilqr.io.rundir import read_run_arrays
 from hydroilqr.model.state import StateLayout
 from hydroilqr.model.terms import TaskSpaceTerms
-from hydroilqr.problem.config import ConfigError, CostConfig
+from hydroilqr.problem.cost import CostConfig
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
 
 

@@ -35,7 +35,7 @@ from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.model.workers import Unavailable as WorkersUnavailable
 from hydroilqr.model.workers import autodiff as parallel_autodiff
 from hydroilqr.model.workers import resolve as resolve_workers
-from hydroilqr.problem.config import DerivativeMethod
+from hydroilqr.problem.solver import DerivativeMethod
 
 
 def num_threads(requested: int = 0) -> int:

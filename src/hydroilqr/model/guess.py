@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 #: Gauss-Newton iterations per time step and the finite-difference step on u (N·m or N).
 ITERATIONS = 10

@@ -40,9 +40,10 @@ a velocity the Jacobian with respect to v, its change with q by central differen
 Jacobian over the coordinates that move the point (a slip's: of the point's translational and
 its body's angular velocity Jacobians; its weight g(h) through P's position Jacobian).
 
-A new term type: a ``Residual`` subclass with ``kind``, ``spec`` (a ``problem.config.
-TermType``: the keys it reads and their checks), ``value`` and ``jacobian``, decorated with
-``@register``; the finite-difference test of tests/unit/test_terms.py runs over ``RESIDUALS``.
+A new term type: a ``problem.terms.TermConfig`` subclass (its ``kind``, its keys and their
+``check``) and a ``Residual`` subclass with ``config`` (that class), ``value`` and
+``jacobian``, decorated with ``@register``; the finite-difference test of
+tests/unit/test_terms.py runs over ``RESIDUALS``.
 """
 
 from __future__ import annotations
@@ -57,14 +58,19 @@ from pydrake.multibody.tree import FrameIndex, JacobianWrtVariable
 from hydroilqr.model.activations import Bounds, Identity, Target
 from hydroilqr.model.plant import named_geometries
 from hydroilqr.model.state import left_mul_matrix, quat_conj
-from hydroilqr.problem.config import (
+from hydroilqr.problem.checks import unknown_key
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.terms import (
     AXES,
-    TERM_TYPES,
-    ConfigError,
+    DistanceTerm,
+    HeightTerm,
+    JointLimitsTerm,
+    OrientationTerm,
+    PositionTerm,
+    SlipTerm,
     TermConfig,
-    TermType,
+    VelocityTerm,
     register_term_type,
-    unknown_key,
 )
 
 # Central-difference step (in q's units) of a velocity term's ∂v_P/∂q.
@@ -183,12 +189,10 @@ RESIDUALS: dict[str, type[Residual]] = {}
 
 
 def register(cls: type[Residual]) -> type[Residual]:
-    """Registers a residual class under its ``kind``, and its ``spec`` with the task format
-    (problem.config.TERM_TYPES: the keys it reads and their checks)."""
-    if cls.spec.name != cls.kind:
-        raise ValueError(f"{cls.__name__}: spec {cls.spec.name!r} is not kind {cls.kind!r}")
-    RESIDUALS[cls.kind] = cls
-    register_term_type(cls.spec)
+    """Registers a residual class under its config type's ``kind``, and that config type with
+    the task format (problem.terms.TERM_TYPES: its keys and their checks)."""
+    RESIDUALS[cls.config.kind] = cls
+    register_term_type(cls.config)
     return cls
 
 
@@ -197,12 +201,11 @@ class Residual:
     and what ``jacobian`` reuses) and ``jacobian`` (∂r/∂x [size, nx]) at the state set in the
     shared context. ``start`` runs once at the initial state (for ``relative_to_start``)."""
 
-    kind: ClassVar[str]
-    spec: ClassVar[TermType]
+    config: ClassVar[type[TermConfig]]  # its term type: the task format's keys and checks
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         self.cfg = cfg
-        self.sel = [AXES.index(a) for a in cfg.axes] if self.spec.vector else [0]
+        self.sel = [AXES.index(a) for a in cfg.axes] if cfg.vector else [0]
 
     @property
     def size(self) -> int:
@@ -232,18 +235,17 @@ class _OnBody(Residual):
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
         self.frame = kin.frame(cfg.body, f"{key}.body")
-        self.point = np.asarray(cfg.point, float)
+        # (a type without the key: the frame's origin; measured in the world)
+        self.point = np.asarray(getattr(cfg, "point", (0.0, 0.0, 0.0)), float)
+        relative_to = getattr(cfg, "relative_to", "")
         self.frame_a = (
-            kin.frame(cfg.relative_to, f"{key}.relative_to")
-            if cfg.relative_to
-            else kin.plant.world_frame()
+            kin.frame(relative_to, f"{key}.relative_to") if relative_to else kin.plant.world_frame()
         )
 
 
 @register
 class Position(_OnBody):
-    kind = "position"
-    spec = TERM_TYPES["position"]
+    config = PositionTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
@@ -268,8 +270,7 @@ class Position(_OnBody):
 
 @register
 class Orientation(_OnBody):
-    kind = "orientation"
-    spec = TERM_TYPES["orientation"]
+    config = OrientationTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
@@ -306,8 +307,7 @@ class Orientation(_OnBody):
 
 @register
 class Velocity(_OnBody):
-    kind = "velocity"
-    spec = TERM_TYPES["velocity"]
+    config = VelocityTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
@@ -343,8 +343,7 @@ def _scalar_activation(cfg: TermConfig):
 
 @register
 class Height(_OnBody):
-    kind = "height"
-    spec = TERM_TYPES["height"]
+    config = HeightTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
@@ -375,8 +374,7 @@ class Height(_OnBody):
 
 @register
 class Distance(Residual):
-    kind = "distance"
-    spec = TERM_TYPES["distance"]
+    config = DistanceTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)
@@ -429,8 +427,7 @@ class Distance(Residual):
 
 @register
 class JointLimits(Residual):
-    kind = "joint_limits"
-    spec = TERM_TYPES["joint_limits"]
+    config = JointLimitsTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         """The coordinates and bounds (the margin inside the model's limits)."""
@@ -477,8 +474,7 @@ class JointLimits(Residual):
 
 @register
 class Slip(_OnBody):
-    kind = "slip"
-    spec = TERM_TYPES["slip"]
+    config = SlipTerm
 
     def __init__(self, cfg: TermConfig, kin: Kinematics, key: str):
         super().__init__(cfg, kin, key)

@@ -35,7 +35,7 @@ import numpy as np
 from pydrake.multibody.tree import JointIndex
 
 from hydroilqr.model.names import SCOPE, actuator_labels, actuator_names, bare, body_labels
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -22,15 +22,11 @@ from hydroilqr.model.cost import QuadraticCost
 from hydroilqr.model.guess import position_guess
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.problem import inputs
-from hydroilqr.problem.config import (
-    ConfigError,
-    TaskConfig,
-    build_task,
-    load_task,
-    mismatch_overrides,
-    with_overrides,
-)
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import check_memory
+from hydroilqr.problem.load import build_task, load_task, with_overrides
+from hydroilqr.problem.task import TaskConfig
+from hydroilqr.problem.variants import mismatch_overrides
 
 
 @dataclass

@@ -26,7 +26,7 @@ import numpy as np
 from hydroilqr.model.activations import Quadratic, SoftMin, Sum, softmin
 from hydroilqr.model.residuals import RESIDUALS, Kinematics, Residual
 from hydroilqr.model.windows import Terminal, Window, time_shaping
-from hydroilqr.problem.config import TermConfig
+from hydroilqr.problem.terms import TermConfig
 
 __all__ = ["TaskSpaceTerms", "Term", "build_term", "softmin"]
 

@@ -13,7 +13,9 @@ Two kinds of work are sent to it:
 * ``closed_loop_rollouts``: line-search trials, one step size per process (the solver setting
   ``line_search_workers``, passed by ilqr.py to ``line_search_width``). A round evaluates ε,
   ε·f, ε·f², ... side by side and the first acceptable one in that order is taken, so the
-  iterates are those of the serial line search.
+  iterates are those of the serial line search;
+* ``sample_rollouts``: a sampling planner's samples (MPC's ``planner: sampling``), dealt out
+  in turn to the processes: torques open loop, or joint position targets under the PD+ law.
 
 The worker counts are arguments (0 = one per core). The pool is created by its first user with
 that user's size (``pool(dyn, size)``: size − 1 processes); a later, larger request shares it.
@@ -37,6 +39,7 @@ import numpy as np
 
 from hydroilqr.io.environment import cores
 from hydroilqr.model.autodiff import autodiff_serial
+from hydroilqr.model.pd import pd_rollout
 from hydroilqr.model.plant import Dynamics, SimulationError
 
 _DYN: Dynamics | None = None  # the plant of this worker process
@@ -196,13 +199,29 @@ def _rollout(x0, Ubar, Xbar, K, kappa, eps):
         return e  # a rejected trial, not a failure of the worker
 
 
+def sample_rollout(dyn: Dynamics, x0, command, space: str, kp: float, kd: float):
+    """(X, U) of one sample on ``dyn`` from x0: ``space`` torque (U = the command clipped)
+    or position (the PD+ law towards the command's targets); a SimulationError returned."""
+    try:
+        if space == "torque":
+            U = dyn.clip_to_limits(np.asarray(command, float))
+            return dyn.rollout(x0, U), U
+        return pd_rollout(dyn, x0, command, kp, kd)
+    except SimulationError as e:
+        return e
+
+
+def _samples(x0, commands, space, kp, kd):
+    return [sample_rollout(_DYN, x0, c, space, kp, kd) for c in commands]
+
+
 # ------------------------------------------------------------------------------ in this process
 def autodiff(dyn: Dynamics, X: np.ndarray, U: np.ndarray, workers: int):
     """Same result as ``autodiff.autodiff_serial`` on X: [N, nx], U: [N, nu]: the steps are
     dealt out to ``workers`` chunks in turn (steps i, i + workers, ...; the first chunk computed
-    here), so that steps in contact, which cost several times more, spread evenly. (Contiguous
-    chunks left one process idle while the other finished a stance phase: a 22-step cheetah
-    call took 76-148 ms instead of 67-133 ms, measured 2026-11-24.) Raises Unavailable."""
+    here), so that steps in contact, which cost several times more, spread evenly (contiguous
+    chunks left one process idle while the other finished a stance phase). Raises
+    Unavailable."""
 
     pool(dyn, workers)
     if not started(dyn):
@@ -256,4 +275,36 @@ def closed_loop_rollouts(dyn: Dynamics, x0, Ubar, Xbar, K, kappa, eps_list):
                 out.append(dyn.closed_loop_rollout(x0, Ubar, Xbar, K, kappa, eps))
             except SimulationError as e:
                 out.append(e)
+    return out
+
+
+def sample_rollouts(dyn: Dynamics, x0, commands: list, space: str, kp: float, kd: float,
+                    workers: int) -> list:  # fmt: skip
+    """``sample_rollout`` of each command, dealt out in turn to ``workers`` processes (this
+    one included; 0: one per core) while the pool has started, else all here: a list of
+    (X, U) or SimulationError, in the order of ``commands`` (the same numbers either way)."""
+    w = resolve(workers)
+    if w > 1:
+        pool(dyn, w)
+    w = min(w, pool_size(dyn)) if w > 1 and started(dyn) else 1
+    idx = [list(range(i, len(commands), w)) for i in range(w)]
+    futures = []
+    for chunk in idx[1:]:
+        try:
+            futures.append(_submit(dyn, _samples, x0, [commands[i] for i in chunk], space, kp, kd))
+        except Unavailable:
+            futures.append(None)
+    out: list = [None] * len(commands)
+    for i in idx[0]:
+        out[i] = sample_rollout(dyn, x0, commands[i], space, kp, kd)
+    for chunk, f in zip(idx[1:], futures):
+        try:
+            parts = f.result() if f is not None else None
+        except Exception:  # noqa: BLE001 - the worker died: its samples are rolled out here
+            mark_unavailable(dyn)
+            parts = None
+        if parts is None:
+            parts = [sample_rollout(dyn, x0, commands[i], space, kp, kd) for i in chunk]
+        for i, r in zip(chunk, parts):
+            out[i] = r
     return out

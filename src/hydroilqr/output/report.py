@@ -27,7 +27,7 @@ import numpy as np
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.io.files import atomic_write
 from hydroilqr.io.rundir import RESULT_MARKERS, previous_task
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.inputs import read_bounded
 
 

@@ -2,8 +2,10 @@
 loop (``write_mpc``) and a playback (``write_playback``) each write their files beside the
 earlier set and swap them in whole (``io.rundir.result_set``) with Ctrl+C deferred until the
 set is complete; a reader or a killed run sees the earlier set or the new one, never a mix.
-A sweep point (``write_sweep_point``) is two atomic files, its arrays before its row.
-Controllers and playback return data; only this module writes their files."""
+A sweep point (``write_sweep_point``) is two atomic files, its arrays before its row. A
+receding-horizon run's checkpoint (``write_checkpoint``) replaces the earlier one the same way.
+Controllers, playback and the solver return data; only this module (and ``output/studies.py``
+for the studies' files) writes their files."""
 
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ from hydroilqr.output.plots import (
 )
 from hydroilqr.output.replay import write_replay
 from hydroilqr.output.report import PLAYBACK_FILES, deferred_interrupt, solve_outputs, write_json
-from hydroilqr.solver.receding import CHECKPOINT
+from hydroilqr.solver.receding import CHECKPOINT, Checkpoint, checkpoint_arrays
 
 MPC_FILES = ("mpc.json", "mpc.npz", "mpc.png", "mpc.html")
 POINT_HASH = "_sha256"  # in a sweep point's .npz: its arrays' and its row's content hash
@@ -77,6 +79,7 @@ def write_solve(
             "goal": judge(task.config, metrics),
             "smoke": bool(task.config.smoke_run),  # a shrunk task: its goal is the full task's
             "metrics": metrics,
+            "reports": metrics_mod.report_rows(task.config.metrics, metrics),
             **(extra_summary or {}),
             "extra": sol.extra,
             "config": task.config.to_dict(),
@@ -113,6 +116,7 @@ def write_mpc(
         **stats,
         "goal": judge_loop(task.config, task_metrics),
         "metrics": task_metrics,
+        "reports": metrics_mod.report_rows(task.config.metrics, task_metrics),
         "environment": environment(command),
     }
 
@@ -151,6 +155,7 @@ def write_playback(
     if plan is not None:
         judged = executed_goal(task, plan, r)
         data["goal"], data["executed_metrics"] = judged["goal"], judged["metrics"]
+        data["reports"] = metrics_mod.report_rows(task.config.metrics, judged["metrics"])
         # (final values: where the hold left things, unlike object.final_gap at the plan's end)
         data["executed_metrics_final_state"] = (
             "end of the hold after the plan"
@@ -200,3 +205,21 @@ def write_sweep_point(points_dir: Path, result: dict) -> None:
         digest = content_hash(arrays, json.dumps(row, sort_keys=True))
         atomic_savez(points_dir / f"{pid}.npz", **arrays, **{POINT_HASH: np.array(digest)})
     atomic_write(points_dir / f"{pid}.json", json.dumps(row, indent=1))
+
+
+def write_checkpoint(directory: str | Path, st: Checkpoint) -> Path:
+    """A receding-horizon run's state after its latest resolve as ``checkpoint.npz`` in
+    ``directory``, replacing the earlier one (the rest of the directory stays as it is);
+    a later run continues from it (``solver.receding``, ``--resume``)."""
+
+    def write(stage: Path) -> dict:
+        atomic_savez(stage / CHECKPOINT, compressed=False, **checkpoint_arrays(st))
+        return {}
+
+    write_set(directory, [CHECKPOINT], write)
+    return Path(directory) / CHECKPOINT
+
+
+def checkpointer(directory: str | Path) -> Callable[[Checkpoint], None]:
+    """The ``on_checkpoint`` of ``solve`` that saves each state in ``directory``."""
+    return lambda st: write_checkpoint(directory, st)

@@ -1,4 +1,5 @@
-"""A JSON Schema of task files, generated from the typed configuration (``problem/config.py``).
+"""A JSON Schema of task files, generated from the typed configuration (the section modules
+of ``problem/``).
 
 ``task_schema()`` walks the dataclasses the loader builds a task from (``TaskConfig`` and the
 sections it holds) with the same type annotations the loader converts values by, so the schema
@@ -18,26 +19,47 @@ import types
 import typing
 from typing import Any
 
-from hydroilqr.problem import config as c
+from hydroilqr.problem.cost import NOMINAL_TIMES, CostConfig
+from hydroilqr.problem.mpc import PlannerSettings
+from hydroilqr.problem.plant import (
+    APPROXIMATIONS,
+    CONTACT_MODELS,
+    SHAPES,
+    SURFACES,
+    ContactProperties,
+    PlantConfig,
+    SceneObject,
+)
+from hydroilqr.problem.receding import WARM_START_TAILS, RecedingHorizonConfig
+from hydroilqr.problem.search import (
+    SEARCH_METHODS,
+    SEARCH_ORDERS,
+    SEARCH_SELECTS,
+    SEARCH_SPACES,
+    SearchConfig,
+)
+from hydroilqr.problem.solver import DERIVATIVES, SolverConfig
+from hydroilqr.problem.task import TaskConfig
+from hydroilqr.problem.terms import TermConfig
 
 SCHEMA_DIALECT = "http://json-schema.org/draft-07/schema#"
 
-#: Fields whose strings are one of a fixed set (the values the validation in config.py takes).
+#: Fields whose strings are one of a fixed set (the values each section's validation takes).
 _CHOICES: dict[tuple[type, str], tuple[str, ...]] = {
-    (c.ContactProperties, "compliance"): ("rigid", "compliant"),
-    (c.SceneObject, "shape"): c.SHAPES,
-    (c.PlantConfig, "contact_approximation"): c.APPROXIMATIONS,
-    (c.PlantConfig, "contact_model"): c.CONTACT_MODELS,
-    (c.PlantConfig, "contact_surface_representation"): ("polygon", "triangle"),
-    (c.CostConfig, "nominal_time"): c.NOMINAL_TIMES,
-    (c.SolverConfig, "derivatives"): c.DERIVATIVES,
-    (c.RecedingHorizonConfig, "warm_start_tail"): c.WARM_START_TAILS,
-    (c.MPCConfig, "warm_start_tail"): c.WARM_START_TAILS,
-    (c.MPCConfig, "derivatives"): ("", *c.DERIVATIVES),
-    (c.SearchConfig, "method"): c.SEARCH_METHODS,
-    (c.SearchConfig, "space"): c.SEARCH_SPACES,
-    (c.SearchConfig, "select"): c.SEARCH_SELECTS,
-    (c.SearchConfig, "order"): c.SEARCH_ORDERS,
+    (ContactProperties, "compliance"): ("rigid", "compliant"),
+    (SceneObject, "shape"): SHAPES,
+    (PlantConfig, "contact_approximation"): APPROXIMATIONS,
+    (PlantConfig, "contact_model"): CONTACT_MODELS,
+    (PlantConfig, "contact_surface_representation"): SURFACES,
+    (CostConfig, "nominal_time"): NOMINAL_TIMES,
+    (SolverConfig, "derivatives"): DERIVATIVES,
+    (RecedingHorizonConfig, "warm_start_tail"): WARM_START_TAILS,
+    (PlannerSettings, "warm_start_tail"): WARM_START_TAILS,
+    (PlannerSettings, "derivatives"): ("", *DERIVATIVES),
+    (SearchConfig, "method"): SEARCH_METHODS,
+    (SearchConfig, "space"): SEARCH_SPACES,
+    (SearchConfig, "select"): SEARCH_SELECTS,
+    (SearchConfig, "order"): SEARCH_ORDERS,
 }
 
 _SCALARS = {float: "number", int: "integer", bool: "boolean", str: "string"}
@@ -47,7 +69,8 @@ def task_schema() -> dict[str, Any]:
     """The JSON Schema (draft-07) of a task file: every key ``TaskConfig`` reads, plus
     ``extends``; unknown keys are errors, as they are for the loader."""
     definitions: dict[str, Any] = {}
-    root = _object_schema(c.TaskConfig, definitions)
+    root = _object_schema(TaskConfig, definitions)
+    root.pop("description", None)  # (the title and description below say what it is)
     root["properties"] = {
         "extends": {
             "type": "string",
@@ -60,7 +83,7 @@ def task_schema() -> dict[str, Any]:
         "$schema": SCHEMA_DIALECT,
         "title": "hydroilqr task file",
         "description": "A hydroilqr task (docs/task-format.md); generated from "
-        "hydroilqr.problem.config by `hydroilqr schema`.",
+        "hydroilqr.problem by `hydroilqr schema`.",
         **root,
         "definitions": definitions,
     }
@@ -68,11 +91,7 @@ def task_schema() -> dict[str, Any]:
 
 def task_file_fields(cls: type) -> list[dataclasses.Field]:
     """The fields of a configuration dataclass that a task file may set."""
-    return [
-        f
-        for f in dataclasses.fields(cls)
-        if f.init and f.metadata.get("task_file", True) and f.name not in c.LOADER_KEYS
-    ]
+    return [f for f in dataclasses.fields(cls) if f.init and f.metadata.get("task_file", True)]
 
 
 def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
@@ -103,8 +122,8 @@ def _object_schema(cls: type, definitions: dict[str, Any]) -> dict[str, Any]:
 def _choices(cls: type, name: str) -> tuple[str, ...] | None:
     """The values a string field takes, if a fixed set: ``_CHOICES``, and a term's ``type``
     (the term types registered when the schema is made)."""
-    if (cls, name) == (c.TermConfig, "type"):
-        return tuple(c.TERM_TYPES)
+    if name == "type" and issubclass(cls, TermConfig) and cls.kind:
+        return (cls.kind,)  # a term type's definition (one per registered type)
     return _CHOICES.get((cls, name)) or _CHOICES.get((_base_with(cls, name), name))
 
 
@@ -123,7 +142,7 @@ def _optional(tp: Any) -> bool:
 
 
 def _type_schema(tp: Any, definitions: dict[str, Any]) -> dict[str, Any]:
-    """The schema of values of the annotation ``tp`` (as ``config._coerce`` converts them)."""
+    """The schema of values of the annotation ``tp`` (as ``typed._coerce`` converts them)."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if tp is Any:
@@ -138,6 +157,10 @@ def _type_schema(tp: Any, definitions: dict[str, Any]) -> dict[str, Any]:
         if name not in definitions:
             definitions[name] = {}  # (a placeholder against recursion)
             definitions[name] = _object_schema(tp, definitions)
+            if "variants" in vars(tp):  # one of its registered variants (cost terms)
+                refs = [_type_schema(v, definitions) for v in tp.variants()]
+                doc = definitions[name].get("description")
+                definitions[name] = {"anyOf": refs, **({"description": doc} if doc else {})}
         return {"$ref": f"#/definitions/{name}"}
     if origin is list:
         return {"type": "array", "items": _type_schema(args[0], definitions)}

@@ -16,12 +16,9 @@ import numpy as np
 
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import (
-    SolverConfig,
-    _build_dataclass,
-    validate_for_solve,
-    validate_solver,
-)
+from hydroilqr.problem.solver import SolverConfig, validate_solver
+from hydroilqr.problem.task import validate_for_solve
+from hydroilqr.problem.typed import build_dataclass
 from hydroilqr.solver import stopping
 from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it from here
 from hydroilqr.solver.ilqr import IterationInfo
@@ -41,10 +38,12 @@ def solve(
     checkpoint_dir: str | Path | None = None,
     on_resolve=None,
     stop_on_interrupt: bool = False,
+    on_checkpoint=None,
 ) -> Solution:
     """Solves a task (a Task, or a built-in task name / task file path): one iLQR solve over
-    the horizon, or the receding-horizon schedule if the task has one (checkpointed to
-    ``checkpoint_dir`` after every resolve).
+    the horizon, or the receding-horizon schedule if the task has one (continuing the
+    checkpoint in ``checkpoint_dir`` if there is one; ``on_checkpoint(state)`` after every
+    resolve: ``output.results.checkpointer(directory)`` saves it there).
 
     ``U0``: [N, nu] initial guess (default: the task's ``initial_guess``); ``x0``: [nx] initial
     state (default: the task's; a quaternion in it that is not of unit norm is normalized, as
@@ -75,7 +74,7 @@ def solve(
     # a SolverConfig replaces them all. The task itself is not changed.
     solver = _settings_for(task.config.solver, settings)
     stages = [] if task.config.receding_horizon is not None else task.stages()
-    stage_solvers = [_settings_for(st.config.solver, settings) for st in stages]
+    stage_solvers = [_settings_for(st.config.solver, settings, False) for st in stages]
     if task.config.receding_horizon is not None:
         if x0 is not None:
             raise ValueError(
@@ -88,7 +87,9 @@ def solve(
                 f"U0 of a receding-horizon task is its first window's guess: shape [{W}, "
                 f"{task.dynamics.nu}], got {np.shape(U0)}"
             )
-        return solve_receding(task, callbacks, checkpoint_dir, on_resolve, solver, U0)
+        return solve_receding(
+            task, callbacks, checkpoint_dir, on_resolve, solver, U0, on_checkpoint
+        )
     x0, U0 = _start(task, U0, x0)
     if task.config.ensemble:  # (not with continuation or receding_horizon: config.validate)
         return solve_ensemble(task, U0, x0, solver, callbacks, stop_on_interrupt)
@@ -167,23 +168,25 @@ def _initial_cost(task: Task, U0, x0) -> float | None:
         return None
 
 
-def _settings_for(solver: SolverConfig, settings: SolverConfig | dict | None) -> SolverConfig:
-    """The settings a solve uses: its own section ``solver`` with ``settings`` applied."""
+def _settings_for(
+    solver: SolverConfig, settings: SolverConfig | dict | None, check: bool = True
+) -> SolverConfig:
+    """The settings a solve uses: its own section ``solver`` (checked with its task) with
+    ``settings`` applied; ``check``: the settings given here are checked (once per solve: a
+    continuation stage's combination of them is not checked again)."""
     if settings is not None and not isinstance(settings, (dict, SolverConfig)):
         raise TypeError(
             f"settings: expected a SolverConfig or a dict of its fields, got "
             f"{type(settings).__name__}"
         )
-    return solver if settings is None else _with_changes(solver, settings)
-
-
-def _with_changes(solver: SolverConfig, settings: SolverConfig | dict) -> SolverConfig:
-    """``settings`` if it is a SolverConfig, else ``solver`` with the dict's fields changed."""
+    if settings is None:
+        return solver
     if isinstance(settings, dict):
-        settings = _build_dataclass(
+        settings = build_dataclass(
             SolverConfig, {**dataclasses.asdict(solver), **settings}, "settings"
         )
-    validate_solver(settings)
+    if check:
+        validate_solver(settings)
     return settings
 
 

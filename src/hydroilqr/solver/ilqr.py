@@ -41,7 +41,7 @@ from hydroilqr.model import workers
 from hydroilqr.model.cost import Quadratization
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import regularization
 
 

@@ -24,7 +24,8 @@ from hydroilqr.model import workers
 from hydroilqr.model.derivatives import DerivativeMethod, Linearizer
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem, check_finite
-from hydroilqr.problem.config import ConfigError, SolverConfig, validate_solver
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import regularization, stopping
 from hydroilqr.solver.ilqr import (
     IterationInfo,
@@ -146,8 +147,7 @@ def solve(
     iteration then keeps its trajectory, with the gains of its backward pass). For real-time
     MPC: an update that runs late returns in time.
     """
-    s = settings or SolverConfig()
-    validate_solver(s)
+    s = settings or SolverConfig()  # (checked where it was taken in: a task, or solve())
     U0 = _checked_start(problem, U0)
     max_it = s.max_iterations if max_iterations is None else max_iterations
     callbacks = callback_list(callbacks)

@@ -9,8 +9,10 @@ to ``rescue_iterations`` more iterations, and the better result is kept (``rescu
 window's entry): the few iterations a window gets refine a motion that goes well, not one that
 has started to go wrong.
 
-Each resolve is checkpointed (``checkpoint.npz`` in the run directory), so an interrupted run
-continues where it stopped and ends with the same trajectory as an uninterrupted one.
+After each resolve the run's state (a ``Checkpoint``) goes to ``on_checkpoint``; the command
+line writes it as ``checkpoint.npz`` in the run directory (``output.results.write_checkpoint``:
+this module reads checkpoints and writes none), so an interrupted run continues where it
+stopped and ends with the same trajectory as an uninterrupted one.
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.io.environment import environment
-from hydroilqr.io.files import atomic_savez, content_hash
+from hydroilqr.io.files import content_hash
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.model.task import Problem
-from hydroilqr.problem.config import GUESS_KEYWORDS, ConfigError, SolverConfig
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.guess import GUESS_KEYWORDS
 from hydroilqr.problem.inputs import MAX_ARRAY_FILE_BYTES, MAX_MODEL_BYTES, check_npz, read_bounded
+from hydroilqr.problem.solver import SolverConfig
 from hydroilqr.solver import stopping
 from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import solve
@@ -105,8 +109,13 @@ def solve_receding(
     on_resolve: Callable[[int, int, Solution], None] | None = None,
     solver: SolverConfig | None = None,
     U0: np.ndarray | None = None,
+    on_checkpoint: Callable[[Checkpoint], None] | None = None,
 ) -> Solution:
     """Runs the task's receding-horizon schedule. Returns the stitched Solution.
+
+    ``checkpoint_dir``: a directory whose ``checkpoint.npz`` (if there is one) the run
+    continues; ``on_checkpoint(state)``: called after every resolve with the run's state, to
+    be saved (``output.results.write_checkpoint``) for a later run to continue.
 
     ``U0``: the first window's guess, [W, nu] (default: the task's initial guess); a
     checkpoint being resumed keeps its own.
@@ -120,12 +129,11 @@ def solve_receding(
     solver = solver or task.config.solver
     R = task.config.receding_horizon.resolves
     st = _start(task, checkpoint_dir, solver, U0)
-    ck = Path(checkpoint_dir) / CHECKPOINT if checkpoint_dir else None
     while st.done < R:
         sol, cold, wall, t_roll = _solve_window(task, solver, st, callbacks)
         _keep(task, st, sol, cold, wall, t_roll)
-        if ck is not None:
-            _save(ck, st)
+        if on_checkpoint is not None:
+            on_checkpoint(st)
         if on_resolve is not None:
             on_resolve(st.done, R, sol)
     return _stitched(task, st, solver)
@@ -435,19 +443,14 @@ def files_fingerprint(cfg) -> str:
 _ARRAYS = ("X", "U", "K", "kappa", "guess")
 
 
-def _save(path: Path, st: Checkpoint) -> None:
-    """Atomic write (temp file + rename) so a kill -9 never leaves a torn checkpoint. The
-    arrays as arrays, the rest as JSON in ``meta``."""
+def checkpoint_arrays(st: Checkpoint) -> dict[str, np.ndarray]:
+    """What ``checkpoint.npz`` holds for the state ``st`` (``output.results.write_checkpoint``
+    writes it, ``_load`` reads it back): the arrays as arrays, the rest as JSON in ``meta``,
+    and the content hash of both in ``sha256``."""
     meta = {f.name: getattr(st, f.name) for f in dataclasses.fields(st) if f.name not in _ARRAYS}
     arrays = {k: np.asarray(getattr(st, k)) for k in _ARRAYS}
     text = json.dumps(meta)
-    atomic_savez(
-        path,
-        compressed=False,
-        **arrays,
-        meta=np.array(text),
-        sha256=np.array(content_hash(arrays, text)),
-    )
+    return {**arrays, "meta": np.array(text), "sha256": np.array(content_hash(arrays, text))}
 
 
 class CorruptCheckpoint(ValueError):

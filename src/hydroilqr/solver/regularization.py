@@ -10,7 +10,7 @@ stays.
 
 from __future__ import annotations
 
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 
 # After a failure μ grows to at least this, whatever regularization_min is: from a tiny μ
 # (1e-9) the factor alone would take many rejected backward passes and line searches.

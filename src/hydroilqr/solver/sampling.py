@@ -67,6 +67,7 @@ class SamplingResult:
     history: list[dict] = field(default_factory=list)
     interrupted: bool = False
     seconds: float = 0.0
+    windows: list[dict] = field(default_factory=list)  # a receding search's windows
 
     @property
     def samples(self) -> int:
@@ -123,7 +124,7 @@ def search(
     ``evaluate(commands) -> costs`` (a list of decoded samples in, one cost each out),
     ``decode(θ) -> command``; ``scale``: [m] the noise unit per input; ``settings``: any
     object with method, samples, iterations, noise, elites, elite_memory, colored_noise,
-    smoothing, temperature, seed (``problem.config.SearchConfig``); ``lower``/``upper``: [m]
+    smoothing, temperature, seed (``problem.search.SearchConfig``); ``lower``/``upper``: [m]
     or [K, m] bounds on θ (None: unbounded); ``keep``: how many distinct best samples to return;
     ``on_iteration(info)`` after each iteration (info: the history entry and ``iteration``);
     returning True stops the search. Ctrl+C (KeyboardInterrupt) ends it with the best so far

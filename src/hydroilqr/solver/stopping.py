@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydroilqr.problem.config import SolverConfig
+from hydroilqr.problem.solver import SolverConfig
 
 STATUSES = (
     "converged",

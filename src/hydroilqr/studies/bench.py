@@ -27,7 +27,6 @@ derivative accuracy against AutoDiff, FD thread scaling, and the limit analysis 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import threading
 import time
@@ -38,7 +37,6 @@ import numpy as np
 
 from hydroilqr.io.environment import environment
 from hydroilqr.io.figures import pyplot, savefig
-from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.model import workers
 from hydroilqr.model.derivatives import (
@@ -52,8 +50,11 @@ from hydroilqr.model.derivatives import (
 from hydroilqr.model.plant import SimulationError, hydroelastic_kind
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import output_dir
+from hydroilqr.output.studies import write_bench
 from hydroilqr.problem.capabilities import drake_has_tamsi, no_tamsi_message
-from hydroilqr.problem.config import ConfigError, DerivativeMethod, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
+from hydroilqr.problem.solver import DerivativeMethod
 from hydroilqr.solver.ilqr import backward_pass
 from hydroilqr.solver.loop import solve
 from hydroilqr.solver.solution import PHASES
@@ -763,6 +764,4 @@ def _write(out: Path, rows, iterations, threads, command: str | None = None) -> 
         "tasks": {r["task"]: r for r in rows},
         "environment": environment(command),
     }
-    atomic_write(out / "bench.json", json.dumps(doc, indent=1))
-    plot(rows, out / "iterations.png")
-    return doc
+    return write_bench(out, doc, lambda path: plot(rows, path))

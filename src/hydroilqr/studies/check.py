@@ -42,7 +42,7 @@ from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.names import body_labels
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
-from hydroilqr.problem.config import DerivativeMethod
+from hydroilqr.problem.solver import DerivativeMethod
 from hydroilqr.studies.bases import base_report
 from hydroilqr.studies.step_cost import step_cost_report
 from hydroilqr.studies.stiffness import stiffness_report

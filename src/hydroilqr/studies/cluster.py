@@ -21,7 +21,7 @@ import psutil
 from distributed import Client, LocalCluster
 
 from hydroilqr.io.environment import cores
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 CONNECT_SECONDS = 15.0  # connecting to a --scheduler: at most this long
 

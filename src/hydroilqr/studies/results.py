@@ -23,11 +23,11 @@ from pathlib import Path
 from hydroilqr import Task, metrics, solve
 from hydroilqr.control.playback import HALF_SPEED, PlaybackSettings, executed_goal, playback
 from hydroilqr.io.environment import environment
-from hydroilqr.io.files import atomic_write
 from hydroilqr.metrics import validate_task
 from hydroilqr.metrics.goals import evaluate
 from hydroilqr.output.report import json_safe, output_dir
-from hydroilqr.problem.config import mismatch_overrides
+from hydroilqr.output.studies import write_results_page
+from hydroilqr.problem.variants import mismatch_overrides
 from hydroilqr.studies.robustness import table
 
 DEFAULT_TASKS = (
@@ -385,27 +385,59 @@ def _ratio(v) -> str:
 
 
 def metric_reports(results: Sequence[TaskResult], context: Context) -> list[Section]:
-    """A table per metric that declares a report (``Metric.report``), one row per task that
-    computes it; the report's figures are written beside the page (``OUT/results/TASK/``) and
-    linked from the row."""
+    """A table per metric that declares a report (``Metric.report``), rows per task that
+    computes it: its plan, the plan's PD+ playback at full speed on the finer simulation
+    (``hydroilqr playback RUN --speed 1``) and, where one was run into the results directory
+    (``hydroilqr mpc TASK --out OUT/mpc/TASK``), its latest closed loop (``loop_reports``);
+    the report's figures are written beside the page (``OUT/results/TASK/``) and linked from
+    the plan's row."""
     sections = []
     for name, rep in metrics.reports():
         rows, data = [], []
         for r in results:
             if name not in r.task.config.metrics:
                 continue
-            cells = [f"`{r.name}`", *(fn(r.metrics) for _, fn in rep.columns)]
             links = _report_figures(r, rep.figures, context)
-            rows.append("| " + " | ".join(_cell(c) for c in [*cells, links]) + " |")
-            data.append({"task": r.name, **{h: c for (h, _), c in zip(rep.columns, cells[1:])}})
+            for kind, m in _report_motions(r, context):
+                cells = [f"`{r.name}`", kind, *(fn(m) for _, fn in rep.columns)]
+                fig = links if kind == "plan" else ""
+                rows.append("| " + " | ".join(_cell(c) for c in [*cells, fig]) + " |")
+                data.append(
+                    {"task": r.name, "motion": kind,
+                     **{h: c for (h, _), c in zip(rep.columns, cells[2:])}}
+                )  # fmt: skip
         if not rows:
             continue
-        headers = ["task", *(h for h, _ in rep.columns), "figures"]
+        headers = ["task", "motion", *(h for h, _ in rep.columns), "figures"]
         md = "\n".join(
-            [rep.intro, "", "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers), *rows]
-        )
+            [rep.intro + REPORT_MOTIONS, "", "| " + " | ".join(headers) + " |",
+             "|" + "---|" * len(headers), *rows]
+        )  # fmt: skip
         sections.append(Section(f"report_{name}", rep.title, md, data))
     return sections
+
+
+REPORT_MOTIONS = (
+    " Rows: `plan` the solved plan; `playback` the plan executed by PD+ at full speed on the "
+    "finer simulation (`hydroilqr playback RUN --speed 1`); `closed loop` the latest "
+    "`hydroilqr mpc TASK --out OUT/mpc/TASK` in the results directory, if any (its command "
+    "and planner in its mpc.json)."
+)
+
+
+def _report_motions(r: TaskResult, context: Context) -> list[tuple[str, dict]]:
+    """(motion, metrics) of a task's report rows: the plan, its playback, a closed loop."""
+    out = [("plan", r.metrics)]
+    try:
+        pb = playback(r.task, r.sol, PlaybackSettings(speed=1.0))
+        out.append(("playback", executed_goal(r.task, r.sol, pb)["metrics"]))
+    except Exception as e:  # noqa: BLE001 - a failed playback is a row saying so
+        out.append(("playback", {"error": f"{type(e).__name__}: {e}"[:200]}))
+    path = Path(context.out) / "mpc" / r.name / "mpc.json"
+    if path.is_file():
+        doc = json.loads(path.read_text())
+        out.append((f"closed loop ({doc.get('planner', 'ilqr')})", doc.get("metrics") or {}))
+    return out
 
 
 def _report_figures(r: TaskResult, figures: Sequence[str], context: Context) -> str:
@@ -575,8 +607,4 @@ def generate(
     env["command"] = context.command
     md, page = render(results, context, env, sections)
     page["wall_seconds"] = round(time.perf_counter() - wall0, 1)  # (the next run's estimate)
-    paths = {
-        "json": atomic_write(out / "results.json", json.dumps(page, indent=1) + "\n"),
-        "md": atomic_write(out / "results.md", md),
-    }
-    return paths
+    return write_results_page(out, page, md)

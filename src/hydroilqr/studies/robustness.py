@@ -45,7 +45,8 @@ from hydroilqr.metrics.goals import judge_loop
 from hydroilqr.model.derivatives import num_threads
 from hydroilqr.model.task import Task
 from hydroilqr.output.report import json_safe
-from hydroilqr.problem.config import ConfigError, load_task
+from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import load_task
 from hydroilqr.studies.cluster import open_client
 from hydroilqr.studies.multistart import perturbation, solve_start
 
@@ -202,8 +203,9 @@ def loop_run(task_ref: dict, k: int, seed: int, noise: float) -> RunResult:
 
 def played_back(task_ref: dict, sol) -> dict:
     """The plan ``sol`` of the task ``task_ref`` played back at half speed (``HALF_SPEED``):
-    {"goal_met": the task's goal on the executed motion, "failed_checks", "resting_gap": the
-    object's, or None}; {"error": ...} if the playback failed."""
+    {"goal_met": the task's goal on the executed motion, "failed_checks", "values": each
+    check's executed value, "resting_gap": the object's, or None}; {"error": ...} if the
+    playback failed."""
     try:
         task = Task.load(
             task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
@@ -217,6 +219,7 @@ def played_back(task_ref: dict, sol) -> dict:
     return {
         "goal_met": goal.get("met"),
         "failed_checks": [c["metric"] for c in goal.get("checks", []) if not c.get("passed")],
+        "values": {c["metric"]: c.get("value") for c in goal.get("checks", [])},
         "resting_gap": None if gap is None else float(gap),
     }
 
@@ -290,16 +293,30 @@ def spread_lines(report: dict) -> list[str]:
 
 
 def _transfer_summary(runs: Sequence[RunResult]) -> dict:
-    """Over the runs played back: how many met the goal on the executed motion, and the
-    object's resting gaps (median, largest)."""
+    """Over the runs played back: how many met the goal on the executed motion, each goal
+    check's executed values (min, median, largest) and the object's resting gaps (median,
+    largest)."""
     played = [r.transfer for r in runs if r.transfer]
     gaps = [t["resting_gap"] for t in played if t.get("resting_gap") is not None]
     return {
         "played": len(played),
         "goal_met": sum(t.get("goal_met") is True for t in played),
         "failed": sum("error" in t for t in played),
+        "executed_values": _executed_spread(played),
         "median_resting_gap": float(np.median(gaps)) if gaps else None,
         "max_resting_gap": float(max(gaps)) if gaps else None,
+    }
+
+
+def _executed_spread(played: Sequence[dict]) -> dict:
+    """Per goal check, its values on the executed motions: {min, median, max}."""
+    out: dict = {}
+    for t in played:
+        for name, v in (t.get("values") or {}).items():
+            if v is not None:
+                out.setdefault(name, []).append(float(v))
+    return {
+        k: {"min": min(v), "median": float(np.median(v)), "max": max(v)} for k, v in out.items()
     }
 
 

@@ -30,7 +30,7 @@ import numpy as np
 from hydroilqr import metrics as metrics_mod
 from hydroilqr.metrics.goals import evaluate as evaluate_goal
 from hydroilqr.model.task import Task
-from hydroilqr.problem.config import load_task
+from hydroilqr.problem.load import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.studies.cluster import kill_workers, open_client
@@ -54,10 +54,11 @@ def held(task_ref: dict):
     return _HELD[key]
 
 
-def evaluate_batch(task_ref: dict, commands: list) -> list[float]:
-    """Runs on a worker: the costs of a batch of commands on its held plant."""
+def evaluate_batch(task_ref: dict, commands: list, x0=None, t0=None) -> list[float]:
+    """Runs on a worker: the costs of a batch of commands on its held plant, from x0 at t0
+    (default: the task's start; a receding search's window gives its own)."""
     task, space = held(task_ref)
-    return [space.cost(task, c) for c in commands]
+    return [space.cost(task, c, x0, t0) for c in commands]
 
 
 def timed_batch(task_ref: dict, commands: list) -> tuple[list[float], float]:
@@ -78,7 +79,7 @@ class DaskEvaluator:
         self.batches = batches or self.workers
         self.calls = 0
 
-    def __call__(self, commands: list) -> list[float]:
+    def __call__(self, commands: list, x0=None, t0=None) -> list[float]:
         n = max(1, min(self.batches, len(commands)))
         bounds = np.linspace(0, len(commands), n + 1).round().astype(int)
         futures = [
@@ -86,6 +87,8 @@ class DaskEvaluator:
                 evaluate_batch,
                 self.task_ref,
                 commands[a:b],
+                x0,
+                t0,
                 pure=False,
                 key=f"search-{self.calls}-{i}",
             )

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from hydroilqr.model.plant import SimulationError
-from hydroilqr.problem.config import ConfigError
+from hydroilqr.problem.errors import ConfigError
 
 MIN_FACES = 50  # fewer faces at the busiest step: contact is cheap, no comparison is made
 

@@ -1,0 +1,72 @@
+"""The ``initial_guess:`` key: a keyword, a file, or a path of configurations
+(``PositionGuess``, model/guess.py turns it into controls)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from hydroilqr.problem.errors import ConfigError
+
+GUESS_KEYWORDS = ("zeros", "gravity_compensation", "hold")
+
+
+@dataclass
+class PositionGuess:
+    """``initial_guess`` as a path of configurations (model/guess.py): the controls come from a
+    tracking rollout on the task's own plant that follows it. Either ``waypoints`` (each
+    ``{t: SECONDS, BLOCK: value, ...}``, in increasing time; a waypoint that does not name a
+    block keeps the previous one's value) or ``target`` (one configuration, reached at the
+    task's end). The path starts from the initial state at t = 0 and holds after its last
+    point; with ``period`` > 0 (s, after the last waypoint) it returns to the initial state's
+    values at t = period and repeats."""
+
+    waypoints: list[dict[str, Any]] = field(default_factory=list)
+    target: dict[str, Any] = field(default_factory=dict)
+    period: float = 0.0
+
+
+def validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> None:
+    """One of waypoints / target; times positive, increasing and inside the period; block
+    names are checked when the plant is built (model/guess.py)."""
+    if bool(g.waypoints) == bool(g.target):
+        raise ConfigError(f"{key}: give waypoints (a list of {{t: s, BLOCK: value}}) or target")
+    if g.period < 0 or not math.isfinite(g.period):
+        raise ConfigError(f"{key}.period: must be >= 0 (0: no repetition), got {g.period}")
+    if g.target and g.period:
+        raise ConfigError(f"{key}.period: only with waypoints")
+    if g.target and "t" in g.target:
+        raise ConfigError(f"{key}.target: has no time (it is reached at the task's end)")
+    last = 0.0
+    for i, wp in enumerate(g.waypoints):
+        t = wp.get("t")
+        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+            raise ConfigError(f"{key}.waypoints[{i}].t: expected a time in seconds, got {t!r}")
+        if t <= last:
+            raise ConfigError(
+                f"{key}.waypoints[{i}].t: {t:g} s must be after the previous point ({last:g} s)"
+            )
+        if g.period and t >= g.period:
+            raise ConfigError(f"{key}.waypoints[{i}].t: {t:g} s must be before period {g.period:g}")
+        if len(wp) < 2:
+            raise ConfigError(f"{key}.waypoints[{i}]: names no block")
+        _check_configuration(wp, f"{key}.waypoints[{i}]")
+        last = float(t)
+    _check_configuration(g.target, f"{key}.target")
+
+
+def _check_configuration(point: dict[str, Any], key: str) -> None:
+    """Each block's value of a waypoint or target is a number or a flat list of numbers."""
+    for name, v in point.items():
+        if name == "t":
+            continue
+        values = v if isinstance(v, list) else [v]
+        if not values or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+            for x in values
+        ):
+            raise ConfigError(
+                f"{key}.{name}: expected a number or a list of numbers (one per component), "
+                f"got {v!r}"
+            )
