@@ -78,7 +78,7 @@ def test_a_solve_checks_each_setting_once(calls):
         "validate_mpc": 1,
         "validate_goal": 2,  # the task's goal and the closed loop's (mpc.goal)
         "validate_cost": 1,
-        "validate_term": 2,  # its two terms, each once
+        "validate_term": len(t.config.cost.terms),  # each of its terms once
         "validate_receding_horizon": 1,
         "validate_search": 1,
         "validate_position_guess": 1,
