@@ -63,13 +63,7 @@ def _hold(truth: Dynamics, x, hold: Hold, qi, vi, limits, obj, st: PlaybackSetti
     u = hold.u
     for k in range(steps):
         if still >= need:
-            return (
-                np.array(X).reshape(-1, len(x)),
-                np.array(U).reshape(-1, len(u)),
-                saturated,
-                controls,
-                True,
-            )
+            break
         if k % every == 0:
             u = pd_torque(hold.u, x[qi], x[vi], hold.q, 0.0, st.kp, st.kd)
             controls += 1
