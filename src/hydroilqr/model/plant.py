@@ -122,6 +122,7 @@ class Dynamics:
     def __init__(self, spec: PlantSpec | TaskConfig):
         spec = PlantSpec.of(spec)
         self.spec = spec
+        self._actuation_pinv: np.ndarray | None = None  # pinv(B), on first use
         self.scene = build_diagram(spec)
         self.diagram = self.scene.diagram
         self.plant = self.scene.plant
@@ -241,8 +242,9 @@ class Dynamics:
         """u with B u = −τ_g(q) on the actuated coordinates. x: [nx] -> [nu]."""
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         tau_g = self.plant.CalcGravityGeneralizedForces(self.plant_context)
-        B = self.plant.MakeActuationMatrix()
-        return -np.linalg.pinv(B) @ tau_g
+        if self._actuation_pinv is None:  # B is the model's: one pseudo-inverse, not one a step
+            self._actuation_pinv = np.linalg.pinv(self.plant.MakeActuationMatrix())
+        return -self._actuation_pinv @ tau_g
 
     def hold_torques(self, x: np.ndarray, iterations: int = 8) -> np.ndarray:
         """u: [nu] that best holds x: [nx] still for one step: argmin_u ||v_{k+1}(x, u)||²

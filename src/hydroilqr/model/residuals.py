@@ -501,6 +501,8 @@ class EffortLimits(Residual):
         self.lower, self.upper = -lim + cfg.margin, lim - cfg.margin
         self.nu = limits.size
         self.sel = list(range(self.actuators.size))
+        self._J = np.zeros((self.actuators.size, self.nu))  # constant: u's limited entries
+        self._J[np.arange(self.actuators.size), self.actuators] = 1.0
 
     def activation(self):
         return Bounds(self.lower, self.upper)
@@ -510,9 +512,7 @@ class EffortLimits(Residual):
         return s, s, None
 
     def jacobian(self, kin, u, aux):
-        J = np.zeros((self.size, self.nu))
-        J[np.arange(self.size), self.actuators] = 1.0
-        return J
+        return self._J
 
 
 @register
