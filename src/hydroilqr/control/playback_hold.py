@@ -39,6 +39,16 @@ class Hold(NamedTuple):
     u: np.ndarray  # [nu] gravity compensation at the plan's last state
 
 
+def _hold_step(dyn, x, u, who: str):
+    """One time step of a hold after the plan (quaternions renormalized); a failed step names
+    ``who`` ("real system" or "planning model")."""
+    try:
+        x = dyn.step(x, u)
+    except SimulationError as e:
+        raise SimulationError(f"{who}, holding after the plan: {e}") from None
+    return dyn.layout.normalize(x) if dyn.layout.quaternions else x
+
+
 def hold_reference(dyn: Dynamics, x_end: np.ndarray, q_indices) -> Hold:
     """The hold reference of ``dyn`` at the plan's last state x_end: [nx]."""
     return Hold(np.asarray(x_end)[q_indices].copy(), dyn.gravity_compensation(x_end))
@@ -70,12 +80,7 @@ def _hold(truth: Dynamics, x, hold: Hold, qi, vi, limits, obj, st: PlaybackSetti
             if st.clip_torques:
                 saturated += int(np.count_nonzero(np.abs(u) > limits))
                 u = np.clip(u, -limits, limits)
-        try:
-            x = truth.step(x, u)
-        except SimulationError as e:
-            raise SimulationError(f"real system, holding after the plan: {e}") from None
-        if truth.layout.quaternions:
-            x = truth.layout.normalize(x)
+        x = _hold_step(truth, x, u, "real system")
         X.append(x)
         U.append(u)
         still = still + 1 if _object_speed(x, obj) < st.rest_speed else 0
@@ -109,12 +114,7 @@ def settle_plan(dyn: Dynamics, x_end: np.ndarray, obj: ObjectSpec, st: PlaybackS
     for _ in range(steps):
         if still >= need:
             return np.array(X), True
-        try:
-            x = dyn.step(x, u)
-        except SimulationError as e:
-            raise SimulationError(f"planning model, holding after the plan: {e}") from None
-        if dyn.layout.quaternions:
-            x = dyn.layout.normalize(x)
+        x = _hold_step(dyn, x, u, "planning model")
         x[qi], x[vi] = q_hold, 0.0
         X.append(x.copy())
         still = still + 1 if _object_speed(x, obj) < st.rest_speed else 0
