@@ -274,9 +274,10 @@ def test_a_search_space_decodes_and_costs_with_the_tasks_own_cost(cartpole):
     assert res.best.cost <= res.costs[0, 0] and res.costs.shape == (2, 6)
 
 
-def test_the_same_best_sample_with_one_and_two_dask_workers():
+def test_the_same_best_sample_with_one_and_two_dask_workers(dask_scheduler):
     """Samples drawn centrally, evaluated in batches on workers that hold their plant: the
-    same costs and best sample with 1 and 2 workers for one seed."""
+    same costs and best sample with 1 worker (a local cluster of its own) and 2 (the tests'
+    shared cluster) for one seed."""
     from hydroilqr.studies.search import run_search
 
     ref = {
@@ -285,7 +286,7 @@ def test_the_same_best_sample_with_one_and_two_dask_workers():
         "config": None,
         "smoke": False,
     }
-    runs = [run_search(ref, workers=n) for n in (1, 2)]
+    runs = [run_search(ref, workers=1), run_search(ref, scheduler=dask_scheduler)]
     assert [r.workers for r in runs] == [1, 2]
     assert np.array_equal(runs[0].result.costs, runs[1].result.costs)
     assert np.array_equal(runs[0].result.best.knots, runs[1].result.best.knots)
@@ -344,7 +345,7 @@ ROBUST = [
 ]
 
 
-def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask():
+def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask(dask_scheduler):
     """``select: robust`` on a smoke problem: each polished plan that meets the goal is
     re-solved ``robust_runs`` times from its torques perturbed (the same perturbations the
     robustness command draws), and the chosen plan is one of those; in a robustness run's own
@@ -352,7 +353,7 @@ def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask():
     from hydroilqr.studies.search import perturbed_starts, run_search, search_start
 
     ref = {"name": "cartpole-wall", "overrides": ROBUST, "config": None, "smoke": False}
-    run = run_search(ref, workers=2, polish=True)
+    run = run_search(ref, scheduler=dask_scheduler, polish=True)
     met = [r for r in run.polished if r.goal.get("met") is True]
     assert met, "the smoke problem's goal should be met by a polished plan"
     for r in run.polished:
