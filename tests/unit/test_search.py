@@ -293,6 +293,28 @@ def test_the_same_best_sample_with_one_and_two_dask_workers(dask_scheduler):
     assert np.array_equal(runs[0].solution.X, runs[1].solution.X)
 
 
+def test_a_worker_evaluates_a_changed_task_file_as_it_now_reads(tmp_path, dask_scheduler):
+    """A worker holds the plant of the task it last evaluated (``held``): a task file changed
+    at the same path between two searches on one cluster (a long-lived ``--scheduler``) is
+    evaluated as it now reads, with the same costs as the same text at another path."""
+    import yaml
+
+    from hydroilqr.studies.search import run_search
+
+    path = tmp_path / "task.yaml"
+    small = ["num_steps=10", "search.samples=4", "search.iterations=1", "search.knots=3"]
+    ref = {"name": str(path), "overrides": small, "config": None, "smoke": False}
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall"}))
+    first = run_search(ref, scheduler=dask_scheduler).result.costs
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall", "cost": {"R": 1.0}}))
+    again = run_search(ref, scheduler=dask_scheduler).result.costs
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "task.yaml").write_text(path.read_text())
+    fresh = run_search({**ref, "name": str(tmp_path / "b" / "task.yaml")}, scheduler=dask_scheduler)
+    assert not np.array_equal(first, fresh.result.costs)  # (the change matters)
+    assert np.array_equal(again, fresh.result.costs)
+
+
 def test_select_by_goal_cost_or_transfer():
     from hydroilqr.studies.search import PolishResult, select
 
