@@ -195,6 +195,9 @@ class Task:
         _ = self.dynamics, self.cost, self.x0
         self.check_memory()
         self.initial_guess(self.steps)
+        guess = self.config.initial_guess
+        if not isinstance(guess, str) and guess.realize is not None:
+            _ = self.virtual_task().dynamics  # the coordinates it realizes (model/guess.py)
         self._check_variants("continuation", self.stages())
         self._check_variants("ensemble", self.members())
         if mismatch:
@@ -256,9 +259,6 @@ class Task:
         dyn = self.dynamics
         x = self.x0 if x is None else x
         kind = self.config.initial_guess
-        if not isinstance(kind, str) and kind.realize is not None:
-            # the actuators' part of the tracking with virtual forces (solver/realize.py)
-            return self.virtual_task().initial_guess(N, x, start)[:, : dyn.nu]
         if not isinstance(kind, str):  # a path of configurations (PositionGuess)
             return position_guess(self, N, x, start).U.copy()
         if kind == "zeros":

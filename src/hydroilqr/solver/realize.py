@@ -37,19 +37,21 @@ from hydroilqr.solver.solution import Solution
 @dataclasses.dataclass
 class Realized:
     """A realization's result: U: [N, nu] the task's controls it hands over (no virtual
-    force), X: [N+1, nx] their rollout on the task's plant, and per stage a record
-    (``stages``); ``stopped``: a stage was interrupted or stopped by a callback
+    force), X: [N+1, nx] their rollout on the task's plant, per stage a record
+    (``stages``), how it was handed over and its cost on the task (``handoff``,
+    ``handoff_cost``); ``stopped``: a stage was interrupted or stopped by a callback
     (``interrupted`` or ``callback``), else None."""
 
     U: np.ndarray
     X: np.ndarray
     stages: list[dict]
     handoff: str
+    handoff_cost: float
     stopped: str | None = None
 
     def record(self) -> dict:
         """What summary.json keeps of it."""
-        return {"stages": self.stages, "handoff": self.handoff}
+        return {"stages": self.stages, "handoff": self.handoff, "handoff_cost": self.handoff_cost}
 
 
 def realize(
@@ -60,17 +62,20 @@ def realize(
     callbacks=None,
     stop_on_interrupt: bool = False,
 ) -> Realized:
-    """The task's position guess realized from the actuators' controls U0: [N, nu] (its
-    ``initial_guess`` or a perturbed copy) and the virtual forces of the guess's tracking
-    with them, from x0 (default: the task's). ``solver``: the task's settings (each stage
+    """The task's position guess realized from x0 (default: the task's), starting from its
+    tracking with virtual forces; U0: [N, nu], the task's ``initial_guess`` (its tracking
+    without them) or a perturbed copy, whose difference from it is added to the actuators'
+    controls of that start. ``solver``: the task's settings (each stage
     runs ``realize.iterations`` of them, at most its ``max_iterations``). Raises
     SimulationError naming the stage."""
     r = task.config.initial_guess.realize
     nu = task.dynamics.nu
     x = task.x0 if x0 is None else np.asarray(x0, float)
     N = U0.shape[0]
-    virtual = task.virtual_task().initial_guess(N, x)[:, nu:]  # the tracking's virtual forces
-    U = np.hstack([np.asarray(U0, float), virtual])
+    # the tracking with virtual forces, moved by U0's difference from the task's own guess
+    # (none for the guess itself; a perturbed guess's perturbation otherwise)
+    U = task.virtual_task().initial_guess(N, x)
+    U[:, :nu] += np.asarray(U0, float) - task.initial_guess(N, x)
     its = min(int(r.iterations), solver.max_iterations)  # (a smoke run's few, too)
     settings = dataclasses.replace(solver, max_iterations=its)
     stages, sol = [], None
@@ -89,7 +94,7 @@ def realize(
             break
     X, Uphys, how = handoff(task, x, sol)
     stopped = sol.reason if sol.reason in ("interrupted", "callback") else None
-    return Realized(Uphys, X, stages, how, stopped)
+    return Realized(Uphys, X, stages, how, float(task.cost.total(X, Uphys)), stopped)
 
 
 def _stage_record(weight: float, sol: Solution, nu: int, seconds: float) -> dict:
@@ -110,22 +115,30 @@ def _stage_record(weight: float, sol: Solution, nu: int, seconds: float) -> dict
 
 def handoff(task: Task, x0: np.ndarray, sol: Solution):
     """(X, U, how): the last stage's plan on the task's own plant (no virtual actuators):
-    its actuators' controls under its feedback gains (``how``: "feedback"), or open loop
-    ("open_loop") when it has no gains or that rollout fails; U clipped to the effort limits
-    (what the plant applies, so X is their rollout)."""
+    its actuators' controls open loop (``how``: "open_loop") or under its feedback gains
+    ("feedback"), whichever costs less on the task (a failed rollout costs inf); U clipped
+    to the effort limits (what the plant applies, so X is their rollout)."""
     dyn = task.dynamics
     nu = dyn.nu
     Ubar = sol.U[:, :nu]
+    tries = {}
+    try:
+        U = dyn.clip_to_limits(Ubar)
+        tries["open_loop"] = (dyn.rollout(x0, U), U)
+    except SimulationError:
+        pass
     K = np.asarray(sol.K)
-    if K.ndim == 3 and K.shape[1] > nu:
+    if K.ndim == 3:
         try:
             kappa = np.zeros_like(Ubar)
             X, U = dyn.closed_loop_rollout(x0, Ubar, sol.X, K[:, :nu, :], kappa, 0.0)
-            return X, dyn.clip_to_limits(U), "feedback"
+            tries["feedback"] = (X, dyn.clip_to_limits(U))
         except SimulationError:
             pass
-    U = dyn.clip_to_limits(Ubar)
-    return dyn.rollout(x0, U), U, "open_loop"
+    if not tries:
+        raise SimulationError("initial_guess.realize: the last stage's plan fails on the plant")
+    how = min(tries, key=lambda k: task.cost.total(*tries[k]))
+    return *tries[how], how
 
 
 def assert_physical(task: Task, sol: Solution) -> None:
