@@ -427,6 +427,14 @@ def _print_header(task, out: Path) -> None:
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
         )
+    realize = getattr(cfg.initial_guess, "realize", None)
+    if realize is not None:
+        weights = ", ".join(f"{w:g}" for w in realize.weights)
+        console.print(
+            f"initial_guess.realize: {len(realize.weights)} stage(s) first with virtual forces "
+            f"on the guess's unactuated coordinates (their weights {weights}), then the task on "
+            "its own plant (the iteration count restarts per stage)"
+        )
     if cfg.ensemble:
         members = "; ".join(", ".join(f"{k}={v}" for k, v in m.items()) for m in cfg.ensemble)
         console.print(
