@@ -39,8 +39,8 @@ class Realize:
     then solved on its own plant, without them, from the last stage's plan (its actuators'
     controls, rolled out under that stage's feedback gains)."""
 
-    weights: list[float] = field(default_factory=lambda: [1.0e-3, 1.0e-1, 10.0])
-    iterations: int = 8  # iLQR iterations per stage
+    weights: list[float] = field(default_factory=lambda: [1.0e-3, 1.0e-2, 1.0e-1, 1.0, 10.0, 100.0])
+    iterations: int = 5  # iLQR iterations per stage
 
 
 def validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> None:
