@@ -110,3 +110,19 @@ def test_check_shows_where_the_guess_asked_the_base_to_go_and_where_it_went(caps
     assert "unactuated, asked -> reached by the tracking rollout at the end: base_x 0.3 -> " in out
     assert "realized (initial_guess.realize), at the end: base_x " in out
     assert "largest virtual force per stage: weight 0.001: " in out
+
+
+def test_the_example_realizes_the_whole_base():
+    """examples/hopper-pitch-guess.yaml: the peer's guess (the whole configuration towards a
+    target 0.7 m ahead) names the base's three coordinates, each given a virtual actuator."""
+    from pathlib import Path
+
+    path = Path(__file__).parents[2] / "examples" / "hopper-pitch-guess.yaml"
+    task = Task.load(str(path), smoke=True)
+    task.validate()
+    virtual = task.virtual_task().dynamics
+    assert virtual.layout.actuators[task.dynamics.nu :] == [
+        "virtual_base_x",
+        "virtual_base_z",
+        "virtual_base_pitch",
+    ]
