@@ -424,10 +424,12 @@ def test_a_robustness_run_with_search_searches_with_its_own_seed_and_polishes():
     from hydroilqr.studies.search import search_start
 
     name = "pusher-puck"
-    ref = {"name": name, "overrides": ["search.polish=1"], "config": None, "smoke": True}
+    one = ["search.polish=1", "search.polish_guess=false"]
+    ref = {"name": name, "overrides": one, "config": None, "smoke": True}
     r = search_start(ref, 2, 3)  # run 2 of seed 3: the search's seed 4
     assert not r.error and r.solution is not None and "met" in r.goal
-    task = Task.load(name, ["search.polish=1", "search.seed=4"], smoke=True)
+    assert r.polish["chosen"] == 0 and r.polish["start"] == "sample"
+    task = Task.load(name, [*one, "search.seed=4"], smoke=True)
     space, res = run_search(task)
     assert r.solution.costs[0] == pytest.approx(space.rollout(task, res.best.command).cost)
     bare = search_start({**ref, "name": "cartpole-wall", "overrides": []}, 1, 0)
@@ -440,3 +442,38 @@ def test_robustness_search_refuses_a_task_without_a_search_section(tmp_path, cap
     rc = cli.main(["robustness", "cartpole-wall", "--search", "--out", str(tmp_path / "r")])
     assert rc == 2 and "--search: cartpole-wall has no search: section" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_the_tasks_guess_is_polished_last_as_ilqr_alone_solves_it():
+    """``search.polish_guess`` (default on): the last polish start is the task's own guess,
+    solved with its continuation stages as iLQR alone solves it, so that a search + polish
+    never passes over the plan iLQR alone finds; in ``robustness --search`` run k's guess is
+    iLQR alone's run k (the same perturbed guess, the same solve). Off: samples only."""
+    from hydroilqr.model.task import Task
+    from hydroilqr.solver.search import SearchSpace, run_search
+    from hydroilqr.studies.multistart import solve_start
+    from hydroilqr.studies.search import guess_start, polish_one, polish_starts, search_start
+
+    name, over = "pusher-puck", ["search.polish=2"]
+    task = Task.load(name, over, smoke=True)
+    assert task.config.search.polish_guess and task.config.continuation
+    space, res = run_search(task)
+    starts = polish_starts(task, space, res)
+    assert [g for _, g in starts] == [False] * len(res.candidates) + [True]
+    assert np.array_equal(starts[-1][0], task.initial_guess(task.config.steps))
+    off = Task.load(name, [*over, "search.polish_guess=false"], smoke=True)
+    off_space = SearchSpace(off)  # (the starts follow the space's settings)
+    assert [g for _, g in polish_starts(off, off_space, res)] == [False] * len(res.candidates)
+
+    ref = {"name": name, "overrides": over, "config": None, "smoke": True}
+    alone = solve_start(ref, 3, 0, 1e-3)  # iLQR alone's run 3 (with the approach stage)
+    guess = polish_one(ref, guess_start(task, 1e-3, 0, 3), 9, guess=True)
+    assert guess.guess and guess.record()["start"] == "guess"
+    assert "continuation" in guess.solution.extra  # the stages ran
+    assert np.array_equal(guess.solution.U, alone.solution.U)
+    sample = polish_one(ref, starts[0][0], 0)
+    assert "continuation" not in (sample.solution.extra or {})  # a sample: the task as written
+
+    r = search_start(ref, 3, 0, 1e-3)
+    assert not r.error and len(r.polish["goal_met"]) == 3  # 2 samples, the guess
+    assert r.polish["start"] == ("guess" if r.polish["chosen"] == len(res.candidates) else "sample")

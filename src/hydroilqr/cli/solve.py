@@ -301,6 +301,7 @@ def _search_then_polish(task, args):
     console.print(
         f"search: {sc.method} over {sc.knots} knots ({sc.space} space), {sc.samples} samples x "
         f"{sc.iterations} iterations on {where}, then iLQR from the best {sc.polish}"
+        + (" and from the task's guess" if sc.polish_guess and sc.polish > 0 else "")
     )
     ref = {
         "name": args.task_file or args.task,
@@ -310,7 +311,8 @@ def _search_then_polish(task, args):
     }
 
     def polished(r) -> None:
-        console.print(f"  polish {r.index}: {start_line(r.record())}", soft_wrap=True)
+        what = " (the task's guess)" if getattr(r, "guess", False) else ""
+        console.print(f"  polish {r.index}{what}: {start_line(r.record())}", soft_wrap=True)
 
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
