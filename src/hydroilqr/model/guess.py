@@ -166,12 +166,17 @@ def tracking_rollout(
 
 def virtual_joints(dynamics, guess, key: str = "initial_guess.realize") -> list[str]:
     """The names of the joints of the unactuated coordinates the position guess ``guess``
-    names, in the path's order: where its realization puts a virtual actuator each
-    (``PlantSpec.virtual_forces``). ConfigError if it names none, or one of a joint with
-    more than one coordinate (a virtual actuator drives a prismatic or revolute joint)."""
+    moves (names with a value other than the initial state's somewhere along the path), in
+    the path's order: where its realization puts a virtual actuator each
+    (``PlantSpec.virtual_forces``). A coordinate the path holds at its start value gets
+    none: the joints hold it, as they must without the virtual forces. ConfigError if it
+    moves none, or one of a joint with more than one coordinate (a virtual actuator drives
+    a prismatic or revolute joint)."""
     path = WaypointPath(dynamics, guess, 1.0)
     plant = dynamics.plant
     actuated = {j.position_start() for j in _actuated_joints(plant)}
+    knots = path.knots(dynamics.initial_state()[path.q_idx])
+    held = {q for j, q in enumerate(path.q_idx) if np.ptp(knots[:, j]) == 0.0}
     by_start = {}
     for i in range(plant.num_joints()):
         j = plant.get_joint(JointIndex(i))
@@ -179,7 +184,7 @@ def virtual_joints(dynamics, guess, key: str = "initial_guess.realize") -> list[
             by_start.setdefault(j.position_start(), j)
     names = []
     for q in path.q_idx:
-        if q in actuated:
+        if q in actuated or q in held:
             continue
         j = by_start.get(q)
         if j is None or j.num_positions() != 1 or j.num_velocities() != 1:
@@ -191,8 +196,8 @@ def virtual_joints(dynamics, guess, key: str = "initial_guess.realize") -> list[
         names.append(j.name())
     if not names:
         raise ConfigError(
-            f"{key}: the guess names no unactuated coordinate (a base's or an object's x, z, "
-            "...): there is nothing to realize"
+            f"{key}: the guess moves no unactuated coordinate (a base's or an object's x, z, "
+            "...; it names none, or holds each at its start value): there is nothing to realize"
         )
     return names
 
