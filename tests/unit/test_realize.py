@@ -127,3 +127,11 @@ def test_the_example_realizes_the_base_coordinate_its_guess_moves():
     task.validate()
     virtual = task.virtual_task().dynamics
     assert virtual.layout.actuators[task.dynamics.nu :] == ["virtual_base_x"]
+
+
+def test_solve_says_how_the_realization_ended(tmp_path, capsys):
+    args = ["solve", "hopper-hop", "--out", str(tmp_path / "run"), "--no-replay"]
+    assert cli.main(args + [a for s in SMALL for a in ("--set", s)]) in (0, 4)
+    out = capsys.readouterr().out
+    assert "initial_guess.realize: 2 stage(s) first" in out
+    assert "realize: largest virtual force per stage (weight: N or N·m) 0.001: " in out

@@ -521,6 +521,20 @@ def _print_outcome(sol, task, wall: float) -> None:
         )
 
 
+def _print_realize(r: dict | None) -> None:
+    """How a realization (initial_guess.realize) ended: the largest virtual force left in each
+    stage, and the hand-off's cost on the task against the last stage's."""
+    if not r:
+        return
+    forces = ", ".join(f"{s['weight']:g}: {s['max_virtual_force']:.3g}" for s in r["stages"])
+    console.print(
+        f"realize: largest virtual force per stage (weight: N or N·m) {forces}; hand-off "
+        f"({r['handoff']}) cost {r['handoff_cost']:.6g} against the last stage's "
+        f"{r['stages'][-1]['final_cost']:.6g}",
+        soft_wrap=True,
+    )
+
+
 def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_costs=None) -> dict:
     """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
     set's files and the playbacks of its plan are retired in the same commit."""
@@ -542,6 +556,7 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
         extra_summary=extra,
         search_costs=search_costs,
     )
+    _print_realize(sol.extra.get("realize"))
     units = metrics_mod.final_error_units(task, summary["metrics"])
     for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it
