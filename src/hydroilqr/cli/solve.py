@@ -8,11 +8,13 @@ from pathlib import Path
 
 from hydroilqr.cli.common import (
     GOAL_NOT_MET,  # noqa: F401 - the exit code of an unmet goal (tests read it here)
+    add_connect_timeout,
     add_task_args,
     command_line,
     console,
     load_task_from_args,
     print_goal,
+    scheduler_arg,
     warn,
 )
 from hydroilqr.problem.errors import ConfigError
@@ -77,6 +79,7 @@ def setup(p) -> None:
         metavar="ADDRESS",
         help="multi-start: an existing Dask scheduler (default: a local cluster)",
     )
+    add_connect_timeout(p)
     p.add_argument(
         "--workers", type=int, help="multi-start: local worker processes (default: cores)"
     )
@@ -186,6 +189,7 @@ def _check_starts(task, args) -> None:
         raise ConfigError(
             "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
         )
+    scheduler_arg(args)  # (--connect-timeout checked)
     check_searchable(task.config)
     if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
         raise ConfigError(
@@ -261,7 +265,7 @@ def _solve_many(task, args):
     interrupted = False
     try:
         results, best = run_multistart(
-            ref, args.starts, _seed(args), _noise(args), args.scheduler, args.workers, done
+            ref, args.starts, _seed(args), _noise(args), scheduler_arg(args), args.workers, done
         )
     except Interrupted as e:  # Ctrl+C: the starts that finished are kept
         results, best, interrupted = e.results, best_index(e.results), True
@@ -316,7 +320,7 @@ def _search_then_polish(task, args):
 
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
-        srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
+        srun = run_search(ref, scheduler_arg(args), args.workers, prog.update, True, polished)
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
         chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"
