@@ -500,3 +500,11 @@ def test_the_tasks_guess_is_polished_last_as_ilqr_alone_solves_it():
     r = search_start(ref, 3, 0, 1e-3)
     assert not r.error and len(r.polish["goal_met"]) == 3  # 2 samples, the guess
     assert r.polish["start"] == ("guess" if r.polish["chosen"] == len(res.candidates) else "sample")
+
+
+def test_a_robustness_record_says_which_polished_start_was_chosen():
+    from hydroilqr.studies.robustness import RunResult
+
+    polish = {"chosen": 3, "start": "guess", "goal_met": [False, False, False, True]}
+    assert RunResult(task="t", index=1, polish=polish).record()["polish"] == polish
+    assert "polish" not in RunResult(task="t", index=1).record()  # iLQR alone: none
