@@ -33,7 +33,10 @@ survive 30 % less friction; its robust variant is examples/kinova-forward-robust
 A real regression fails it: ``HYDROILQR_TRANSFER_SET="solver.max_iterations=3"`` (dotted
 overrides separated by spaces, applied to every task) gives plans that miss their goals.
 ``python tests/integration/test_transfer.py TASK RUNS`` measures the same properties over
-runs 1..RUNS on Dask and prints them.
+runs 1..RUNS on Dask and prints them, with the executed goal's values under playbacks that
+change one thing at a time (``PARTS``: full speed; full speed at the plan's own time step;
+full speed under the planner's own contact model), which say where a plan and its playback
+part.
 
 Full-size solves: this module takes minutes, not seconds.
 """
@@ -72,11 +75,37 @@ def _overrides() -> list[str]:
     return SERIAL + os.environ.get("HYDROILQR_TRANSFER_SET", "").split()
 
 
-def measure(name: str, k: int, mismatch: bool | None = None, play: bool = True) -> dict:
+# Where a plan and its playback part (docs/playback.md, "What decides transfer"): the same plan
+# played with one thing of the hardware-style playback changed at a time.
+PARTS = {
+    "full_speed": {"speed": 1.0},
+    "full_speed_plan_step": {"speed": 1.0, "truth_time_step": None},  # None: the plan's step
+    "full_speed_planner_contact": {"speed": 1.0, "truth_contact": None},  # None: the planner's
+}
+
+
+def parts(task, sol) -> dict:
+    """The executed goal's values of the plan ``sol`` under each playback of ``PARTS``."""
+    out = {}
+    for label, changes in PARTS.items():
+        st = dict(changes)
+        if "truth_time_step" in st:
+            st["truth_time_step"] = task.config.plant.time_step
+        if "truth_contact" in st:
+            st["truth_contact"] = task.config.plant.contact_approximation
+        r = playback(task, sol, PlaybackSettings(**st))
+        checks = executed_goal(task, sol, r)["goal"]["checks"]
+        out[label] = {c["metric"]: c["value"] for c in checks}
+    return out
+
+
+def measure(
+    name: str, k: int, mismatch: bool | None = None, play: bool = True, split: bool = False
+) -> dict:
     """Solve the built-in task ``name`` from run ``k``'s perturbed guess, play it back and
     return every property the guard asserts (``mismatch``: also play the task's mismatch
     cases; default: for the tasks the guard holds to them; ``play=False``: the plan's goal
-    only, no playback)."""
+    only, no playback; ``split``: also the executed goal's values under ``PARTS``)."""
     task = Task.load(name, _overrides())
     U0 = task.initial_guess(task.config.steps)
     sol = solve(task, U0=perturbation(U0, task.dynamics.effort_limits, DEFAULT_NOISE, 0, k))
@@ -103,6 +132,7 @@ def measure(name: str, k: int, mismatch: bool | None = None, play: bool = True) 
         "resting_gap_m": ob["resting_gap"],
         "kept_lift_fraction": float((z_end - z0) / lift) if abs(lift) > 0.02 else None,
         "mismatch": {},
+        **({"executed_by_playback": parts(task, sol)} if split else {}),
     }
     if mismatch is None:
         mismatch = False  # (reported by the study, not asserted: see the module's docstring)
@@ -150,7 +180,10 @@ def _study(name: str, runs: int) -> None:
 
     client, cluster = open_client(None, None)
     try:
-        futs = [client.submit(measure, name, k, True, pure=False) for k in range(1, runs + 1)]
+        futs = [
+            client.submit(measure, name, k, True, True, True, pure=False)
+            for k in range(1, runs + 1)
+        ]
         passed = 0
         for f in as_completed(futs):
             m = f.result()

@@ -40,6 +40,10 @@ class SearchConfig:
     kd: float = 10.0  # position space: PD+ damping (N·m·s/rad or N·s/m)
     seed: int = 0
     polish: int = 1  # solve: iLQR from the best this-many distinct samples (0: search only)
+    # solve: iLQR from the task's own initial guess too, as iLQR alone solves the task (its
+    # continuation stages included), the last of the polished candidates: select then never
+    # passes over a plan iLQR alone would have found (with polish 0: not run)
+    polish_guess: bool = True
     # goal: the first polished plan meeting the goal, else the lowest cost; cost: the lowest
     # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it;
     # robust: the one whose perturbed re-solves (robust_runs, robust_noise) meet it most often

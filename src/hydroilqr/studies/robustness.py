@@ -78,6 +78,8 @@ class RunResult:
     # With transfer: {"goal_met", "failed_checks", "resting_gap"} of the plan's playback, or
     # {"error"} if it could not be played back; None: not played back.
     transfer: dict | None = None
+    # With search: the polished start chosen and what each met (``search_start``'s polish).
+    polish: dict | None = None
 
     def record(self) -> dict:
         return {
@@ -96,6 +98,7 @@ class RunResult:
             "worker": self.worker,
             **({"error": self.error} if self.error else {}),
             **({"transfer": self.transfer} if self.transfer is not None else {}),
+            **({"polish": self.polish} if self.polish is not None else {}),
         }
 
 
@@ -111,11 +114,12 @@ def solve_run(
     if search:
         from hydroilqr.studies.search import search_start  # noqa: PLC0415 - it imports this module
 
-        r = search_start(task_ref, k, seed)
+        r = search_start(task_ref, k, seed, noise)
     else:
         r = solve_start(task_ref, k, seed, noise)
     sol = r.solution
     res = RunResult(task=task_ref["label"], index=k, error=r.error, seconds=r.seconds)
+    res.polish = getattr(r, "polish", None)
     res.started, res.finished, res.worker = started, time.time(), os.getpid()
     try:
         cfg = load_task(

@@ -8,7 +8,9 @@ are drawn in this process from the search's one seeded generator, so the same se
 the same samples, costs and best with any number of workers.
 
 ``polish(task_ref, candidates, ...)`` solves the task with iLQR from each candidate's
-torques (as Dask jobs too) and ``select`` picks among them: the first (lowest search cost)
+torques (as Dask jobs too), and with ``search.polish_guess`` from the task's own initial guess
+as iLQR alone solves it (its continuation stages included; the last candidate), and
+``select`` picks among them: the first (lowest search cost, the guess last)
 whose plan meets the task's goal, else the lowest final cost (``search.select: goal``); the
 lowest final cost (``cost``); the first whose PD+ playback at half speed on the finer
 simulation meets the goal, else as ``goal`` (``transfer``); among those that meet the goal,
@@ -26,6 +28,8 @@ the best found so far (``SearchRun.lost`` says why).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import math
 import time
@@ -41,6 +45,7 @@ from hydroilqr.model.task import Task
 from hydroilqr.problem.load import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
+from hydroilqr.solver.receding import files_fingerprint
 from hydroilqr.studies.cluster import kill_workers, open_client
 from hydroilqr.studies.multistart import StartResult, _close, perturbation
 from hydroilqr.studies.robustness import played_back
@@ -50,8 +55,8 @@ _HELD: dict = {}
 
 
 def held(task_ref: dict):
-    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}), built once per
-    process and kept (a new reference replaces it)."""
+    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}, and ``content``
+    from ``with_content``), built once per process and kept (a new reference replaces it)."""
     key = json.dumps(task_ref, sort_keys=True, default=str)
     if key not in _HELD:
         _HELD.clear()
@@ -60,6 +65,16 @@ def held(task_ref: dict):
         )
         _HELD[key] = (task, search_mod.SearchSpace(task))
     return _HELD[key]
+
+
+def with_content(task_ref: dict, task: Task) -> dict:
+    """``task_ref`` with a hash of what ``task``, loaded from it, read (its resolved settings
+    and the files they name): a worker that holds the plant of an earlier version of a task
+    file changed since at the same path (a long-lived ``--scheduler``) builds it again
+    instead of evaluating the old one."""
+    settings = json.dumps(dataclasses.asdict(task.config), sort_keys=True, default=str)
+    digest = hashlib.sha256(settings.encode()).hexdigest()[:16]
+    return {**task_ref, "content": f"{digest}-{files_fingerprint(task.config)}"}
 
 
 def evaluate_batch(task_ref: dict, commands: list, x0=None, t0=None) -> list[float]:
@@ -209,7 +224,9 @@ def run_search(
     client, cluster = open_client(scheduler, workers)
     try:
         ev = DaskEvaluator(
-            client, task_ref, task.config.search.batches if task.config.search else 0
+            client,
+            with_content(task_ref, task),
+            task.config.search.batches if task.config.search else 0,
         )
         space, result = search_mod.run_search(task, ev, on_iteration=ev.stop(on_iteration))
         run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
@@ -232,15 +249,18 @@ def run_search(
 
 @dataclass
 class PolishResult(StartResult):
-    """A polished candidate; with ``select: transfer`` also its plan's playback
+    """A polished candidate (``guess``: the task's own initial guess, solved as iLQR alone
+    solves it; else a search sample); with ``select: transfer`` also its plan's playback
     (``studies.robustness.played_back``: goal_met on the executed motion, resting_gap);
     with ``select: robust`` its perturbed re-solves ({runs, met, goal_met: [per re-solve]})."""
 
     transfer: dict | None = None
     robust: dict | None = None
+    guess: bool = False
 
     def record(self) -> dict:
         out = super().record()
+        out["start"] = "guess" if self.guess else "sample"
         if self.transfer is not None:
             out["transfer"] = self.transfer
         if self.robust is not None:
@@ -265,16 +285,19 @@ def robust_record(resolves: list) -> dict:
     return {"runs": len(resolves), "met": int(sum(met)), "goal_met": met}
 
 
-def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False):
+def polish_one(
+    task_ref: dict, U0: np.ndarray, index: int, transfer: bool = False, guess: bool = False
+):
     """Runs on a worker: iLQR from the controls U0 on the task as written (without its
     ``continuation`` stages: a searched sample has already found what an approach stage
-    looks for, and a stage's own cost would pull it elsewhere), the metrics and the goal,
-    and with ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
+    looks for, and a stage's own cost would pull it elsewhere; with ``guess``, U0 is the
+    task's own guess and the stages run, as iLQR alone solves the task), the metrics and the
+    goal, and with ``transfer`` the plan's PD+ playback. Never raises: a PolishResult."""
     t0 = time.perf_counter()
-    res = PolishResult(index=index)
+    res = PolishResult(index=index, guess=guess)
     try:
         task = load(task_ref)
-        if task.config.continuation:  # the samples replace the stages (e.g. an approach)
+        if task.config.continuation and not guess:  # the samples replace the stages
             task = task.with_overrides(["continuation=[]"])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -290,17 +313,36 @@ def polish_one(task_ref: dict, U0: np.ndarray, index: int, transfer: bool = Fals
     return res
 
 
+def polish_starts(task, space, result, noise: float = 0.0, seed: int = 0, k: int = 0):
+    """The polish's starts, in the order ``select`` reads them: (U0 [N, nu], guess) per
+    candidate sample (its rollout's torques), then with ``search.polish_guess`` the task's
+    own initial guess (with ``noise``: perturbed as run ``k`` of ``hydroilqr robustness
+    --seed SEED`` perturbs it for iLQR alone, ``guess_start``)."""
+    out = [(space.rollout(task, cand.command).U, False) for cand in result.candidates]
+    if space.settings.polish_guess:
+        out.append((guess_start(task, noise, seed, k), True))
+    return out
+
+
+def guess_start(task, noise: float = 0.0, seed: int = 0, k: int = 0) -> np.ndarray:
+    """The task's initial guess over its horizon, [N, nu], as iLQR alone starts from it
+    (``multistart.perturbation`` of run ``k`` with ``noise``; k = 0 or noise 0: as is)."""
+    U0 = task.initial_guess(task.config.steps)
+    limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
+    return perturbation(U0, limits, noise, seed, k)
+
+
 def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLESS_SECONDS):
-    """iLQR from each candidate's torques as Dask jobs: (results in candidate order,
+    """iLQR from each start (``polish_starts``) as Dask jobs: (results in that order,
     interrupted, why the workers were lost or None); with ``select: robust``, each plan that
     meets the goal is then re-solved from perturbed torques (``perturbed_starts``). Ctrl+C or
     the loss of every worker keeps the ones that had finished."""
     cfg = space.settings
     transfer = cfg.select == "transfer"
-    starts = [space.rollout(task, cand.command).U for cand in result.candidates]
+    starts = polish_starts(task, space, result)
     futures = [
-        client.submit(polish_one, task_ref, U0, i, transfer, pure=False, key=f"polish-{i}")
-        for i, U0 in enumerate(starts)
+        client.submit(polish_one, task_ref, U0, i, transfer, guess, pure=False, key=f"polish-{i}")
+        for i, (U0, guess) in enumerate(starts)
     ]
     out: list[StartResult] = []
     again: dict = {}
@@ -311,11 +353,19 @@ def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLES
             if on_polish is not None:
                 on_polish(r)
             if cfg.select == "robust" and r.goal.get("met") is True:
+                U0, guess = starts[r.index]
                 again[r.index] = [  # (while the other candidates' polishes run)
                     client.submit(
-                        polish_one, task_ref, U, r.index, pure=False, key=f"re-{r.index}-{k}"
-                    )
-                    for k, U in enumerate(perturbed_starts(task, cfg, starts[r.index]), 1)
+                        polish_one,
+                        task_ref,
+                        U,
+                        r.index,
+                        False,
+                        guess,
+                        pure=False,
+                        key=f"re-{r.index}-{k}",
+                    )  # fmt: skip
+                    for k, U in enumerate(perturbed_starts(task, cfg, U0), 1)
                 ]
         for r in out:
             if r.index in again:
@@ -328,7 +378,8 @@ def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLES
 
 
 def select(polished: list, how: str = "goal") -> int | None:
-    """The chosen polished plan, the candidates in order of search cost: ``goal``: the first
+    """The chosen polished plan, the candidates in order of search cost (the task's guess,
+    when polished, last): ``goal``: the first
     whose goal is met, else the lowest final cost; ``cost``: the lowest final cost;
     ``transfer``: the first whose playback meets the goal, else as ``goal``; ``robust``: of
     those whose goal is met, the one whose perturbed re-solves meet it most often (the first
@@ -408,14 +459,23 @@ def throughput(
     return out
 
 
-def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
+@dataclass
+class SearchStart(StartResult):
+    """A run of ``search_start``; ``polish``: which start was chosen and what each met
+    ({chosen, start: guess | sample, goal_met: [per polished start]})."""
+
+    polish: dict | None = None
+
+
+def search_start(task_ref: dict, k: int, seed: int, noise: float = 0.0) -> SearchStart:
     """Runs on a worker (``hydroilqr robustness --search``): run ``k`` (1..runs) of a task
     with a ``search:`` section as ``hydroilqr solve`` does it, the search's seed set to
     ``seed + k - 1``: the search in this process (no Dask inside a Dask job), iLQR from its
-    best ``search.polish`` samples, the plan chosen by ``search.select``. Never raises: a
-    failure is a StartResult with its error."""
+    best ``search.polish`` samples (and from the task's guess, perturbed as run ``k`` of
+    iLQR alone perturbs it with ``noise``: ``polish_starts``), the plan chosen by
+    ``search.select``. Never raises: a failure is a SearchStart with its error."""
     t0 = time.perf_counter()
-    res = StartResult(index=k)
+    res = SearchStart(index=k)
     try:
         cfg = load_task(
             task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
@@ -425,12 +485,18 @@ def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
         ref = dict(task_ref, overrides=[*task_ref["overrides"], f"search.seed={seed + k - 1}"])
         task = load(ref)
         space, result = search_mod.run_search(task)
-        polished = _polish_here(task, ref, space, result)
+        starts = polish_starts(task, space, result, noise, seed, k)
+        polished = _polish_here(task, ref, space, result, starts)
         chosen = select(polished, space.settings.select)
         if chosen is None:
             raise RuntimeError("no polished candidate finished: " + polished[0].error)
         best = polished[chosen]
         res.solution, res.metrics, res.goal = best.solution, best.metrics, best.goal
+        res.polish = {
+            "chosen": chosen,
+            "start": "guess" if best.guess else "sample",
+            "goal_met": [r.goal.get("met") for r in polished],
+        }
     except Exception as e:  # noqa: BLE001 - a failed run is data; the others go on
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         res.error = f"{type(e).__name__}: {first}"[:300]
@@ -438,16 +504,16 @@ def search_start(task_ref: dict, k: int, seed: int) -> StartResult:
     return res
 
 
-def _polish_here(task, task_ref: dict, space, result) -> list:
-    """``_polish`` in this process (a Dask job's own): each candidate's polish, and with
-    ``select: robust`` its perturbed re-solves."""
+def _polish_here(task, task_ref: dict, space, result, starts=None) -> list:
+    """``_polish`` in this process (a Dask job's own): each start's polish (``starts``:
+    default ``polish_starts``), and with ``select: robust`` its perturbed re-solves."""
     cfg = space.settings
     out = []
-    for i, c in enumerate(result.candidates):
-        U0 = space.rollout(task, c.command).U
-        r = polish_one(task_ref, U0, i, cfg.select == "transfer")
+    for i, (U0, guess) in enumerate(starts or polish_starts(task, space, result)):
+        r = polish_one(task_ref, U0, i, cfg.select == "transfer", guess)
         if cfg.select == "robust" and r.goal.get("met") is True:
-            again = [polish_one(task_ref, U, i) for U in perturbed_starts(task, cfg, U0)]
+            again = [polish_one(task_ref, U, i, False, guess)
+                     for U in perturbed_starts(task, cfg, U0)]  # fmt: skip
             r.robust = robust_record(again)
         out.append(r)
     return out
