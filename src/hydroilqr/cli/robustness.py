@@ -13,7 +13,7 @@ from hydroilqr.cli.common import (
     scheduler_arg,
 )
 from hydroilqr.problem.errors import ConfigError
-from hydroilqr.problem.load import load_task
+from hydroilqr.problem.load import load_task, worker_ref
 from hydroilqr.problem.search import check_searchable
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
@@ -127,15 +127,7 @@ def run(args) -> int:
             raise ConfigError(f"--search: {cfg.name} has no search: section")
         if args.search:
             check_searchable(cfg)
-        refs.append(
-            {
-                "label": cfg.name,
-                "name": name,
-                "overrides": list(args.set),
-                "config": None,
-                "smoke": bool(args.smoke),
-            }
-        )
+        refs.append(worker_ref(name, list(args.set), None, args.smoke, label=cfg.name))
     if len({r["label"] for r in refs}) != len(refs):
         raise ConfigError("a task is named twice")
     out = output_dir(args.out)  # created, locked and proven writable before any solve

@@ -16,6 +16,7 @@ from hydroilqr.cli.common import (
     scheduler_arg,
 )
 from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import worker_ref
 from hydroilqr.problem.search import check_searchable
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
@@ -44,12 +45,7 @@ def setup(p) -> None:
 
 def task_ref(args, extra: list[str]) -> dict:
     """What a worker loads the task from (Drake objects do not travel)."""
-    return {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *extra],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    return worker_ref(args.task_file or args.task, [*args.set, *extra], args.config, args.smoke)
 
 
 def searched_task(args):

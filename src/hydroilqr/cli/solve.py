@@ -18,6 +18,7 @@ from hydroilqr.cli.common import (
     warn,
 )
 from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import worker_ref
 from hydroilqr.problem.search import check_searchable
 from hydroilqr.problem.solver import DERIVATIVES
 
@@ -218,13 +219,7 @@ def _check_robust(task, args) -> dict:
     summary.json's ``check_robust``."""
     from hydroilqr.studies.robustness import DEFAULT_NOISE, solve_run, spread_lines, summarize
 
-    ref = {
-        "label": task.name,
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args, label=task.name)
     k = args.check_robust
     console.print(f"check-robust: {k} more solves from the guess perturbed by {DEFAULT_NOISE:g}")
     runs = []
@@ -250,12 +245,7 @@ def _solve_many(task, args):
     with every start's outcome and the spread."""
     from hydroilqr.studies.multistart import Interrupted, best_index, run_multistart, spread
 
-    ref = {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args)
     where = args.scheduler or "a local Dask cluster"
     console.print(f"multi-start: {args.starts} solves (seed {_seed(args)}) on {where}")
 
@@ -307,12 +297,7 @@ def _search_then_polish(task, args):
         f"{sc.iterations} iterations on {where}, then iLQR from the best {sc.polish}"
         + (" and from the task's guess" if sc.polish_guess and sc.polish > 0 else "")
     )
-    ref = {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args)
 
     def polished(r) -> None:
         what = " (the task's guess)" if getattr(r, "guess", False) else ""
@@ -352,6 +337,12 @@ def start_line(rec: dict) -> str:
     parts += [goal] if goal else []
     detail = f" ({rec['error']})" if rec.get("error") else ""
     return ", ".join([*parts, secs]) + detail
+
+
+def _worker_ref(args, **extra) -> dict:
+    """What a Dask worker loads this solve's task from (``problem.load.worker_ref``)."""
+    overrides = [*args.set, *_solver_overrides(args)]
+    return worker_ref(args.task_file or args.task, overrides, args.config, args.smoke, **extra)
 
 
 def _solver_overrides(args) -> list[str]:
