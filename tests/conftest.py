@@ -46,6 +46,25 @@ def pytest_collection_modifyitems(config, items):
     items.sort(key=lambda item: item.get_closest_marker("slow") is None)  # (a stable sort)
 
 
+@pytest.fixture(scope="session")
+def dask_scheduler():
+    """The address of one local Dask cluster shared by the tests that need some cluster but
+    not their own: they pass it as ``--scheduler`` / ``scheduler=``. It is started as the
+    commands start theirs (``open_client(None, 2)``: two single-threaded worker processes with
+    hydroilqr's worker set-up), once per test process (each pytest-xdist worker), instead of
+    once per test: a worker process's start-up and its first Drake import then cost seconds
+    once. The tests of the commands' own local cluster (its start-up, ``--workers``, Ctrl+C,
+    losing workers) start their own."""
+    from hydroilqr.studies.cluster import open_client
+    from hydroilqr.studies.multistart import _close
+
+    client, cluster = open_client(None, 2)
+    try:
+        yield cluster.scheduler_address
+    finally:
+        _close(client, cluster)
+
+
 ACROBOT = "package://drake/examples/acrobot/Acrobot.urdf"
 
 # A tiny acrobot task: twenty steps, solves in a moment (the run-directory and CLI tests).

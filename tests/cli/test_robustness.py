@@ -116,10 +116,12 @@ def test_receding_task_takes_its_first_windows_guess():
         raise AssertionError("a guess of the wrong length was accepted")
 
 
-def test_robustness_command_writes_pass_rates_and_the_results_section(tmp_path, capsys):
+def test_robustness_command_writes_pass_rates_and_the_results_section(
+    tmp_path, capsys, dask_scheduler
+):
     out = tmp_path / "docs"
     small = ["num_steps=30", "solver.max_iterations=3"]  # (what is asked is the record's shape)
-    argv = ["robustness", "cartpole-wall", "--smoke", "--runs", "2", "--workers", "2"]
+    argv = ["robustness", "cartpole-wall", "--smoke", "--runs", "2", "--scheduler", dask_scheduler]
     argv += [f"--set={s}" for s in small]
     assert cli.main([*argv, "--transfer", "--out", str(out / "robustness")]) == 0
     text = capsys.readouterr().out
@@ -228,11 +230,12 @@ def test_the_results_section_shows_each_rows_kernel_set_and_the_closed_loops():
     assert "| `t` | solve | 1 | - | - | 8 of 10 |" in lines
 
 
-def test_robustness_mpc_runs_each_tasks_closed_loop(tmp_path, capsys):
+def test_robustness_mpc_runs_each_tasks_closed_loop(tmp_path, capsys, dask_scheduler):
     """--mpc: each run is the task's closed loop (lock-step, smoke-sized here), judged by the
     loop's goal; the record says so. --transfer (a solve's plan played back) is refused."""
     out = tmp_path / "rob"
-    argv = ["robustness", "cartpole-wall", "--mpc", "--smoke", "--runs", "2", "--workers", "2"]
+    argv = ["robustness", "cartpole-wall", "--mpc", "--smoke", "--runs", "2"]
+    argv += ["--scheduler", dask_scheduler]
     assert cli.main([*argv, "--out", str(out)]) == 0
     assert "closed loops (lock-step)" in capsys.readouterr().out
     doc = json.loads((out / "robustness.json").read_text())

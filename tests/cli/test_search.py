@@ -24,18 +24,20 @@ def test_search_writes_a_result_set_with_its_history(tmp_path, capsys):
     assert "samples/s" in capsys.readouterr().out
 
 
-def test_solve_with_a_search_section_polishes_and_selects(tmp_path):
+def test_solve_with_a_search_section_polishes_and_selects(tmp_path, dask_scheduler):
     out = tmp_path / "run"
     argv = ["solve", "cartpole-wall", "--smoke", *SMALL, "--set", "search.polish=2"]
-    assert main([*argv, "--workers", "2", "--no-replay", "--out", str(out)]) == 0
+    assert main([*argv, "--scheduler", dask_scheduler, "--no-replay", "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())["search"]
     polish = s["polish"]
-    assert [r["index"] for r in polish["results"]] == [0, 1] and polish["chosen"] in (0, 1)
-    chosen = polish["results"][polish["chosen"]]
-    assert chosen["final_cost"] <= s["best_cost"]  # iLQR from the sample lowers its cost
+    # the two best samples, then the task's own guess (search.polish_guess)
+    assert [r["index"] for r in polish["results"]] == [0, 1, 2] and polish["chosen"] in (0, 1, 2)
+    assert [r["start"] for r in polish["results"]] == ["sample", "sample", "guess"]
+    best = polish["results"][0]
+    assert best["final_cost"] <= s["best_cost"]  # iLQR from the best sample lowers its cost
 
 
-def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch):
+def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch, dask_scheduler):
     from hydroilqr.studies import search as studies_search
 
     real = studies_search.DaskEvaluator.__call__
@@ -47,8 +49,8 @@ def test_ctrl_c_keeps_the_best_sample(tmp_path, monkeypatch):
 
     monkeypatch.setattr(studies_search.DaskEvaluator, "__call__", interrupt_second)
     out = tmp_path / "run"
-    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5", "--workers", "1"]
-    assert main([*argv, "--no-replay", "--out", str(out)]) == 130
+    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5"]
+    assert main([*argv, "--scheduler", dask_scheduler, "--no-replay", "--out", str(out)]) == 130
     s = json.loads((out / "summary.json").read_text())["search"]
     assert s["interrupted"] and len(s["history"]) == 1
 
@@ -68,7 +70,9 @@ def test_bad_search_input_is_one_line(tmp_path, capsys):
     assert rc == 2 and "search: section" in err
 
 
-def test_every_worker_lost_is_one_line_and_keeps_the_best(tmp_path, monkeypatch, capsys):
+def test_every_worker_lost_is_one_line_and_keeps_the_best(
+    tmp_path, monkeypatch, capsys, dask_scheduler
+):
     """Every Dask worker gone mid-search (``gather_within`` gives up): the best sample so far
     is written, one line on stderr says why, exit 3."""
     from hydroilqr.studies import search as studies_search
@@ -84,15 +88,15 @@ def test_every_worker_lost_is_one_line_and_keeps_the_best(tmp_path, monkeypatch,
 
     monkeypatch.setattr(studies_search, "gather_within", lose_second)
     out = tmp_path / "run"
-    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5", "--workers", "1"]
-    assert main([*argv, "--no-replay", "--out", str(out)]) == 3
+    argv = ["search", "cartpole-wall", *SMALL, "--set", "search.iterations=5"]
+    assert main([*argv, "--scheduler", dask_scheduler, "--no-replay", "--out", str(out)]) == 3
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "every Dask worker was gone" in err[0] and str(out) in err[0]
     s = json.loads((out / "summary.json").read_text())["search"]
     assert s["workers_lost"] and len(s["history"]) == 2 and s["history"][1]["failed"] == 4
 
 
-def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path):
+def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path, dask_scheduler):
     """The built-in with a search: section: `check` passes it, and `solve --smoke` runs its
     (smoke-sized) search and polish and writes the result set with both."""
     from hydroilqr.problem.files import list_tasks
@@ -100,7 +104,8 @@ def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path):
     assert "pusher-puck" in list_tasks()
     assert main(["check", "pusher-puck"]) == 0
     out = tmp_path / "run"
-    argv = ["solve", "pusher-puck", "--smoke", "--workers", "1", "--no-replay"]
+    argv = ["solve", "pusher-puck", "--smoke", "--scheduler", dask_scheduler, "--no-replay"]
     assert main([*argv, "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())["search"]
-    assert s["settings"]["space"] == "position" and len(s["polish"]["results"]) == 1
+    assert s["settings"]["space"] == "position"
+    assert [r["start"] for r in s["polish"]["results"]] == ["sample", "guess"]

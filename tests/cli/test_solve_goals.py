@@ -73,11 +73,11 @@ def test_status_is_written_and_printed(tmp_path, capsys):
     assert f"status {s['status']} after " in capsys.readouterr().out
 
 
-def test_multistart_keeps_the_best_and_reports_the_spread(tmp_path, capsys):
+def test_multistart_keeps_the_best_and_reports_the_spread(tmp_path, capsys, dask_scheduler):
     task = write_task(tmp_path, goal={"steps": {"min": 20}})
     out = tmp_path / "m"
     argv = ["solve", str(task), "--out", str(out), "--no-replay", "--starts", "2"]
-    assert cli.main([*argv, "--workers", "2", "--start-noise", "0.5"]) == 0
+    assert cli.main([*argv, "--scheduler", dask_scheduler, "--start-noise", "0.5"]) == 0
     ms = summary(out)["multistart"]
     assert ms["starts"] == ms["finished"] == 2 and ms["goal_met"] == 2
     assert [r["index"] for r in ms["results"]] == [0, 1]

@@ -32,8 +32,9 @@ def _log(out: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def swept(tmp_path_factory):
-    """One 3-point sweep through the CLI; the middle point is invalid (negative modulus)."""
+def swept(tmp_path_factory, dask_scheduler):
+    """One 3-point sweep through the CLI on the tests' shared cluster (tests/conftest.py);
+    the middle point is invalid (negative modulus)."""
     out = tmp_path_factory.mktemp("sweep")
     argv = [
         "sweep",
@@ -43,8 +44,10 @@ def swept(tmp_path_factory):
         KEY,
         "--values",
         "1e3,-5,1e6",
-        "--workers",
-        "2",
+        "--scheduler",
+        dask_scheduler,
+        "--connect-timeout",  # (the address and its deadline as studies.cluster.Scheduler)
+        "120",
         "--out",
         str(out),
     ]
@@ -68,7 +71,7 @@ def test_sweep_refuses_bad_specs_before_starting(tmp_path):
     assert not (tmp_path / "c" / "points").exists()
 
 
-def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path):
+def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path, dask_scheduler):
     import json
 
     from hydroilqr.problem.errors import ConfigError
@@ -93,9 +96,8 @@ def test_sweep_retry_failed_and_a_different_param_in_the_same_directory(tmp_path
     # Another swept key over the same values is another sweep.
     with pytest.raises(ConfigError, match="--param"):
         run_sweep("cartpole-wall", [("tip.dissipation", [1e6])], out, sets=TINY, plots=False)
-    res = run_sweep(
-        "cartpole-wall", [(KEY, [1e6])], out, sets=TINY, plots=False, retry_failed=True, workers=1
-    )
+    again = {"sets": TINY, "plots": False, "retry_failed": True, "scheduler": dask_scheduler}
+    res = run_sweep("cartpole-wall", [(KEY, [1e6])], out, **again)
     assert res["computed"] == 1 and res["failed"] == 0
     assert json.loads((out / "points" / f"{pid}.json").read_text())["status"] == "ok"
 
@@ -154,8 +156,7 @@ def test_resume_computes_only_missing(swept):
     (out / "points" / f"{victim}.json").unlink()  # as if killed before it finished
     (out / "points" / f".{victim}.json.123.tmp").write_text("{torn")  # a torn temp file
     n_log = len(_log(out))
-    one = [a if argv[i - 1] != "--workers" else "1" for i, a in enumerate(argv)]  # (1 point)
-    assert main(one) == 1  # the failed point is kept, and still reported
+    assert main(argv) == 1  # the failed point is kept, and still reported
     new = _log(out)[n_log:]
     assert new == [victim]  # only the missing point was computed; the failed one is kept
     after = {r["id"]: r for r in _rows(out)}
@@ -270,7 +271,9 @@ def test_points_the_scheduler_lost_stay_missing_and_set_paths_are_absolute(tmp_p
     assert f"initial_guess={tmp_path / 'U.csv'}" in spec["set"]
 
 
-def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monkeypatch):
+def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(
+    tmp_path, monkeypatch, dask_scheduler
+):
     """Older sweep_spec.json files kept a relative path in --set as given; this version records
     it absolute, and still recognises the older sweep as the same one."""
     from hydroilqr.studies import sweep as sweep_mod
@@ -280,7 +283,7 @@ def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monke
     out = tmp_path / "sw"
     sets = [*SMALL, "package_map.foo=pm"]
     res = sweep_mod.run_sweep(
-        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, workers=1
+        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, scheduler=dask_scheduler
     )
     assert res["computed"] == 1
     spec = json.loads((out / "sweep_spec.json").read_text())
@@ -289,7 +292,7 @@ def test_a_sweep_recorded_with_a_relative_set_path_still_resumes(tmp_path, monke
     )
     (out / "sweep_spec.json").write_text(json.dumps(spec))  # as an older version wrote it
     res = sweep_mod.run_sweep(
-        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, workers=1
+        "cartpole-wall", [(KEY, [1e6])], out, sets=sets, plots=False, scheduler=dask_scheduler
     )
     assert res["computed"] == 0
 

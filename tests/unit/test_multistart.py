@@ -58,7 +58,7 @@ def test_best_prefers_goal_met_then_cost():
     assert best_index([StartResult(0, None)]) is None
 
 
-def test_multistart_runs_starts_as_dask_jobs():
+def test_multistart_runs_starts_as_dask_jobs(dask_scheduler):
     ref = {
         "name": "cartpole-wall",
         "overrides": ["solver.max_iterations=2"],
@@ -66,7 +66,9 @@ def test_multistart_runs_starts_as_dask_jobs():
         "smoke": True,
     }
     seen = []
-    results, best = run_multistart(ref, 2, seed=1, noise=0.2, workers=2, on_start=seen.append)
+    results, best = run_multistart(
+        ref, 2, seed=1, noise=0.2, scheduler=dask_scheduler, on_start=seen.append
+    )
     assert [r.index for r in results] == [0, 1] and len(seen) == 2
     assert all(r.solution is not None and not r.error for r in results)
     assert results[0].solution.U.shape == results[1].solution.U.shape

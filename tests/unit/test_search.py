@@ -274,9 +274,10 @@ def test_a_search_space_decodes_and_costs_with_the_tasks_own_cost(cartpole):
     assert res.best.cost <= res.costs[0, 0] and res.costs.shape == (2, 6)
 
 
-def test_the_same_best_sample_with_one_and_two_dask_workers():
+def test_the_same_best_sample_with_one_and_two_dask_workers(dask_scheduler):
     """Samples drawn centrally, evaluated in batches on workers that hold their plant: the
-    same costs and best sample with 1 and 2 workers for one seed."""
+    same costs and best sample with 1 worker (a local cluster of its own) and 2 (the tests'
+    shared cluster) for one seed."""
     from hydroilqr.studies.search import run_search
 
     ref = {
@@ -285,11 +286,33 @@ def test_the_same_best_sample_with_one_and_two_dask_workers():
         "config": None,
         "smoke": False,
     }
-    runs = [run_search(ref, workers=n) for n in (1, 2)]
+    runs = [run_search(ref, workers=1), run_search(ref, scheduler=dask_scheduler)]
     assert [r.workers for r in runs] == [1, 2]
     assert np.array_equal(runs[0].result.costs, runs[1].result.costs)
     assert np.array_equal(runs[0].result.best.knots, runs[1].result.best.knots)
     assert np.array_equal(runs[0].solution.X, runs[1].solution.X)
+
+
+def test_a_worker_evaluates_a_changed_task_file_as_it_now_reads(tmp_path, dask_scheduler):
+    """A worker holds the plant of the task it last evaluated (``held``): a task file changed
+    at the same path between two searches on one cluster (a long-lived ``--scheduler``) is
+    evaluated as it now reads, with the same costs as the same text at another path."""
+    import yaml
+
+    from hydroilqr.studies.search import run_search
+
+    path = tmp_path / "task.yaml"
+    small = ["num_steps=10", "search.samples=4", "search.iterations=1", "search.knots=3"]
+    ref = {"name": str(path), "overrides": small, "config": None, "smoke": False}
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall"}))
+    first = run_search(ref, scheduler=dask_scheduler).result.costs
+    path.write_text(yaml.safe_dump({"extends": "cartpole-wall", "cost": {"R": 1.0}}))
+    again = run_search(ref, scheduler=dask_scheduler).result.costs
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "task.yaml").write_text(path.read_text())
+    fresh = run_search({**ref, "name": str(tmp_path / "b" / "task.yaml")}, scheduler=dask_scheduler)
+    assert not np.array_equal(first, fresh.result.costs)  # (the change matters)
+    assert np.array_equal(again, fresh.result.costs)
 
 
 def test_select_by_goal_cost_or_transfer():
@@ -344,7 +367,7 @@ ROBUST = [
 ]
 
 
-def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask():
+def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask(dask_scheduler):
     """``select: robust`` on a smoke problem: each polished plan that meets the goal is
     re-solved ``robust_runs`` times from its torques perturbed (the same perturbations the
     robustness command draws), and the chosen plan is one of those; in a robustness run's own
@@ -352,7 +375,7 @@ def test_select_robust_resolves_each_plan_that_meets_the_goal_on_dask():
     from hydroilqr.studies.search import perturbed_starts, run_search, search_start
 
     ref = {"name": "cartpole-wall", "overrides": ROBUST, "config": None, "smoke": False}
-    run = run_search(ref, workers=2, polish=True)
+    run = run_search(ref, scheduler=dask_scheduler, polish=True)
     met = [r for r in run.polished if r.goal.get("met") is True]
     assert met, "the smoke problem's goal should be met by a polished plan"
     for r in run.polished:
@@ -477,3 +500,11 @@ def test_the_tasks_guess_is_polished_last_as_ilqr_alone_solves_it():
     r = search_start(ref, 3, 0, 1e-3)
     assert not r.error and len(r.polish["goal_met"]) == 3  # 2 samples, the guess
     assert r.polish["start"] == ("guess" if r.polish["chosen"] == len(res.candidates) else "sample")
+
+
+def test_a_robustness_record_says_which_polished_start_was_chosen():
+    from hydroilqr.studies.robustness import RunResult
+
+    polish = {"chosen": 3, "start": "guess", "goal_met": [False, False, False, True]}
+    assert RunResult(task="t", index=1, polish=polish).record()["polish"] == polish
+    assert "polish" not in RunResult(task="t", index=1).record()  # iLQR alone: none

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import math
 
-from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
+from hydroilqr.cli.common import (
+    GOAL_NOT_MET,
+    add_connect_timeout,
+    add_task_list_args,
+    command_line,
+    console,
+    scheduler_arg,
+)
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.load import load_task
 from hydroilqr.problem.search import check_searchable
@@ -57,6 +64,7 @@ def setup(p) -> None:
         metavar="ADDRESS",
         help="an existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)",
     )
+    add_connect_timeout(p)
     p.add_argument("--workers", type=int, help="worker processes of the local cluster")
     p.add_argument(
         "--out",
@@ -83,6 +91,7 @@ def _check(args) -> None:
         raise ConfigError("--workers: must be at least 1")
     if args.scheduler and args.workers is not None:
         raise ConfigError("--workers sizes the local cluster; it does not go with --scheduler")
+    scheduler_arg(args)  # (--connect-timeout checked)
 
 
 def _concurrency(report: dict) -> str:
@@ -161,7 +170,7 @@ def run(args) -> int:
         args.runs,
         args.noise,
         args.seed,
-        args.scheduler,
+        scheduler_arg(args),
         args.workers,
         done,
         transfer=args.transfer,

@@ -8,11 +8,13 @@ from pathlib import Path
 
 from hydroilqr.cli.common import (
     GOAL_NOT_MET,  # noqa: F401 - the exit code of an unmet goal (tests read it here)
+    add_connect_timeout,
     add_task_args,
     command_line,
     console,
     load_task_from_args,
     print_goal,
+    scheduler_arg,
     warn,
 )
 from hydroilqr.problem.errors import ConfigError
@@ -77,6 +79,7 @@ def setup(p) -> None:
         metavar="ADDRESS",
         help="multi-start: an existing Dask scheduler (default: a local cluster)",
     )
+    add_connect_timeout(p)
     p.add_argument(
         "--workers", type=int, help="multi-start: local worker processes (default: cores)"
     )
@@ -186,6 +189,7 @@ def _check_starts(task, args) -> None:
         raise ConfigError(
             "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
         )
+    scheduler_arg(args)  # (--connect-timeout checked)
     check_searchable(task.config)
     if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
         raise ConfigError(
@@ -261,7 +265,7 @@ def _solve_many(task, args):
     interrupted = False
     try:
         results, best = run_multistart(
-            ref, args.starts, _seed(args), _noise(args), args.scheduler, args.workers, done
+            ref, args.starts, _seed(args), _noise(args), scheduler_arg(args), args.workers, done
         )
     except Interrupted as e:  # Ctrl+C: the starts that finished are kept
         results, best, interrupted = e.results, best_index(e.results), True
@@ -316,7 +320,7 @@ def _search_then_polish(task, args):
 
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
-        srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
+        srun = run_search(ref, scheduler_arg(args), args.workers, prog.update, True, polished)
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
         chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"
@@ -429,6 +433,14 @@ def _print_header(task, out: Path) -> None:
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
         )
+    realize = getattr(cfg.initial_guess, "realize", None)
+    if realize is not None:
+        weights = ", ".join(f"{w:g}" for w in realize.weights)
+        console.print(
+            f"initial_guess.realize: {len(realize.weights)} stage(s) first with virtual forces "
+            f"on the guess's unactuated coordinates (their weights {weights}), then the task on "
+            "its own plant (the iteration count restarts per stage)"
+        )
     if cfg.ensemble:
         members = "; ".join(", ".join(f"{k}={v}" for k, v in m.items()) for m in cfg.ensemble)
         console.print(
@@ -513,6 +525,20 @@ def _print_outcome(sol, task, wall: float) -> None:
         )
 
 
+def _print_realize(r: dict | None) -> None:
+    """How a realization (initial_guess.realize) ended: the largest virtual force left in each
+    stage, and the hand-off's cost on the task against the last stage's."""
+    if not r:
+        return
+    forces = ", ".join(f"{s['weight']:g}: {s['max_virtual_force']:.3g}" for s in r["stages"])
+    console.print(
+        f"realize: largest virtual force per stage (weight: N or N·m) {forces}; hand-off "
+        f"({r['handoff']}) cost {r['handoff_cost']:.6g} against the last stage's "
+        f"{r['stages'][-1]['final_cost']:.6g}",
+        soft_wrap=True,
+    )
+
+
 def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_costs=None) -> dict:
     """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
     set's files and the playbacks of its plan are retired in the same commit."""
@@ -534,6 +560,7 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
         extra_summary=extra,
         search_costs=search_costs,
     )
+    _print_realize(sol.extra.get("realize"))
     units = metrics_mod.final_error_units(task, summary["metrics"])
     for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

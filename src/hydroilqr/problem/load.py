@@ -12,7 +12,7 @@ from hydroilqr.problem.cost import validate_cost
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.files import extend, load_raw, merge, task_file, without_other_length
 from hydroilqr.problem.goal import validate_goal
-from hydroilqr.problem.guess import PositionGuess, validate_position_guess
+from hydroilqr.problem.guess import PositionGuess, validate_position_guess, validate_realize_use
 from hydroilqr.problem.mpc import validate_mpc
 from hydroilqr.problem.overrides import horizon_wins, override_items, set_dotted
 from hydroilqr.problem.paths import anchor_paths, cwd_path
@@ -125,3 +125,4 @@ def validate(cfg: TaskConfig) -> None:
     validate_search(cfg.search, cfg.steps)
     if isinstance(cfg.initial_guess, PositionGuess):
         validate_position_guess(cfg.initial_guess)
+        validate_realize_use(cfg)

@@ -28,6 +28,8 @@ the best found so far (``SearchRun.lost`` says why).
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import json
 import math
 import time
@@ -43,6 +45,7 @@ from hydroilqr.model.task import Task
 from hydroilqr.problem.load import load_task
 from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
+from hydroilqr.solver.receding import files_fingerprint
 from hydroilqr.studies.cluster import kill_workers, open_client
 from hydroilqr.studies.multistart import StartResult, _close, perturbation
 from hydroilqr.studies.robustness import played_back
@@ -52,8 +55,8 @@ _HELD: dict = {}
 
 
 def held(task_ref: dict):
-    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}), built once per
-    process and kept (a new reference replaces it)."""
+    """(task, SearchSpace) of ``task_ref`` ({name, overrides, config, smoke}, and ``content``
+    from ``with_content``), built once per process and kept (a new reference replaces it)."""
     key = json.dumps(task_ref, sort_keys=True, default=str)
     if key not in _HELD:
         _HELD.clear()
@@ -62,6 +65,16 @@ def held(task_ref: dict):
         )
         _HELD[key] = (task, search_mod.SearchSpace(task))
     return _HELD[key]
+
+
+def with_content(task_ref: dict, task: Task) -> dict:
+    """``task_ref`` with a hash of what ``task``, loaded from it, read (its resolved settings
+    and the files they name): a worker that holds the plant of an earlier version of a task
+    file changed since at the same path (a long-lived ``--scheduler``) builds it again
+    instead of evaluating the old one."""
+    settings = json.dumps(dataclasses.asdict(task.config), sort_keys=True, default=str)
+    digest = hashlib.sha256(settings.encode()).hexdigest()[:16]
+    return {**task_ref, "content": f"{digest}-{files_fingerprint(task.config)}"}
 
 
 def evaluate_batch(task_ref: dict, commands: list, x0=None, t0=None) -> list[float]:
@@ -211,7 +224,9 @@ def run_search(
     client, cluster = open_client(scheduler, workers)
     try:
         ev = DaskEvaluator(
-            client, task_ref, task.config.search.batches if task.config.search else 0
+            client,
+            with_content(task_ref, task),
+            task.config.search.batches if task.config.search else 0,
         )
         space, result = search_mod.run_search(task, ev, on_iteration=ev.stop(on_iteration))
         run = SearchRun(space, result, search_mod.as_solution(task, space, result), ev.workers)
