@@ -306,9 +306,10 @@ def test_client_deadline_names_the_address():
 
 
 def test_cli_sweep_silent_scheduler_is_one_line(tmp_path):
-    """A scheduler that accepts the connection and never answers: one line naming it.
-    The deadline itself is asserted by the two tests above (a wall-clock bound on a whole
-    CLI run fails on a loaded machine without telling anything about the product)."""
+    """A scheduler that accepts the connection and never answers: one line naming it and
+    the deadline given (--connect-timeout). The deadline itself is asserted by the two tests
+    above (a wall-clock bound on a whole CLI run fails on a loaded machine without telling
+    anything about the product)."""
     lis = _Listener()
     try:
         r = cli(
@@ -323,11 +324,38 @@ def test_cli_sweep_silent_scheduler_is_one_line(tmp_path):
             str(tmp_path / "sw"),
             "--scheduler",
             f"tcp://127.0.0.1:{lis.port}",
+            "--connect-timeout",
+            "2",
             timeout=600,
         )
     finally:
         lis.close()
-    assert f"tcp://127.0.0.1:{lis.port}" in one_line_error(r)
+    line = one_line_error(r)
+    assert f"tcp://127.0.0.1:{lis.port}" in line and "within 2 s" in line
+
+
+@pytest.mark.parametrize("command", ["sweep", "search", "solve", "robustness"])
+def test_connect_timeout_is_checked_before_work(command, capsys):
+    """--connect-timeout goes with --scheduler, is a number of seconds above 0, and its
+    default in the help is the cluster's."""
+    from hydroilqr.cli import main
+    from hydroilqr.cli.common import CONNECT_DEFAULT
+    from hydroilqr.studies.cluster import CONNECT_SECONDS
+
+    assert CONNECT_DEFAULT == CONNECT_SECONDS
+    args = [command, "cartpole-wall", "--out", "/nonexistent/never"]
+    if command == "sweep":
+        args += ["--param", "cost.R", "--values", "1,2"]
+    if command == "solve":
+        args += ["--starts", "2"]
+    for extra, message in [
+        (["--connect-timeout", "2"], "--connect-timeout goes with --scheduler"),
+        (["--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "0"], "above 0"),
+        (["--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "nan"], "above 0"),
+    ]:
+        assert main([*args, *extra]) == 2, (command, extra)
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
 
 
 # -- --out '' and one-line failures ---------------------------------------------------------

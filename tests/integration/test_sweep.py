@@ -46,6 +46,8 @@ def swept(tmp_path_factory, dask_scheduler):
         "1e3,-5,1e6",
         "--scheduler",
         dask_scheduler,
+        "--connect-timeout",  # (the address and its deadline as studies.cluster.Scheduler)
+        "120",
         "--out",
         str(out),
     ]

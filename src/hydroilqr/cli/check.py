@@ -318,6 +318,29 @@ def _position_guess(p: dict) -> None:
     effort = [f"{k} {v:.2f}" for k, v in p["effort_to_limit"].items() if v is not None]
     if effort:
         console.print(f"  largest control / effort limit: {', '.join(effort)}")
+    if p.get("unactuated"):
+        console.print(
+            "  unactuated, asked -> reached by the tracking rollout at the end: "
+            + ", ".join(
+                f"{k} {v['asked']:.3g} -> {v['reached']:.3g}" for k, v in p["unactuated"].items()
+            )
+        )
+
+
+def _realized_guess(r: dict) -> None:
+    """Where the realization (initial_guess.realize) takes the unactuated coordinates: the
+    tracking with virtual forces, and the realized guess on the task's own plant."""
+    console.print(
+        "  realized (initial_guess.realize), at the end: "
+        + ", ".join(
+            f"{k} {v['virtual_tracking']:.3g} with virtual forces, {v['realized']:.3g} realized"
+            for k, v in r["ends"].items()
+        )
+    )
+    stages = ", ".join(f"weight {s['weight']:g}: {s['max_virtual_force']:.3g}" for s in r["stages"])
+    console.print(
+        f"  largest virtual force per stage: {stages}; hand-off to the plant: {r['handoff']}"
+    )
 
 
 def _ms(m: dict) -> str:
@@ -375,6 +398,8 @@ def _simulation(r: dict) -> None:
     )
     if r.get("position_guess"):
         _position_guess(r["position_guess"])
+    if r.get("realized_guess"):
+        _realized_guess(r["realized_guess"])
     touched = r.get("touched_pairs") or []
     along = f"along the rollout of the initial guess ({r['contact_rollout_steps']} steps)"
     if touched:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from rich.console import Console
@@ -123,3 +124,45 @@ def print_goal(goal: dict | None, smoke: bool, what: str = "") -> int:
     colour = "green" if goal["met"] else "red"
     console.print(f"[{colour}]{line}[/{colour}]", soft_wrap=True)
     return 0 if goal["met"] else GOAL_NOT_MET
+
+
+# studies/cluster.py's CONNECT_SECONDS (not imported here: the parsers are built without Dask)
+CONNECT_DEFAULT = 15.0
+MAX_CONNECT_SECONDS = 3600.0
+
+
+def add_connect_timeout(p: argparse.ArgumentParser) -> None:
+    """``--connect-timeout``, beside a command's ``--scheduler``."""
+    p.add_argument(
+        "--connect-timeout",
+        type=float,
+        metavar="SECONDS",
+        help="with --scheduler: how long it has to answer before the command stops with one "
+        f"line naming it (default {CONNECT_DEFAULT:g})",
+    )
+
+
+def connect_seconds(args) -> float | None:
+    """``--connect-timeout`` checked (None when not given: the cluster's default)."""
+    seconds = args.connect_timeout
+    if seconds is None:
+        return None
+    if not args.scheduler:
+        raise ConfigError("--connect-timeout goes with --scheduler")
+    if not (math.isfinite(seconds) and 0 < seconds <= MAX_CONNECT_SECONDS):
+        raise ConfigError(
+            f"--connect-timeout: must be a number of seconds above 0 and at most "
+            f"{MAX_CONNECT_SECONDS:g}, got {seconds:g}"
+        )
+    return seconds
+
+
+def scheduler_arg(args):
+    """``--scheduler`` with its ``--connect-timeout`` (checked), as the studies take it: the
+    address, a ``Scheduler`` with the deadline, or None (a local cluster)."""
+    seconds = connect_seconds(args)
+    if seconds is None:
+        return args.scheduler
+    from hydroilqr.studies.cluster import Scheduler  # (Dask is loaded by the command)
+
+    return Scheduler(args.scheduler, seconds)

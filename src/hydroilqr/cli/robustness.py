@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import math
 
-from hydroilqr.cli.common import GOAL_NOT_MET, add_task_list_args, command_line, console
+from hydroilqr.cli.common import (
+    GOAL_NOT_MET,
+    add_connect_timeout,
+    add_task_list_args,
+    command_line,
+    console,
+    scheduler_arg,
+)
 from hydroilqr.problem.errors import ConfigError
-from hydroilqr.problem.load import load_task
+from hydroilqr.problem.load import load_task, worker_ref
 from hydroilqr.problem.search import check_searchable
 
 HELP = "solve tasks K times from last-bit perturbed guesses on Dask; report goal pass rates"
@@ -57,6 +64,7 @@ def setup(p) -> None:
         metavar="ADDRESS",
         help="an existing Dask scheduler, e.g. tcp://host:8786 (default: a local cluster)",
     )
+    add_connect_timeout(p)
     p.add_argument("--workers", type=int, help="worker processes of the local cluster")
     p.add_argument(
         "--out",
@@ -83,6 +91,7 @@ def _check(args) -> None:
         raise ConfigError("--workers: must be at least 1")
     if args.scheduler and args.workers is not None:
         raise ConfigError("--workers sizes the local cluster; it does not go with --scheduler")
+    scheduler_arg(args)  # (--connect-timeout checked)
 
 
 def _concurrency(report: dict) -> str:
@@ -118,15 +127,7 @@ def run(args) -> int:
             raise ConfigError(f"--search: {cfg.name} has no search: section")
         if args.search:
             check_searchable(cfg)
-        refs.append(
-            {
-                "label": cfg.name,
-                "name": name,
-                "overrides": list(args.set),
-                "config": None,
-                "smoke": bool(args.smoke),
-            }
-        )
+        refs.append(worker_ref(name, list(args.set), None, args.smoke, label=cfg.name))
     if len({r["label"] for r in refs}) != len(refs):
         raise ConfigError("a task is named twice")
     out = output_dir(args.out)  # created, locked and proven writable before any solve
@@ -161,7 +162,7 @@ def run(args) -> int:
         args.runs,
         args.noise,
         args.seed,
-        args.scheduler,
+        scheduler_arg(args),
         args.workers,
         done,
         transfer=args.transfer,

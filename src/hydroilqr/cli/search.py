@@ -6,14 +6,17 @@ import time
 from pathlib import Path
 
 from hydroilqr.cli.common import (
+    add_connect_timeout,
     add_task_args,
     command_line,
     console,
     err_console,
     load_task_from_args,
     print_goal,
+    scheduler_arg,
 )
 from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import worker_ref
 from hydroilqr.problem.search import check_searchable
 
 HELP = "sample the task's plan across basins (its search: section) and write the best sample"
@@ -29,6 +32,7 @@ def setup(p) -> None:
     p.add_argument(
         "--scheduler", metavar="ADDRESS", help="an existing Dask scheduler (default: a local one)"
     )
+    add_connect_timeout(p)
     p.add_argument("--workers", type=int, help="local worker processes (default: cores)")
     p.add_argument("--no-replay", action="store_true", help="skip writing replay.html")
     p.add_argument(
@@ -41,12 +45,7 @@ def setup(p) -> None:
 
 def task_ref(args, extra: list[str]) -> dict:
     """What a worker loads the task from (Drake objects do not travel)."""
-    return {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *extra],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    return worker_ref(args.task_file or args.task, [*args.set, *extra], args.config, args.smoke)
 
 
 def searched_task(args):
@@ -66,6 +65,7 @@ def check_workers(args) -> None:
         raise ConfigError(f"--workers: must be at least 1, got {args.workers}")
     if args.workers is not None and args.scheduler:
         raise ConfigError("--workers starts a local cluster; drop it with --scheduler")
+    scheduler_arg(args)  # (--connect-timeout checked)
 
 
 def run(args) -> int:
@@ -89,7 +89,7 @@ def run(args) -> int:
     )
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
-        srun = run_search(task_ref(args, extra), args.scheduler, args.workers, prog.update)
+        srun = run_search(task_ref(args, extra), scheduler_arg(args), args.workers, prog.update)
     wall = time.perf_counter() - t0
     print_search_line(srun, wall)
     summary = write(task, srun, out, args, wall)

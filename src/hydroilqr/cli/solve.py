@@ -8,14 +8,17 @@ from pathlib import Path
 
 from hydroilqr.cli.common import (
     GOAL_NOT_MET,  # noqa: F401 - the exit code of an unmet goal (tests read it here)
+    add_connect_timeout,
     add_task_args,
     command_line,
     console,
     load_task_from_args,
     print_goal,
+    scheduler_arg,
     warn,
 )
 from hydroilqr.problem.errors import ConfigError
+from hydroilqr.problem.load import worker_ref
 from hydroilqr.problem.search import check_searchable
 from hydroilqr.problem.solver import DERIVATIVES
 
@@ -77,6 +80,7 @@ def setup(p) -> None:
         metavar="ADDRESS",
         help="multi-start: an existing Dask scheduler (default: a local cluster)",
     )
+    add_connect_timeout(p)
     p.add_argument(
         "--workers", type=int, help="multi-start: local worker processes (default: cores)"
     )
@@ -186,6 +190,7 @@ def _check_starts(task, args) -> None:
         raise ConfigError(
             "--scheduler and --workers go with --starts N (N > 1) or a task's search: section"
         )
+    scheduler_arg(args)  # (--connect-timeout checked)
     check_searchable(task.config)
     if task.config.search is not None and (args.starts > 1 or args.resume or args.view):
         raise ConfigError(
@@ -214,13 +219,7 @@ def _check_robust(task, args) -> dict:
     summary.json's ``check_robust``."""
     from hydroilqr.studies.robustness import DEFAULT_NOISE, solve_run, spread_lines, summarize
 
-    ref = {
-        "label": task.name,
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args, label=task.name)
     k = args.check_robust
     console.print(f"check-robust: {k} more solves from the guess perturbed by {DEFAULT_NOISE:g}")
     runs = []
@@ -246,12 +245,7 @@ def _solve_many(task, args):
     with every start's outcome and the spread."""
     from hydroilqr.studies.multistart import Interrupted, best_index, run_multistart, spread
 
-    ref = {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args)
     where = args.scheduler or "a local Dask cluster"
     console.print(f"multi-start: {args.starts} solves (seed {_seed(args)}) on {where}")
 
@@ -261,7 +255,7 @@ def _solve_many(task, args):
     interrupted = False
     try:
         results, best = run_multistart(
-            ref, args.starts, _seed(args), _noise(args), args.scheduler, args.workers, done
+            ref, args.starts, _seed(args), _noise(args), scheduler_arg(args), args.workers, done
         )
     except Interrupted as e:  # Ctrl+C: the starts that finished are kept
         results, best, interrupted = e.results, best_index(e.results), True
@@ -303,12 +297,7 @@ def _search_then_polish(task, args):
         f"{sc.iterations} iterations on {where}, then iLQR from the best {sc.polish}"
         + (" and from the task's guess" if sc.polish_guess and sc.polish > 0 else "")
     )
-    ref = {
-        "name": args.task_file or args.task,
-        "overrides": [*args.set, *_solver_overrides(args)],
-        "config": args.config,
-        "smoke": bool(args.smoke),
-    }
+    ref = _worker_ref(args)
 
     def polished(r) -> None:
         what = " (the task's guess)" if getattr(r, "guess", False) else ""
@@ -316,7 +305,7 @@ def _search_then_polish(task, args):
 
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
-        srun = run_search(ref, args.scheduler, args.workers, prog.update, True, polished)
+        srun = run_search(ref, scheduler_arg(args), args.workers, prog.update, True, polished)
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
         chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"
@@ -348,6 +337,12 @@ def start_line(rec: dict) -> str:
     parts += [goal] if goal else []
     detail = f" ({rec['error']})" if rec.get("error") else ""
     return ", ".join([*parts, secs]) + detail
+
+
+def _worker_ref(args, **extra) -> dict:
+    """What a Dask worker loads this solve's task from (``problem.load.worker_ref``)."""
+    overrides = [*args.set, *_solver_overrides(args)]
+    return worker_ref(args.task_file or args.task, overrides, args.config, args.smoke, **extra)
 
 
 def _solver_overrides(args) -> list[str]:
@@ -428,6 +423,14 @@ def _print_header(task, out: Path) -> None:
         console.print(
             f"continuation: {len(cfg.continuation)} stage(s) first ({steps}), each warm-starting "
             "the next, then the task as written (the iteration count restarts per stage)"
+        )
+    realize = getattr(cfg.initial_guess, "realize", None)
+    if realize is not None:
+        weights = ", ".join(f"{w:g}" for w in realize.weights)
+        console.print(
+            f"initial_guess.realize: {len(realize.weights)} stage(s) first with virtual forces "
+            f"on the guess's unactuated coordinates (their weights {weights}), then the task on "
+            "its own plant (the iteration count restarts per stage)"
         )
     if cfg.ensemble:
         members = "; ".join(", ".join(f"{k}={v}" for k, v in m.items()) for m in cfg.ensemble)
@@ -513,6 +516,20 @@ def _print_outcome(sol, task, wall: float) -> None:
         )
 
 
+def _print_realize(r: dict | None) -> None:
+    """How a realization (initial_guess.realize) ended: the largest virtual force left in each
+    stage, and the hand-off's cost on the task against the last stage's."""
+    if not r:
+        return
+    forces = ", ".join(f"{s['weight']:g}: {s['max_virtual_force']:.3g}" for s in r["stages"])
+    console.print(
+        f"realize: largest virtual force per stage (weight: N or N·m) {forces}; hand-off "
+        f"({r['handoff']}) cost {r['handoff_cost']:.6g} against the last stage's "
+        f"{r['stages'][-1]['final_cost']:.6g}",
+        soft_wrap=True,
+    )
+
+
 def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_costs=None) -> dict:
     """Writes the new result set beside the earlier one, then swaps it in whole; the earlier
     set's files and the playbacks of its plan are retired in the same commit."""
@@ -534,6 +551,7 @@ def _write_results(task, sol, out: Path, args, wall: float, extra: dict, search_
         extra_summary=extra,
         search_costs=search_costs,
     )
+    _print_realize(sol.extra.get("realize"))
     units = metrics_mod.final_error_units(task, summary["metrics"])
     for line in metrics_mod.summary_lines(summary["metrics"], units):
         console.print(line, soft_wrap=True)  # one line each: a terminal wraps, a log keeps it

@@ -8,7 +8,14 @@ import sys
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from hydroilqr.cli.common import add_task_args, command_line, console, task_name_from_args
+from hydroilqr.cli.common import (
+    add_connect_timeout,
+    add_task_args,
+    command_line,
+    console,
+    scheduler_arg,
+    task_name_from_args,
+)
 from hydroilqr.problem.errors import ConfigError
 from hydroilqr.problem.load import load_task
 
@@ -35,6 +42,7 @@ def setup(p) -> None:
         help="existing Dask scheduler, e.g. tcp://host:8786 (default: a local "
         "cluster, one single-threaded worker process per core)",
     )
+    add_connect_timeout(p)
     p.add_argument("--workers", type=int, help="worker processes of the local cluster")
     p.add_argument(
         "--retry-failed",
@@ -59,6 +67,7 @@ def run(args) -> int:
     params = [(k, parse_values(v)) for k, v in zip(keys, specs)]
     if args.workers is not None and args.workers < 1:
         raise ConfigError("--workers: must be at least 1")
+    scheduler = scheduler_arg(args)
     try:
         res = run_sweep(
             task,
@@ -67,7 +76,7 @@ def run(args) -> int:
             sets=args.set,
             config_file=args.config,
             smoke=args.smoke,
-            scheduler=args.scheduler,
+            scheduler=scheduler,
             workers=args.workers,
             retry_failed=args.retry_failed,
             command=command_line(args),

@@ -258,6 +258,18 @@ def apply_actuators(task: TaskConfig, plant) -> None:
             a.set_default_gear_ratio(float(cfg.gear_ratio))
 
 
+#: The prefix of a virtual actuator's name (``PlantSpec.virtual_forces``).
+VIRTUAL_PREFIX = "virtual_"
+
+
+def add_virtual_actuators(task: TaskConfig, plant) -> None:
+    """One actuator without an effort limit on each joint of ``virtual_forces`` (a position
+    guess's realization, solver/realize.py), after the model's own, named ``virtual_JOINT``;
+    none for a task as written."""
+    for name in getattr(task, "virtual_forces", ()):
+        plant.AddJointActuator(VIRTUAL_PREFIX + name, plant.GetJointByName(name), np.inf)
+
+
 def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = True) -> Scene:
     """Builds the task's diagram. With ``meshcat``, adds MeshcatVisualizer + ContactVisualizer."""
     builder = DiagramBuilder()
@@ -277,6 +289,7 @@ def build_diagram(task: TaskConfig, meshcat=None, contact_visualizer: bool = Tru
     _override_geometry(task, plant, scene_graph)
     plant.mutable_gravity_field().set_gravity_vector(np.asarray(task.plant.gravity, dtype=float))
     apply_actuators(task, plant)
+    add_virtual_actuators(task, plant)
     check_inertias(plant)
     limits = _model_position_limits(plant, keep=task.plant.joint_limits)
     plant.Finalize()

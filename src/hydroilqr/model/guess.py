@@ -23,10 +23,13 @@ state gives the same X (each control is computed at the state it is applied at).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.multibody.tree import JointIndex
 
+from hydroilqr.model.build import VIRTUAL_PREFIX
 from hydroilqr.model.plant import SimulationError
 from hydroilqr.problem.errors import ConfigError
 
@@ -161,6 +164,64 @@ def tracking_rollout(
     return TrackingRollout(U, X, Q_ref, list(q_idx))
 
 
+def virtual_joints(dynamics, guess, key: str = "initial_guess.realize") -> list[str]:
+    """The names of the joints of the unactuated coordinates the position guess ``guess``
+    moves (names with a value other than the initial state's somewhere along the path), in
+    the path's order: where its realization puts a virtual actuator each
+    (``PlantSpec.virtual_forces``). A coordinate the path holds at its start value gets
+    none: the joints hold it, as they must without the virtual forces. ConfigError if it
+    moves none, or one of a joint with more than one coordinate (a virtual actuator drives
+    a prismatic or revolute joint)."""
+    path = WaypointPath(dynamics, guess, 1.0)
+    plant = dynamics.plant
+    actuated = {j.position_start() for j in _actuated_joints(plant)}
+    knots = path.knots(dynamics.initial_state()[path.q_idx])
+    held = {q for j, q in enumerate(path.q_idx) if np.ptp(knots[:, j]) == 0.0}
+    by_start = {}
+    for i in range(plant.num_joints()):
+        j = plant.get_joint(JointIndex(i))
+        if j.num_positions() > 0:
+            by_start.setdefault(j.position_start(), j)
+    names = []
+    for q in path.q_idx:
+        if q in actuated or q in held:
+            continue
+        j = by_start.get(q)
+        if j is None or j.num_positions() != 1 or j.num_velocities() != 1:
+            kind = "" if j is None else f" of a {j.type_name()} joint ({j.name()})"
+            raise ConfigError(
+                f"{key}: coordinate {q}{kind} is not a joint's only coordinate; a virtual "
+                "force acts on a one-coordinate joint (prismatic or revolute)"
+            )
+        names.append(j.name())
+    if not names:
+        raise ConfigError(
+            f"{key}: the guess moves no unactuated coordinate (a base's or an object's x, z, "
+            "...; it names none, or holds each at its start value): there is nothing to realize"
+        )
+    return names
+
+
+def virtual_config(config, dynamics, r: np.ndarray, weight: float):
+    """The task ``config`` on its plant with a virtual actuator on each unactuated
+    coordinate its position guess names (``virtual_joints``), their R ``weight``, the model's
+    actuators keeping theirs (``r``: [nu]); its guess is the path tracked on that plant (no
+    realization), and it has no continuation stages, search or ensemble of its own."""
+    guess = config.initial_guess
+    joints = virtual_joints(dynamics, guess)
+    R = dict(zip(dynamics.layout.actuators, [float(v) for v in r]))
+    R.update({VIRTUAL_PREFIX + j: float(weight) for j in joints})
+    return dataclasses.replace(
+        config,
+        virtual_forces=joints,
+        cost=dataclasses.replace(config.cost, R=R),
+        initial_guess=dataclasses.replace(guess, realize=None),
+        continuation=[],
+        ensemble=[],
+        search=None,
+    )
+
+
 def _actuated_joints(plant) -> list:
     return [plant.get_joint_actuator(i).joint() for i in plant.GetJointActuatorIndices()]
 
@@ -241,8 +302,11 @@ def describe(guess) -> str:
 def rollout_report(task) -> dict | None:
     """What ``check`` shows of a position guess's tracking rollout over the task's horizon
     (or first window): per tracked coordinate its largest |q − q_ref| and the time of it,
-    the unnamed coordinates' first and last values, and the largest control per actuator
-    relative to its effort limit. None for another kind of guess."""
+    the unnamed coordinates' first and last values, the largest control per actuator
+    relative to its effort limit, and where the path asks each unactuated coordinate it
+    names to end against where the rollout took it (``unactuated``). The rollout is on the
+    task's own plant (with ``realize``, too: solver/realize.py reports the realization).
+    None for another kind of guess."""
     if isinstance(task.config.initial_guess, str):
         return None
     out = position_guess(task, task.steps)
@@ -265,9 +329,27 @@ def rollout_report(task) -> dict | None:
         for q, name in names.items()
         if q not in out.q_index
     }
+    unactuated = unactuated_ends(dyn, out, names)
     limits = dyn.effort_limits
     effort = {
         a: float(np.max(np.abs(out.U[:, i])) / limits[i]) if np.isfinite(limits[i]) else None
         for i, a in enumerate(dyn.layout.actuators)
     }
-    return {"tracked": tracked, "others": others, "effort_to_limit": effort}
+    return {
+        "tracked": tracked,
+        "others": others,
+        "effort_to_limit": effort,
+        "unactuated": unactuated,
+    }
+
+
+def unactuated_ends(dyn, out: TrackingRollout, names: dict) -> dict:
+    """Per unactuated coordinate the path names: where the path asks it to end
+    (``asked``, its reference at the last state) and where the rollout ``out`` took it
+    (``reached``), in the coordinate's units."""
+    actuated = {j.position_start() for j in _actuated_joints(dyn.plant)}
+    return {
+        names.get(q, str(q)): {"asked": float(out.Q_ref[-1, j]), "reached": float(out.X[-1, q])}
+        for j, q in enumerate(out.q_index)
+        if q not in actuated
+    }

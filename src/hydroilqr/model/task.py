@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hydroilqr.model.cost import QuadraticCost
-from hydroilqr.model.guess import position_guess
+from hydroilqr.model.guess import position_guess, virtual_config
 from hydroilqr.model.plant import Dynamics, SimulationError
 from hydroilqr.problem import inputs
 from hydroilqr.problem.errors import ConfigError
@@ -130,6 +130,17 @@ class Task:
             out.append(Task(st))
         return out
 
+    def virtual_task(self, weight: float = 0.0) -> Task:
+        """This task on its plant with a virtual actuator on each unactuated coordinate its
+        position guess names (``initial_guess.realize``; model/guess.py's ``virtual_config``),
+        their R ``weight``: the realization's stages (solver/realize.py). Its guess tracks the
+        path with them. Built once per weight."""
+        cache = self.__dict__.setdefault("_virtual_tasks", {})
+        if weight not in cache:
+            r = QuadraticCost._control_weights(self.dynamics.layout, self.config.cost.R)
+            cache[weight] = Task(virtual_config(self.config, self.dynamics, r, weight))
+        return cache[weight]
+
     def with_overrides(self, overrides) -> Task:
         """A new Task with ``key=value`` overrides (a list, a dict or one string) applied.
 
@@ -184,6 +195,9 @@ class Task:
         _ = self.dynamics, self.cost, self.x0
         self.check_memory()
         self.initial_guess(self.steps)
+        guess = self.config.initial_guess
+        if not isinstance(guess, str) and guess.realize is not None:
+            _ = self.virtual_task().dynamics  # the coordinates it realizes (model/guess.py)
         self._check_variants("continuation", self.stages())
         self._check_variants("ensemble", self.members())
         if mismatch:

@@ -25,6 +25,22 @@ class PositionGuess:
     waypoints: list[dict[str, Any]] = field(default_factory=list)
     target: dict[str, Any] = field(default_factory=dict)
     period: float = 0.0
+    # Realize the path's unactuated coordinates with virtual forces (solver/realize.py);
+    # none: the tracking rollout moves them only as far as the actuators do.
+    realize: Realize | None = None
+
+
+@dataclass
+class Realize:
+    """``initial_guess.realize``: before the solve, virtual forces act on the unactuated
+    coordinates the path names (one actuator each, on their joints); the tracking rollout uses
+    them, then one iLQR stage per ``weights`` entry solves the task with the virtual forces
+    costed by that weight (their R), each stage warm-starting the next; the task itself is
+    then solved on its own plant, without them, from the last stage's plan (its actuators'
+    controls, rolled out under that stage's feedback gains)."""
+
+    weights: list[float] = field(default_factory=lambda: [1.0e-3, 1.0e-2, 1.0e-1, 1.0, 10.0, 100.0])
+    iterations: int = 5  # iLQR iterations per stage
 
 
 def validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> None:
@@ -54,6 +70,26 @@ def validate_position_guess(g: PositionGuess, key: str = "initial_guess") -> Non
         _check_configuration(wp, f"{key}.waypoints[{i}]")
         last = float(t)
     _check_configuration(g.target, f"{key}.target")
+    if g.realize is not None:
+        validate_realize(g.realize, f"{key}.realize")
+
+
+def validate_realize(r: Realize, key: str) -> None:
+    """At least one stage; finite, positive, non-decreasing weights; iterations >= 1. Which
+    coordinates the path names is checked when the plant is built (model/guess.py)."""
+    w = r.weights
+    if not w:
+        raise ConfigError(f"{key}.weights: give at least one stage's weight, e.g. [1.0e-3, 10]")
+    for i, x in enumerate(w):
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or x <= 0:
+            raise ConfigError(f"{key}.weights[{i}]: expected a finite number > 0, got {x!r}")
+    if any(b < a for a, b in zip(w, w[1:])):
+        raise ConfigError(
+            f"{key}.weights: must not decrease (a continuation drives the virtual forces "
+            f"to zero), got {w}"
+        )
+    if isinstance(r.iterations, bool) or r.iterations < 1:
+        raise ConfigError(f"{key}.iterations: must be >= 1, got {r.iterations}")
 
 
 def _check_configuration(point: dict[str, Any], key: str) -> None:
@@ -69,4 +105,20 @@ def _check_configuration(point: dict[str, Any], key: str) -> None:
             raise ConfigError(
                 f"{key}.{name}: expected a number or a list of numbers (one per component), "
                 f"got {v!r}"
+            )
+
+
+def validate_realize_use(cfg) -> None:
+    """``initial_guess.realize`` is for a single solve from the guess: not with a receding
+    horizon, an ensemble or a search (whose samples replace the guess)."""
+    if cfg.initial_guess.realize is None:
+        return
+    for key, on in (
+        ("receding_horizon", cfg.receding_horizon is not None),
+        ("ensemble", bool(cfg.ensemble)),
+        ("search", cfg.search is not None),
+    ):
+        if on:
+            raise ConfigError(
+                f"initial_guess.realize: for a single solve from the guess, not with {key}"
             )

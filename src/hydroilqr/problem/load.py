@@ -10,11 +10,18 @@ from typing import Any
 
 from hydroilqr.problem.cost import validate_cost
 from hydroilqr.problem.errors import ConfigError
-from hydroilqr.problem.files import extend, load_raw, merge, task_file, without_other_length
+from hydroilqr.problem.files import (
+    TASKS_DIR,
+    extend,
+    load_raw,
+    merge,
+    task_file,
+    without_other_length,
+)
 from hydroilqr.problem.goal import validate_goal
-from hydroilqr.problem.guess import PositionGuess, validate_position_guess
+from hydroilqr.problem.guess import PositionGuess, validate_position_guess, validate_realize_use
 from hydroilqr.problem.mpc import validate_mpc
-from hydroilqr.problem.overrides import horizon_wins, override_items, set_dotted
+from hydroilqr.problem.overrides import horizon_wins, override_items, parse_override, set_dotted
 from hydroilqr.problem.paths import anchor_paths, cwd_path
 from hydroilqr.problem.plant import validate_plant
 from hydroilqr.problem.receding import validate_receding_horizon
@@ -24,6 +31,38 @@ from hydroilqr.problem.solver import validate_solver
 from hydroilqr.problem.task import TaskConfig, validate_task
 from hydroilqr.problem.typed import build_dataclass
 from hydroilqr.problem.variants import validate_variants
+
+
+def portable_task(name_or_path: str) -> str:
+    """The task argument as a process started in another directory (a Dask worker of
+    ``--scheduler``) reads it: a built-in's name as it is, a task file's path made absolute."""
+    path = task_file(name_or_path)
+    return name_or_path if path.parent.resolve() == TASKS_DIR.resolve() else str(path.resolve())
+
+
+def portable_override(entry: str) -> str:
+    """A ``KEY=VALUE`` override with the relative file path it names made absolute against
+    the working directory (as ``with_overrides`` reads it here); any other entry as it is."""
+    try:
+        key, value = parse_override(entry)
+    except ConfigError:
+        return entry
+    absolute = cwd_path(key, value)
+    return entry if absolute == value else f"{key}={absolute}"
+
+
+def worker_ref(name: str, overrides, config: str | None = None, smoke: bool = False, **extra):
+    """What a Dask worker loads a task from (Drake objects do not travel), its files named so
+    that a worker started in another directory reads the same ones: ``{name, overrides,
+    config, smoke, **extra}`` (``portable_task``, ``portable_override``, ``config``
+    absolute)."""
+    return {
+        **extra,
+        "name": portable_task(name),
+        "overrides": [portable_override(o) for o in overrides],
+        "config": str(Path(config).resolve()) if config else None,
+        "smoke": bool(smoke),
+    }
 
 
 def with_overrides(
@@ -125,3 +164,4 @@ def validate(cfg: TaskConfig) -> None:
     validate_search(cfg.search, cfg.steps)
     if isinstance(cfg.initial_guess, PositionGuess):
         validate_position_guess(cfg.initial_guess)
+        validate_realize_use(cfg)

@@ -130,6 +130,9 @@ class PlantSpec:
     initial_state: dict[str, Any] = field(default_factory=dict)
     # Set by the loader: directory that relative paths are resolved against.
     base_dir: str = field(default="", metadata={"task_file": False})
+    # Joints given a virtual actuator each (no effort limit), appended after the model's:
+    # set only by a position guess's realization (initial_guess.realize), never by a file.
+    virtual_forces: list[str] = field(default_factory=list, metadata={"task_file": False})
 
     @classmethod
     def of(cls, task: PlantSpec) -> PlantSpec:

@@ -38,6 +38,12 @@ class SolverConfig:
     fd_forces: bool = False
     threads: int = 0  # 0 = all cores
     relative_cost_tolerance: float = 1e-4
+    # The relative-cost-change test over this many iterations: a full step ends the solve when
+    # the last N iterations together changed the cost by less than N x relative_cost_tolerance
+    # (relative to the cost N iterations back); 1: that full step alone. More than 1: one
+    # nearly flat full step right after large decreases (a poor local model on a contact-rich
+    # landscape) does not end the solve.
+    convergence_window: int = 1
     expected_decrease_tolerance: float = 1e-7
     line_search_factor: float = 0.5
     line_search_max_steps: int = 12
@@ -102,6 +108,8 @@ def validate_solver(sv: SolverConfig) -> None:
         raise ConfigError("solver.derivative_reuse_tolerance: must be >= 0")
     if sv.derivative_interval < 1:
         raise ConfigError("solver.derivative_interval: must be >= 1")
+    if sv.convergence_window < 1:
+        raise ConfigError(f"solver.convergence_window: must be >= 1, got {sv.convergence_window}")
     for name, ok, rule in (
         ("line_search_factor", 0 < sv.line_search_factor < 1, "between 0 and 1"),
         ("armijo", 0 <= sv.armijo < 1, "in [0, 1)"),

@@ -74,6 +74,7 @@ class TaskConfig(PlantSpec):
         d = dataclasses.asdict(self)
         d.pop("base_dir", None)
         d.pop("smoke_run", None)
+        d.pop("virtual_forces", None)  # (a realization's own plant: not a task-file key)
         d["mpc"].pop("pushes", None)  # not a task-file key
         if d.get("num_steps"):
             d.pop("horizon", None)

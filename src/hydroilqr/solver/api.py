@@ -24,6 +24,7 @@ from hydroilqr.solver.explain import explain  # noqa: F401 - the CLI reads it fr
 from hydroilqr.solver.ilqr import IterationInfo
 from hydroilqr.solver.loop import callback_list
 from hydroilqr.solver.loop import solve as ilqr_solve
+from hydroilqr.solver.realize import assert_physical, realize
 from hydroilqr.solver.receding import solve_receding
 from hydroilqr.solver.robust import solve_ensemble
 from hydroilqr.solver.solution import PHASES, Solution
@@ -93,6 +94,13 @@ def solve(
     x0, U0 = _start(task, U0, x0)
     if task.config.ensemble:  # (not with continuation or receding_horizon: config.validate)
         return solve_ensemble(task, U0, x0, solver, callbacks, stop_on_interrupt)
+    if _realizes(task):  # (single solves only: config.validate)
+        return _realized(task, stages, stage_solvers, solver, U0, x0, callbacks, stop_on_interrupt)
+    return _single(task, stages, stage_solvers, solver, U0, x0, callbacks, stop_on_interrupt)
+
+
+def _single(task, stages, stage_solvers, solver, U0, x0, callbacks, stop_on_interrupt):
+    """A single solve from U0: the continuation stages, if any, then the task."""
     if not stages:
         return ilqr_solve(
             task.problem(x0=x0), U0, solver, callbacks, stop_on_interrupt=stop_on_interrupt
@@ -100,6 +108,26 @@ def solve(
     return _continuation(
         task, list(zip(stages, stage_solvers)), solver, U0, x0, callbacks, stop_on_interrupt
     )
+
+
+def _realizes(task: Task) -> bool:
+    guess = task.config.initial_guess
+    return not isinstance(guess, str) and guess.realize is not None
+
+
+def _realized(task, stages, stage_solvers, solver, U0, x0, callbacks, stop_on_interrupt):
+    """The position guess realized with virtual forces (solver/realize.py), then the single
+    solve from its controls on the task's own plant; ``extra["realize"]`` keeps its stages.
+    Stopped inside the realization: its hand-off, on the task's model, without iterations."""
+    done = realize(task, U0, x0, solver, callbacks, stop_on_interrupt)
+    if done.stopped:
+        sol = ilqr_solve(task.problem(x0=x0), done.U, solver, max_iterations=0)
+        sol.reason = done.stopped
+    else:
+        sol = _single(task, stages, stage_solvers, solver, done.U, x0, callbacks, stop_on_interrupt)
+    assert_physical(task, sol)
+    sol.extra["realize"] = done.record()
+    return sol
 
 
 def _as_task(task) -> Task:

@@ -408,7 +408,7 @@ def stop_test(st: State, step: Step, rel: float | None, callback_stop: bool) -> 
     if callback_stop:
         st.reason = "callback"
         return True
-    if stopping.small_full_step(rel, step.eps, s):
+    if stopping.small_full_step(rel, step.eps, s, st.costs):
         st.reason, st.converged = "relative_cost_change", True
         return True
     if stopping.stalled(st.costs, st.J, s):

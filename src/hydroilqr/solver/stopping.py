@@ -67,9 +67,20 @@ def stationary(expected_full: float, J: float, s: SolverConfig) -> bool:
     return expected_full < s.expected_decrease_tolerance * max(1.0, abs(J))
 
 
-def small_full_step(rel: float, eps: float, s: SolverConfig) -> bool:
-    """A full step changed the cost by less than ``relative_cost_tolerance`` (relative)."""
-    return rel < s.relative_cost_tolerance and eps >= 1.0
+def small_full_step(rel: float, eps: float, s: SolverConfig, costs: list[float] = ()) -> bool:
+    """A full step changed the cost by less than ``relative_cost_tolerance`` (relative); with
+    ``convergence_window`` N > 1, the last N iterations together (``costs``: every cost so
+    far, the step's last) changed it by less than N times that, relative to the cost N
+    iterations back."""
+    w = s.convergence_window
+    if eps < 1.0:
+        return False
+    if w == 1:
+        return rel < s.relative_cost_tolerance
+    if len(costs) <= w:
+        return False
+    before = costs[-w - 1]
+    return (before - costs[-1]) / max(abs(before), 1e-12) < w * s.relative_cost_tolerance
 
 
 def stalled(costs: list[float], J: float, s: SolverConfig) -> bool:

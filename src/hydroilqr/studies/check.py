@@ -43,6 +43,7 @@ from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.names import body_labels
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.solver import DerivativeMethod
+from hydroilqr.solver.realize import report as realize_report
 from hydroilqr.studies.bases import base_report
 from hydroilqr.studies.step_cost import step_cost_report
 from hydroilqr.studies.stiffness import stiffness_report
@@ -479,6 +480,8 @@ def _simulation(task, pairs: list[dict], rollout_steps: int, out: dict) -> None:
         ) from None
     rollout_ms = 1e3 * (time.perf_counter() - tic) / max(N, 1)
     out["position_guess"] = rollout_report(task)  # (None unless the guess is positions)
+    if out["position_guess"] and task.config.initial_guess.realize is not None:
+        out["realized_guess"] = realize_report(task, out["position_guess"]["unactuated"])
     speed = float(np.max(np.abs(X[:, dyn.nq :]))) if dyn.nv else 0.0
     fastest = dyn.nq + int(np.argmax(np.max(np.abs(X[:, dyn.nq :]), axis=0))) if dyn.nv else 0
 

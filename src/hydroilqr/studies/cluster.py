@@ -2,8 +2,10 @@
 
 ``open_client(None)`` starts an embedded ``LocalCluster``: one single-threaded worker process
 per core (``workers`` to choose), its dashboard on a free loopback port. ``open_client(ADDRESS)``
-connects to an existing scheduler within ``CONNECT_SECONDS`` or fails with one line naming the
-address (a silent listener, one that closes, or one speaking another protocol included).
+connects to an existing scheduler within ``CONNECT_SECONDS`` (``open_client(Scheduler(ADDRESS,
+SECONDS))`` for another deadline: the commands' ``--connect-timeout``) or fails with one line
+naming the address (a silent listener, one that closes, or one speaking another protocol
+included).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import socket
 import threading
 import time
 from multiprocessing import resource_tracker
+from typing import NamedTuple
 
 import psutil
 from distributed import Client, LocalCluster
@@ -80,14 +83,26 @@ def _client_within(Client, address: str, seconds: float = CONNECT_SECONDS):
     return box["client"]
 
 
-def open_client(scheduler: str | None, workers: int | None = None):
+class Scheduler(NamedTuple):
+    """An existing Dask scheduler: its address and how long it has to answer (a plain address
+    string is one with the default ``CONNECT_SECONDS``)."""
+
+    address: str
+    connect_seconds: float = CONNECT_SECONDS
+
+    def __str__(self) -> str:
+        return self.address
+
+
+def open_client(scheduler: str | Scheduler | None, workers: int | None = None):
     """(client, cluster): cluster is None when connected to an existing scheduler."""
 
     if scheduler:
+        address, seconds = Scheduler(scheduler) if isinstance(scheduler, str) else scheduler
         # a lost scheduler is reported in one line at the end, not as Dask's tracebacks
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
-        _probe_scheduler(scheduler)
-        return _client_within(Client, scheduler), None
+        _probe_scheduler(address, seconds)
+        return _client_within(Client, address, seconds), None
 
     n = workers or cores()
     # Ctrl+C in a terminal reaches the whole process group. The workers never act on it, so

@@ -49,8 +49,8 @@ from hydroilqr.output.studies import (
     write_sweep_tables,
 )
 from hydroilqr.problem.errors import ConfigError
-from hydroilqr.problem.files import TASKS_DIR, task_file
 from hydroilqr.problem.inputs import MAX_JSON_BYTES, read_bounded
+from hydroilqr.problem.load import portable_override, portable_task
 from hydroilqr.problem.overrides import parse_override
 from hydroilqr.problem.paths import cwd_path
 from hydroilqr.studies.cluster import open_client
@@ -121,17 +121,6 @@ class SweepMonitor:
         """No more points are computed in this run (also after an error or Ctrl+C)."""
 
 
-def _absolute_set(entry: str) -> str:
-    """A recorded ``KEY=VALUE`` with a relative file path made absolute (against the working
-    directory), as this version records it."""
-    try:
-        k, v = parse_override(entry)
-    except ConfigError:
-        return entry
-    absolute = cwd_path(k, v)
-    return entry if absolute == v else f"{k}={absolute}"
-
-
 def _check_same_sweep(out: Path, spec: dict) -> None:
     """ConfigError if ``out`` holds the points of another sweep (its sweep_spec.json differs
     in task, --config, --smoke, --set or the swept keys), or a spec too torn to tell."""
@@ -152,7 +141,7 @@ def _check_same_sweep(out: Path, spec: dict) -> None:
         if "solver.threads=1" in old.get("set", []) and "solver.threads=1" not in spec["set"]:
             old["set"] = [v for v in old["set"] if v != "solver.threads=1"]  # older files
         if isinstance(old.get("set"), list):  # older files kept relative paths as given
-            old["set"] = sorted(_absolute_set(v) for v in old["set"])
+            old["set"] = sorted(portable_override(v) for v in old["set"])
         same = {k: old.get(k) for k in ("task", "config_file", "smoke", "set")}
         new = {k: spec.get(k) for k in same}
         old_keys = [p["key"] for p in old.get("params", [])]
@@ -187,8 +176,7 @@ def run_sweep(
     progress (by default nothing is shown)."""
     monitor = monitor or SweepMonitor()
     keys = _check_params(params)
-    path = task_file(task)
-    task_arg = task if path.parent.resolve() == TASKS_DIR.resolve() else str(path.resolve())
+    task_arg = portable_task(task)
     cfg_arg = str(Path(config_file).resolve()) if config_file else None
     overrides, user_set = _sweep_overrides(sets)
     points = _sweep_points(params)
