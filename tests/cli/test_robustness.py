@@ -230,6 +230,28 @@ def test_the_results_section_shows_each_rows_kernel_set_and_the_closed_loops():
     assert "| `t` | solve | 1 | - | - | 8 of 10 |" in lines
 
 
+def test_the_results_section_puts_each_stacks_pass_rates_side_by_side():
+    """Records that name their Python and Drake get a column per kernel set and stack, so the
+    rates on Python 3.12 stand beside those on 3.11 (issue 55)."""
+
+    def doc(met, python, drake, blas="Haswell"):
+        s = summarize("t", [_run(k, k <= met, [("a", k <= met)]) for k in range(1, 11)])
+        env = {"blas_core": blas, "python": python, "drake": drake}
+        return {"tasks": [s], "seed": 0, "environment": env}
+
+    md = results.kernel_table(
+        [doc(10, "3.11.7", "1.51.1"), doc(9, "3.11.7", "1.51.1", "SkylakeX"),
+         doc(7, "3.12.1", "1.56.0")]
+    )  # fmt: skip
+    lines = md.splitlines()
+    assert lines[0] == (
+        "| task | run | seed | goal met, Haswell kernels, Python 3.11 + Drake 1.51.1 "
+        "| goal met, SkylakeX kernels, Python 3.11 + Drake 1.51.1 "
+        "| goal met, Haswell kernels, Python 3.12 + Drake 1.56.0 |"
+    )
+    assert "| `t` | solve | 0 | 10 of 10 | 9 of 10 | 7 of 10 |" in lines
+
+
 def test_robustness_mpc_runs_each_tasks_closed_loop(tmp_path, capsys, dask_scheduler):
     """--mpc: each run is the task's closed loop (lock-step, smoke-sized here), judged by the
     loop's goal; the record says so. --transfer (a solve's plan played back) is refused."""

@@ -331,13 +331,25 @@ def robustness_table(results: Sequence[TaskResult], context: Context) -> Section
     )
 
 
+def _column(env: dict) -> str:
+    """A record's column of ``kernel_table``: its BLAS kernel set, and its Python and Drake
+    where the record names them (the stacks' pass rates side by side)."""
+    col = f"{env.get('blas_core') or 'unknown'} kernels"
+    python, drake = env.get("python"), env.get("drake")
+    if python:
+        col += f", Python {'.'.join(str(python).split('.')[:2])}"
+        col += f" + Drake {drake}" if drake else ""
+    return col
+
+
 def kernel_table(docs: Sequence[dict]) -> str:
-    """Goal pass rates by task, kind of run and seed (rows) and BLAS kernel set (columns,
-    ``environment.blas_core`` of each record; '-' where a row was not measured on a set)."""
+    """Goal pass rates by task, kind of run and seed (rows) and by BLAS kernel set and stack
+    (columns: ``environment.blas_core`` of each record, with its Python X.Y and Drake where
+    recorded; '-' where a row was not measured there)."""
     kernels: list[str] = []
     rows: dict[tuple, dict[str, list[str]]] = {}
     for doc in docs:
-        blas = (doc.get("environment") or {}).get("blas_core") or "unknown"
+        blas = _column(doc.get("environment") or {})
         kernels += [blas] if blas not in kernels else []
         kind = (
             "closed loop" if doc.get("mpc") else "search + polish" if doc.get("search") else "solve"
@@ -347,7 +359,7 @@ def kernel_table(docs: Sequence[dict]) -> str:
             cells = rows.setdefault((t["task"], kind, doc.get("seed", 0)), {})
             cells.setdefault(blas, [])
             cells[blas] += [cell] if cell not in cells[blas] else []
-    head = ["task", "run", "seed", *(f"goal met, {k} kernels" for k in kernels)]
+    head = ["task", "run", "seed", *(f"goal met, {k}" for k in kernels)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     first = {}  # (a task's rows together, where it first appears; then by kind and seed)
     for task, _, _ in rows:
