@@ -92,9 +92,9 @@ def realize(
             if sol.reason == "interrupted" and not stop_on_interrupt:
                 raise KeyboardInterrupt
             break
-    X, Uphys, how = handoff(task, x, sol)
+    X, Uphys, how, cost = handoff(task, x, sol)
     stopped = sol.reason if sol.reason in ("interrupted", "callback") else None
-    return Realized(Uphys, X, stages, how, float(task.cost.total(X, Uphys)), stopped)
+    return Realized(Uphys, X, stages, how, cost, stopped)
 
 
 def _stage_record(weight: float, sol: Solution, nu: int, seconds: float) -> dict:
@@ -114,10 +114,11 @@ def _stage_record(weight: float, sol: Solution, nu: int, seconds: float) -> dict
 
 
 def handoff(task: Task, x0: np.ndarray, sol: Solution):
-    """(X, U, how): the last stage's plan on the task's own plant (no virtual actuators):
+    """(X, U, how, cost): the last stage's plan on the task's own plant (no virtual actuators):
     its actuators' controls open loop (``how``: "open_loop") or under its feedback gains
     ("feedback"), whichever costs less on the task (a failed rollout costs inf); U clipped
-    to the effort limits (what the plant applies, so X is their rollout)."""
+    to the effort limits (what the plant applies, so X is their rollout); cost: the task's
+    cost of it."""
     dyn = task.dynamics
     nu = dyn.nu
     Ubar = sol.U[:, :nu]
@@ -137,8 +138,9 @@ def handoff(task: Task, x0: np.ndarray, sol: Solution):
             pass
     if not tries:
         raise SimulationError("initial_guess.realize: the last stage's plan fails on the plant")
-    how = min(tries, key=lambda k: task.cost.total(*tries[k]))
-    return *tries[how], how
+    costs = {k: float(task.cost.total(*xu)) for k, xu in tries.items()}
+    how = min(costs, key=costs.get)
+    return *tries[how], how, costs[how]
 
 
 def assert_physical(task: Task, sol: Solution) -> None:

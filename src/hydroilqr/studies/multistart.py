@@ -59,6 +59,17 @@ def perturbation(U0: np.ndarray, effort_limits: np.ndarray, noise: float, seed: 
     return U0 + noise * scale * s
 
 
+def guess_start(task, noise: float = 0.0, seed: int = 0, k: int = 0) -> np.ndarray:
+    """Start ``k``'s controls: the task's initial guess (a receding task's: its first
+    window's), [N, nu], perturbed as ``perturbation`` of run ``k`` with ``noise`` (k = 0 or
+    noise 0: as is). What iLQR alone starts from in multi-start and robustness, and the
+    search's polish of the task's own guess (``search.polish_guess``)."""
+    rh = task.config.receding_horizon
+    U0 = task.initial_guess(rh.window_steps if rh is not None else task.config.steps)
+    limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
+    return perturbation(U0, limits, noise, seed, k)
+
+
 @dataclass
 class StartResult:
     """One start: its index, its solution (None if it failed) and what it achieved."""
@@ -100,12 +111,10 @@ def solve_start(task_ref: dict, k: int, seed: int, noise: float) -> StartResult:
         task = Task.load(
             task_ref["name"], task_ref["overrides"], task_ref["config"], task_ref["smoke"]
         )
-        rh = task.config.receding_horizon  # (a receding task: its first window's guess)
-        U0 = task.initial_guess(rh.window_steps if rh is not None else task.config.steps)
-        limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
+        U0 = guess_start(task, noise, seed, k)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            res.solution = solve(task, U0=perturbation(U0, limits, noise, seed, k))
+            res.solution = solve(task, U0=U0)
         res.metrics = metrics_mod.compute(task, res.solution)
         res.goal = evaluate(task.config.goal, res.metrics)
     except Exception as e:  # noqa: BLE001 - a failed start is data; the others go on

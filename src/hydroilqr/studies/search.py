@@ -47,7 +47,7 @@ from hydroilqr.solver import search as search_mod
 from hydroilqr.solver.api import solve
 from hydroilqr.solver.receding import files_fingerprint
 from hydroilqr.studies.cluster import kill_workers, open_client
-from hydroilqr.studies.multistart import StartResult, _close, perturbation
+from hydroilqr.studies.multistart import StartResult, _close, guess_start, perturbation
 from hydroilqr.studies.robustness import played_back
 
 #: Per worker process: the task and search space of the last task reference it evaluated.
@@ -322,14 +322,6 @@ def polish_starts(task, space, result, noise: float = 0.0, seed: int = 0, k: int
     if space.settings.polish_guess:
         out.append((guess_start(task, noise, seed, k), True))
     return out
-
-
-def guess_start(task, noise: float = 0.0, seed: int = 0, k: int = 0) -> np.ndarray:
-    """The task's initial guess over its horizon, [N, nu], as iLQR alone starts from it
-    (``multistart.perturbation`` of run ``k`` with ``noise``; k = 0 or noise 0: as is)."""
-    U0 = task.initial_guess(task.config.steps)
-    limits = getattr(task.dynamics, "effort_limits", np.full(U0.shape[1], np.inf))
-    return perturbation(U0, limits, noise, seed, k)
 
 
 def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLESS_SECONDS):
