@@ -4,6 +4,8 @@ update fits its period (mpc.lockstep_latency)."""
 
 from pathlib import Path
 
+import pytest
+
 from hydroilqr.studies.robustness import loop_run
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "hopper-mpc-hop.yaml"
@@ -19,6 +21,7 @@ def _ref(*overrides: str) -> dict:
     }
 
 
+@pytest.mark.slow  # three full-size closed loops, each from the built-in's offline solve
 def test_hopper_hop_loop_meets_its_goal_across_perturbed_runs():
     """Two loops whose first plans start from the guess perturbed by a relative 1e-9 (runs 1
     and 2 of `hydroilqr robustness --mpc`), and one on a simulated hopper whose ground has
