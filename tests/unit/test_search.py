@@ -461,7 +461,7 @@ def test_a_robustness_run_with_search_searches_with_its_own_seed_and_polishes():
     from hydroilqr.studies.search import search_start
 
     name = "pusher-puck"
-    one = ["search.polish=1", "search.polish_guess=false"]
+    one = ["search.polish=1", "search.polish_guess=false", "search.restarts=0"]
     ref = {"name": name, "overrides": one, "config": None, "smoke": True}
     r = search_start(ref, 2, 3)  # run 2 of seed 3: the search's seed 4
     assert not r.error and r.solution is not None and "met" in r.goal
@@ -491,7 +491,7 @@ def test_the_tasks_guess_is_polished_last_as_ilqr_alone_solves_it():
     from hydroilqr.studies.multistart import solve_start
     from hydroilqr.studies.search import guess_start, polish_one, polish_starts, search_start
 
-    name, over = "pusher-puck", ["search.polish=2"]
+    name, over = "pusher-puck", ["search.polish=2", "search.restarts=0"]
     task = Task.load(name, over, smoke=True)
     assert task.config.search.polish_guess and task.config.continuation
     space, res = run_search(task)
