@@ -100,6 +100,7 @@ def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path, dask_schedule
     """The built-in with a search: section: `check` passes it, and `solve --smoke` runs its
     (smoke-sized) search and polish and writes the result set with both."""
     from hydroilqr.problem.files import list_tasks
+    from hydroilqr.solver.search import restart_seed
 
     assert "pusher-puck" in list_tasks()
     assert main(["check", "pusher-puck"]) == 0
@@ -108,4 +109,12 @@ def test_the_pusher_puck_builtin_checks_and_smoke_solves(tmp_path, dask_schedule
     assert main([*argv, "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())["search"]
     assert s["settings"]["space"] == "position"
-    assert [r["start"] for r in s["polish"]["results"]] == ["sample", "guess"]
+    # a smoke solve (0.5 s of motion) cannot meet the goal: its one restart (--smoke keeps
+    # at most one of search.restarts) searches again and polishes a sample, not the guess
+    assert [r["seed"] for r in s["restarts"]] == [restart_seed(0, 1)]
+    results = s["polish"]["results"]
+    assert [(r["start"], r.get("search", 0)) for r in results] == [
+        ("sample", 0),
+        ("guess", 0),
+        ("sample", 1),
+    ]

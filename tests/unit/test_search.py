@@ -206,11 +206,16 @@ def test_samples_stay_within_the_bounds():
         ("search.robust_runs=0", "search.robust_runs"),
         ("search.robust_noise=0", "search.robust_noise"),
         ("search.robust_noise=nan", "search.robust_noise"),
+        ("search.restarts=-1", "search.restarts"),
+        ("search.restarts=101", "search.restarts"),
+        # a restart is decided by the polished plans' goal: none to polish, no goal: refused
+        ("search.restarts=1 search.polish=0", "search.restarts"),
+        ("search.restarts=1 goal={}", "search.restarts"),
     ],
 )
 def test_bad_search_settings_are_refused_in_one_line(override, words):
     with pytest.raises(ConfigError) as e:
-        load_task("cartpole-wall", [override])
+        load_task("cartpole-wall", override.split(" "))
     assert str(e.value).startswith(words) and "\n" not in str(e.value)
 
 
@@ -220,6 +225,15 @@ def test_search_settings_load_and_smoke_shrinks_them():
     assert load_task("cartpole-wall").search is None
     small = load_task("cartpole-wall", ["search.method=cem"], smoke=True).search
     assert small.samples < cfg.search.samples and small.knots <= 3
+    from hydroilqr.problem.smoke import shrink_search
+
+    for shrink, left in (({}, 1), ({"search.restarts": 3}, 3)):  # (a smoke: section's own wins)
+        data = {"search": {"restarts": 3}}
+        shrink_search(data, shrink)
+        assert data["search"]["restarts"] == left
+    data = {"search": {}}
+    shrink_search(data, {})
+    assert "restarts" not in data["search"]  # (none: the default 0)
 
 
 # ---------------------------------------------------------------------------- plants
@@ -447,7 +461,7 @@ def test_a_robustness_run_with_search_searches_with_its_own_seed_and_polishes():
     from hydroilqr.studies.search import search_start
 
     name = "pusher-puck"
-    one = ["search.polish=1", "search.polish_guess=false"]
+    one = ["search.polish=1", "search.polish_guess=false", "search.restarts=0"]
     ref = {"name": name, "overrides": one, "config": None, "smoke": True}
     r = search_start(ref, 2, 3)  # run 2 of seed 3: the search's seed 4
     assert not r.error and r.solution is not None and "met" in r.goal
@@ -477,7 +491,7 @@ def test_the_tasks_guess_is_polished_last_as_ilqr_alone_solves_it():
     from hydroilqr.studies.multistart import solve_start
     from hydroilqr.studies.search import guess_start, polish_one, polish_starts, search_start
 
-    name, over = "pusher-puck", ["search.polish=2"]
+    name, over = "pusher-puck", ["search.polish=2", "search.restarts=0"]
     task = Task.load(name, over, smoke=True)
     assert task.config.search.polish_guess and task.config.continuation
     space, res = run_search(task)
@@ -508,3 +522,75 @@ def test_a_robustness_record_says_which_polished_start_was_chosen():
     polish = {"chosen": 3, "start": "guess", "goal_met": [False, False, False, True]}
     assert RunResult(task="t", index=1, polish=polish).record()["polish"] == polish
     assert "polish" not in RunResult(task="t", index=1).record()  # iLQR alone: none
+
+
+# ---------------------------------------------------------------------------- restarts
+
+#: A smoke problem whose goal no plan meets (every restart runs) and one whose goal any meets.
+NEVER = [
+    "num_steps=10",
+    "search.samples=4",
+    "search.iterations=2",
+    "search.knots=3",
+    "search.polish=2",
+    "search.polish_guess=false",
+    "search.restarts=2",
+    "solver.max_iterations=5",
+    "goal={final_angle_error_rad: {max: 1.0e-12}}",
+]
+ALWAYS = [*NEVER[:-1], "goal={final_angle_error_rad: {max: 10.0}}"]
+
+
+def test_a_restarts_seed_comes_from_the_seed_and_its_number():
+    """Restart r's seed: the seed itself for r = 0, else drawn from (seed, r): the same for
+    the same pair, distinct across restarts and from the seeds seed + i that robustness's
+    other runs and a receding search's windows use."""
+    from hydroilqr.solver.search import restart_seed
+
+    assert restart_seed(7, 0) == 7
+    seeds = [restart_seed(s, r) for s in range(20) for r in range(1, 4)]
+    assert seeds == [restart_seed(s, r) for s in range(20) for r in range(1, 4)]
+    assert len(set(seeds)) == len(seeds) and not set(seeds) & set(range(40))
+    assert all(0 <= s < 2**31 for s in seeds)
+
+
+def test_restarts_search_again_while_no_polished_plan_meets_the_goal(dask_scheduler):
+    """``search.restarts``: no polished plan meets the goal, so the search runs again with each
+    restart's seed and its best samples are polished too (numbered on, tagged with their
+    restart), the same with 1 worker and 2 and in a robustness run's own process; a plan
+    that meets the goal in the first round stops them."""
+    from hydroilqr.model.task import Task
+    from hydroilqr.solver.search import restart_seed
+    from hydroilqr.solver.search import run_search as search_here
+    from hydroilqr.studies.search import run_search, search_start
+
+    ref = {"name": "cartpole-wall", "overrides": NEVER, "config": None, "smoke": False}
+    runs = [run_search(ref, workers=1, polish=True),
+            run_search(ref, scheduler=dask_scheduler, polish=True)]  # fmt: skip
+    for run in runs:
+        assert [(r.restart, r.seed) for r in run.restarts] == [(1, restart_seed(0, 1)),
+                                                               (2, restart_seed(0, 2))]  # fmt: skip
+        assert [r.index for r in run.polished] == list(range(6))
+        assert [r.search for r in run.polished] == [0, 0, 1, 1, 2, 2]
+        assert not run.met() and run.chosen is not None
+        rec = run.record()
+        assert [r["seed"] for r in rec["restarts"]] == [r.seed for r in run.restarts]
+        assert [r.get("search", 0) for r in rec["polish"]["results"]] == [0, 0, 1, 1, 2, 2]
+    one, two = runs
+    for a, b in zip(one.restarts, two.restarts):
+        assert np.array_equal(a.result.costs, b.result.costs)
+    assert [r.cost for r in one.polished] == [r.cost for r in two.polished]
+    assert one.chosen == two.chosen
+    # restart 1's search is the search of its seed
+    task = Task.load("cartpole-wall", [*NEVER, f"search.seed={restart_seed(0, 1)}"])
+    _, alone = search_here(task)
+    assert np.array_equal(alone.costs, one.restarts[0].result.costs)
+    # a robustness run (seed 0, run 1: the search's seed 0) restarts alike in its own process
+    here = search_start(ref, 1, 0)
+    assert not here.error and here.polish["restarts"] == 2
+    assert len(here.polish["goal_met"]) == 6 and here.solution.final_cost == pytest.approx(
+        one.polished[one.chosen].cost
+    )
+    met = run_search({**ref, "overrides": ALWAYS}, scheduler=dask_scheduler, polish=True)
+    assert met.met() and not met.restarts and len(met.polished) == 2
+    assert search_start({**ref, "overrides": ALWAYS}, 1, 0).polish["restarts"] == 0

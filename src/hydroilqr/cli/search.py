@@ -121,6 +121,12 @@ def print_search_line(srun, wall: float) -> None:
         f"{wall:.1f} s in all",
         soft_wrap=True,
     )
+    for rs in getattr(srun, "restarts", []):
+        console.print(
+            f"restart {rs.restart} (seed {rs.seed}): best cost {rs.result.best.cost:.6g}, "
+            f"{rs.result.samples} samples in {rs.result.seconds:.1f} s",
+            soft_wrap=True,
+        )
 
 
 def write(task, srun, out: Path, args, wall: float) -> dict:

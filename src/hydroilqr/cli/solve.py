@@ -296,16 +296,23 @@ def _search_then_polish(task, args):
         f"search: {sc.method} over {sc.knots} knots ({sc.space} space), {sc.samples} samples x "
         f"{sc.iterations} iterations on {where}, then iLQR from the best {sc.polish}"
         + (" and from the task's guess" if sc.polish_guess and sc.polish > 0 else "")
+        + (f"; up to {sc.restarts} restart(s) while none meets the goal" if sc.restarts else "")
     )
     ref = _worker_ref(args)
 
     def polished(r) -> None:
         what = " (the task's guess)" if getattr(r, "guess", False) else ""
+        what += f" (restart {r.search})" if getattr(r, "search", 0) else ""
         console.print(f"  polish {r.index}{what}: {start_line(r.record())}", soft_wrap=True)
+
+    def restarting(restart: int, seed: int) -> None:
+        console.print(f"restart {restart} (seed {seed}): no polished plan met the goal")
 
     t0 = time.perf_counter()
     with SearchProgress(total_iterations(task.config), console) as prog:
-        srun = run_search(ref, scheduler_arg(args), args.workers, prog.update, True, polished)
+        srun = run_search(
+            ref, scheduler_arg(args), args.workers, prog.update, True, polished, restarting
+        )
     print_search_line(srun, time.perf_counter() - t0)
     if srun.polished:
         chosen = "none finished" if srun.chosen is None else f"polish {srun.chosen}"

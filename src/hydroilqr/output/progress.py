@@ -88,6 +88,8 @@ class SearchProgress(_Bar):
 
     def update(self, info: dict) -> None:
         text = f"best {info['best_cost']:.5g}, median {info['median']:.4g}"
+        if info.get("restart"):
+            text = f"restart {info['restart']}: {text}"
         if info.get("failed"):
             text += f", {info['failed']} failed"
         self.progress.update(self.id, completed=info["iteration"] + 1, info=text)

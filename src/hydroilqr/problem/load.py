@@ -161,7 +161,7 @@ def validate(cfg: TaskConfig) -> None:
     validate_goal(cfg.goal)
     validate_cost(cfg.cost)
     validate_receding_horizon(cfg.receding_horizon)
-    validate_search(cfg.search, cfg.steps)
+    validate_search(cfg.search, cfg.steps, bool(cfg.goal))
     if isinstance(cfg.initial_guess, PositionGuess):
         validate_position_guess(cfg.initial_guess)
         validate_realize_use(cfg)

@@ -48,6 +48,9 @@ class SearchConfig:
     # cost; transfer: the first whose PD+ playback (half speed, finer simulation) meets it;
     # robust: the one whose perturbed re-solves (robust_runs, robust_noise) meet it most often
     select: str = "goal"
+    # solve: while no polished plan meets the task's goal, search again (a seed drawn from
+    # seed and the restart's number) and polish that search's best, at most this many times
+    restarts: int = 0
     robust_runs: int = 3  # select robust: re-solves per polished candidate that meets the goal
     # select robust: each re-solve's relative perturbation of the candidate's torques (as
     # ``hydroilqr robustness --noise``)
@@ -72,9 +75,9 @@ def check_searchable(cfg) -> None:
         )
 
 
-def validate_search(sc: SearchConfig | None, steps: int) -> None:
+def validate_search(sc: SearchConfig | None, steps: int, goal: bool = True) -> None:
     """ConfigError naming the first invalid ``search:`` setting (none: nothing to check) of a
-    task of ``steps`` time steps."""
+    task of ``steps`` time steps (``goal``: whether the task declares one)."""
     if sc is None:
         return
     for key, value, choices in (
@@ -96,6 +99,7 @@ def validate_search(sc: SearchConfig | None, steps: int) -> None:
         ("polish", 0 <= sc.polish <= 100, "from 0 to 100"),
         ("batches", 0 <= sc.batches <= 10_000, "from 0 (one per worker) to 10000"),
         ("robust_runs", 1 <= sc.robust_runs <= 100, "from 1 to 100"),
+        ("restarts", 0 <= sc.restarts <= 100, "from 0 to 100"),
         ("knots", sc.knots <= (sc.window_steps or steps), "at most search.window_steps"),
         ("window_steps", sc.window_steps >= 0, ">= 0 (0: the whole horizon at once)"),
         (
@@ -118,3 +122,8 @@ def validate_search(sc: SearchConfig | None, steps: int) -> None:
     ):
         if not ok:  # (NaN fails every comparison)
             raise ConfigError(f"search.{name}: must be {rule}, got {getattr(sc, name)!r}")
+    if sc.restarts and not (goal and sc.polish >= 1):
+        raise ConfigError(
+            f"search.restarts: {sc.restarts} needs search.polish >= 1 and a goal: section (a "
+            "restart searches again when no polished plan meets the goal)"
+        )

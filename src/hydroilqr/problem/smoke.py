@@ -51,13 +51,15 @@ SEARCH_SMOKE = {"samples": 6, "iterations": 2, "elites": 2, "polish": 1, "robust
 
 
 def shrink_search(shrunk: dict[str, Any], shrink: dict[str, Any]) -> None:
-    """A smoke-sized search: a few samples and iterations, at most 3 knots."""
+    """A smoke-sized search: a few samples and iterations, at most 3 knots, 1 restart."""
     search = shrunk.get("search")
     if not isinstance(search, dict):
         return
     for key, value in SEARCH_SMOKE.items():
         if f"search.{key}" not in shrink:
             search[key] = value
+    if "search.restarts" not in shrink and isinstance(search.get("restarts"), int):
+        search["restarts"] = min(search["restarts"], 1)  # (the restart still runs)
     if "search.knots" not in shrink and isinstance(search.get("knots", 8), int):
         search["knots"] = min(search.get("knots", 8), 3)
 

@@ -172,6 +172,16 @@ def run_search(
     return space, result
 
 
+def restart_seed(seed: int, restart: int) -> int:
+    """The seed of a search's restart ``restart`` (``search.restarts``; 0: ``seed`` itself):
+    numpy's SeedSequence of (seed, restart), so that the restarts of a seed are independent of
+    each other and of the searches seeded seed + 1, seed + 2, ... (robustness's other runs, a
+    receding search's windows). -> an int in [0, 2**31)"""
+    if restart == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(restart)]).generate_state(1)[0] >> 1)
+
+
 def search_window(task, space: SearchSpace, nominal, evaluate=None, keep=1, on_iteration=None):
     """``sampling.search`` over ``space`` (its start state and time) from knots ``nominal``:
     [K, nu]; ``evaluate(commands, x0, t0)`` (default: this process)."""

@@ -16,7 +16,10 @@ lowest final cost (``cost``); the first whose PD+ playback at half speed on the 
 simulation meets the goal, else as ``goal`` (``transfer``); among those that meet the goal,
 the one whose ``search.robust_runs`` perturbed re-solves (iLQR from its torques perturbed by a
 relative ``search.robust_noise``, as ``hydroilqr robustness`` perturbs a guess) meet it most
-often, the first on a tie, else as ``goal`` (``robust``).
+often, the first on a tie, else as ``goal`` (``robust``). With ``search.restarts``, while no
+polished plan meets the goal the search runs again from restart r's seed (``solver.search.
+restart_seed``) and its best samples are polished too (``_restart``; in a robustness run's
+own process ``_restart_here``), all read by ``select`` in order.
 
 ``throughput(task_ref, worker_counts, ...)`` measures samples per second with each number of
 workers side by side, and the fixed cost of a batch.
@@ -171,6 +174,28 @@ def load(task_ref: dict) -> Task:
 
 
 @dataclass
+class Restart:
+    """A search run again (``search.restarts``): its number (1, 2, ...), seed, space and
+    sampling result; its polished plans are in the run's ``polished``, their ``search`` its
+    number."""
+
+    restart: int
+    seed: int
+    space: object
+    result: object
+
+    def record(self) -> dict:
+        out = search_mod.record(self.space, self.result)
+        del out["settings"]  # (the first search's, but for the seed)
+        return {"restart": self.restart, "seed": self.seed, **out}
+
+
+def restart_settings(settings, restart: int):
+    """The search settings of restart ``restart``: the seed ``solver.search.restart_seed``."""
+    return dataclasses.replace(settings, seed=search_mod.restart_seed(settings.seed, restart))
+
+
+@dataclass
 class SearchRun:
     """A search's outcome: the space, the sampling result, the best sample as a Solution."""
 
@@ -182,10 +207,16 @@ class SearchRun:
     chosen: int | None = None  # index into polished
     polish_interrupted: bool = False  # Ctrl+C during the polish: the finished ones kept
     lost: str | None = None  # every worker gone: why the search or polish stopped early
+    restarts: list = field(default_factory=list)  # Restart per search run again
 
     @property
     def interrupted(self) -> bool:
-        return bool(self.result.interrupted or self.polish_interrupted) and self.lost is None
+        stopped = self.result.interrupted or any(r.result.interrupted for r in self.restarts)
+        return bool(stopped or self.polish_interrupted) and self.lost is None
+
+    def met(self) -> bool:
+        """Whether a polished plan meets the task's goal."""
+        return any(r.goal.get("met") is True for r in self.polished)
 
     def record(self) -> dict:
         """summary.json's ``search``: the search (``solver.search.record``), and the polish."""
@@ -193,6 +224,8 @@ class SearchRun:
         out["workers"] = self.workers
         if self.lost is not None:
             out["workers_lost"] = self.lost
+        if self.restarts:
+            out["restarts"] = [r.record() for r in self.restarts]
         if self.polished or self.polish_interrupted:
             out["polish"] = {
                 "select": self.space.settings.select,
@@ -217,9 +250,11 @@ def run_search(
     on_iteration=None,
     polish: bool = False,
     on_polish=None,
+    on_restart=None,
 ) -> SearchRun:
     """The task's search on Dask (and, with ``polish``, iLQR from its best
-    ``search.polish`` samples on the same workers); Ctrl+C keeps the best so far."""
+    ``search.polish`` samples on the same workers, then ``search.restarts``: ``_restart``,
+    ``on_restart(restart, seed)`` before each); Ctrl+C keeps the best so far."""
     task = load(task_ref)
     client, cluster = open_client(scheduler, workers)
     try:
@@ -235,6 +270,7 @@ def run_search(
             run.polished, run.polish_interrupted, run.lost = _polish(
                 client, task, task_ref, space, result, on_polish, ev.patience
             )
+            _restart(run, client, task, task_ref, ev, on_iteration, on_polish, on_restart)
             run.chosen = select(run.polished, space.settings.select)
         if (run.interrupted or run.lost) and cluster is not None:
             kill_workers(cluster)  # (their unfinished batches or solves are abandoned)
@@ -257,10 +293,13 @@ class PolishResult(StartResult):
     transfer: dict | None = None
     robust: dict | None = None
     guess: bool = False
+    search: int = 0  # the search its start came from: 0 the first, r restart r
 
     def record(self) -> dict:
         out = super().record()
         out["start"] = "guess" if self.guess else "sample"
+        if self.search:
+            out["search"] = self.search
         if self.transfer is not None:
             out["transfer"] = self.transfer
         if self.robust is not None:
@@ -313,39 +352,48 @@ def polish_one(
     return res
 
 
-def polish_starts(task, space, result, noise: float = 0.0, seed: int = 0, k: int = 0):
+def polish_starts(
+    task, space, result, noise: float = 0.0, seed: int = 0, k: int = 0, with_guess: bool = True
+):
     """The polish's starts, in the order ``select`` reads them: (U0 [N, nu], guess) per
-    candidate sample (its rollout's torques), then with ``search.polish_guess`` the task's
-    own initial guess (with ``noise``: perturbed as run ``k`` of ``hydroilqr robustness
-    --seed SEED`` perturbs it for iLQR alone, ``guess_start``)."""
+    candidate sample (its rollout's torques), then with ``search.polish_guess`` (and
+    ``with_guess``: not in a restart, whose guess is the same) the task's own initial guess
+    (with ``noise``: perturbed as run ``k`` of ``hydroilqr robustness --seed SEED`` perturbs
+    it for iLQR alone, ``guess_start``)."""
     out = [(space.rollout(task, cand.command).U, False) for cand in result.candidates]
-    if space.settings.polish_guess:
+    if space.settings.polish_guess and with_guess:
         out.append((guess_start(task, noise, seed, k), True))
     return out
 
 
-def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLESS_SECONDS):
-    """iLQR from each start (``polish_starts``) as Dask jobs: (results in that order,
-    interrupted, why the workers were lost or None); with ``select: robust``, each plan that
-    meets the goal is then re-solved from perturbed torques (``perturbed_starts``). Ctrl+C or
-    the loss of every worker keeps the ones that had finished."""
+def _polish(
+    client, task, task_ref, space, result, on_polish, patience=WORKERLESS_SECONDS, restart=0,
+    first=0,
+):  # fmt: skip
+    """iLQR from each start (``polish_starts``; a restart's without the guess) as Dask jobs,
+    numbered from ``first``: (results in that order, interrupted, why the workers were lost
+    or None); with ``select: robust``, each plan that meets the goal is then re-solved from
+    perturbed torques (``perturbed_starts``). Ctrl+C or the loss of every worker keeps the
+    ones that had finished."""
     cfg = space.settings
     transfer = cfg.select == "transfer"
-    starts = polish_starts(task, space, result)
+    starts = polish_starts(task, space, result, with_guess=restart == 0)
     futures = [
-        client.submit(polish_one, task_ref, U0, i, transfer, guess, pure=False, key=f"polish-{i}")
+        client.submit(polish_one, task_ref, U0, first + i, transfer, guess, pure=False,
+                      key=f"polish-{first + i}")
         for i, (U0, guess) in enumerate(starts)
-    ]
+    ]  # fmt: skip
     out: list[StartResult] = []
     again: dict = {}
     try:
         for fut in futures:
             (r,) = gather_within(client, [fut], patience)
+            r.search = restart
             out.append(r)
             if on_polish is not None:
                 on_polish(r)
             if cfg.select == "robust" and r.goal.get("met") is True:
-                U0, guess = starts[r.index]
+                U0, guess = starts[r.index - first]
                 again[r.index] = [  # (while the other candidates' polishes run)
                     client.submit(
                         polish_one,
@@ -367,6 +415,34 @@ def _polish(client, task, task_ref, space, result, on_polish, patience=WORKERLES
     except WorkersLost as e:
         return out, True, str(e)
     return out, False, None
+
+
+def _restart(run, client, task, task_ref, ev, on_iteration=None, on_polish=None, on_restart=None):
+    """``search.restarts``: while no plan in ``run.polished`` meets the task's goal (and
+    nothing stopped the run), the search again with restart r's seed (``restart_settings``)
+    on the same workers, and the polish of its best samples (the guess is not polished
+    again), appended to ``run.polished`` and ``run.restarts``."""
+    cfg = run.space.settings
+    for r in range(1, cfg.restarts + 1):
+        if run.met() or run.interrupted or run.lost:
+            return
+        settings = restart_settings(cfg, r)
+        if on_restart is not None:
+            on_restart(r, settings.seed)
+        tagged = None if on_iteration is None else _tag_restart(on_iteration, r)
+        space, result = search_mod.run_search(task, ev, settings, ev.stop(tagged))
+        run.restarts.append(Restart(r, settings.seed, space, result))
+        run.lost = ev.lost
+        if result.interrupted:
+            return
+        more, run.polish_interrupted, run.lost = _polish(
+            client, task, task_ref, space, result, on_polish, ev.patience, r, len(run.polished)
+        )
+        run.polished += more
+
+
+def _tag_restart(on_iteration, restart: int):
+    return lambda info: on_iteration({**info, "restart": restart})
 
 
 def select(polished: list, how: str = "goal") -> int | None:
@@ -479,6 +555,7 @@ def search_start(task_ref: dict, k: int, seed: int, noise: float = 0.0) -> Searc
         space, result = search_mod.run_search(task)
         starts = polish_starts(task, space, result, noise, seed, k)
         polished = _polish_here(task, ref, space, result, starts)
+        restarts = _restart_here(task, ref, space.settings, polished)
         chosen = select(polished, space.settings.select)
         if chosen is None:
             raise RuntimeError("no polished candidate finished: " + polished[0].error)
@@ -489,6 +566,8 @@ def search_start(task_ref: dict, k: int, seed: int, noise: float = 0.0) -> Searc
             "start": "guess" if best.guess else "sample",
             "goal_met": [r.goal.get("met") for r in polished],
         }
+        if space.settings.restarts:
+            res.polish["restarts"] = restarts
     except Exception as e:  # noqa: BLE001 - a failed run is data; the others go on
         first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         res.error = f"{type(e).__name__}: {first}"[:300]
@@ -496,13 +575,30 @@ def search_start(task_ref: dict, k: int, seed: int, noise: float = 0.0) -> Searc
     return res
 
 
-def _polish_here(task, task_ref: dict, space, result, starts=None) -> list:
+def _restart_here(task, task_ref: dict, settings, polished: list) -> int:
+    """``_restart`` in this process: while no plan in ``polished`` meets the goal, restart r's
+    search and polish (appended to ``polished``), at most ``search.restarts`` times. -> the
+    restarts run."""
+    done = 0
+    for r in range(1, settings.restarts + 1):
+        if any(p.goal.get("met") is True for p in polished):
+            break
+        space, result = search_mod.run_search(task, settings=restart_settings(settings, r))
+        starts = polish_starts(task, space, result, with_guess=False)
+        polished += _polish_here(task, task_ref, space, result, starts, r, len(polished))
+        done = r
+    return done
+
+
+def _polish_here(task, task_ref: dict, space, result, starts=None, restart=0, first=0) -> list:
     """``_polish`` in this process (a Dask job's own): each start's polish (``starts``:
-    default ``polish_starts``), and with ``select: robust`` its perturbed re-solves."""
+    default ``polish_starts``), numbered from ``first``, and with ``select: robust`` its
+    perturbed re-solves."""
     cfg = space.settings
     out = []
-    for i, (U0, guess) in enumerate(starts or polish_starts(task, space, result)):
+    for i, (U0, guess) in enumerate(starts or polish_starts(task, space, result), first):
         r = polish_one(task_ref, U0, i, cfg.select == "transfer", guess)
+        r.search = restart
         if cfg.select == "robust" and r.goal.get("met") is True:
             again = [polish_one(task_ref, U, i, False, guess)
                      for U in perturbed_starts(task, cfg, U0)]  # fmt: skip
