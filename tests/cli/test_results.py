@@ -147,6 +147,24 @@ def test_each_robustness_part_names_its_python_and_drake(tmp_path):
     assert "Python 3.11.7, Drake 1.51.1" in text and "Python 3.12.1, Drake 1.56.0" in text
 
 
+def test_a_record_says_what_was_removed_from_it(tmp_path):
+    """A record edited after its run (a superseded task's entries taken out, its ``removed``
+    saying which and why) is read as any other, and its line names what went."""
+    from pathlib import Path
+
+    from hydroilqr.studies.results import Context, robustness_table
+
+    src = Path(__file__).resolve().parents[2] / "docs" / "robustness" / "finger-spin"
+    doc = json.loads((src / "robustness.json").read_text())
+    doc["removed"] = {"kinova-up": "superseded"}
+    (tmp_path / "robustness" / "a").mkdir(parents=True)
+    (tmp_path / "robustness" / "a" / "robustness.json").write_text(json.dumps(doc))
+    context = Context(command="hydroilqr results", smoke=False, out=str(tmp_path))
+    text = robustness_table([], context).markdown
+    assert "Since removed: `kinova-up` (superseded)." in text
+    assert "| `finger-spin` | solve |" in text and "| `kinova-up` |" not in text
+
+
 def test_the_search_section_puts_ilqr_alone_beside_search_and_polish(tmp_path):
     """A task with a ``robustness --search`` record: its pass rate beside iLQR alone's, per
     kernel set, with the median run time; the throughput records' samples per second with

@@ -103,10 +103,6 @@ def searched_tasks() -> frozenset:
 #: the entry goes), and the test after it fails on any shortfall of a task not listed.
 KNOWN_SHORT = {
     "pusher-puck": "issue 51: search + polish meets its goal in 7 of 10 Haswell, 8 of 10 SkylakeX",
-    "kinova-up": (
-        "issue 55: 7 of 10 on Python 3.12 + Drake 1.56.0 (10 and 9 of 10 on 3.11): its soft "
-        "continuation stage's plan does not carry over to the real ball in those runs"
-    ),
 }
 
 

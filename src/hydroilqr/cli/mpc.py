@@ -193,7 +193,9 @@ def _print_header(task, settings) -> None:
     console.print(
         f"[bold]mpc {task.name}[/bold]: {settings.rate:g} Hz, horizon "
         f"{horizon}, {per_update}, "
-        f"{'real time' if settings.realtime else 'lock-step'}, {settings.duration:g} s"
+        f"{'real time' if settings.realtime else 'lock-step'}"
+        + (f" (latency {settings.lockstep_latency:g} s)" if settings.lockstep_latency else "")
+        + f", {settings.duration:g} s"
     )
     if settings.truth_overrides:
         console.print(f"simulated plant differs: {', '.join(settings.truth_overrides)}")
@@ -233,6 +235,12 @@ def _print_summary(data: dict, settings, task) -> None:
         f"{data['controller_realtime_factor']:.2f}, loop real-time factor "
         f"{data['realtime_factor']:.2f}"
     )
+    cpu = data.get("solve_cpu_seconds")
+    if cpu:  # the process's own time: what an idle core would take
+        console.print(
+            f"CPU per update: p50 {1e3 * cpu['p50']:.1f} ms, p95 {1e3 * cpu['p95']:.1f} ms, "
+            f"max {1e3 * cpu['max']:.1f} ms"
+        )
     sp = data.get("sampling")
     if sp:
         console.print(

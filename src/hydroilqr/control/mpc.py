@@ -111,6 +111,9 @@ class MPCResult:
     first_plan: dict = field(default_factory=dict)
     # mpc.planner sampling / hybrid: per update, the sampler's samples, seconds and costs
     sampling: list[dict] = field(default_factory=list)
+    # process (CPU) seconds of each update, all threads of this process: unlike the wall
+    # seconds, not lengthened by other processes on a shared machine
+    cpu_seconds: list[float] = field(default_factory=list)
 
     def _achieved_rate(self, sim: float, period: float) -> float:
         """Updates after the first plan per second of the time they could have run in: the
@@ -135,6 +138,7 @@ class MPCResult:
             "iterations_per_update": self.settings.iterations_per_update,
             "mean_iterations": float(np.mean(self.iterations)) if self.iterations else 0.0,
             "realtime_mode": self.settings.realtime,
+            "lockstep_latency_s": self.settings.lockstep_latency,
             "delay_compensation": self.settings.delay_compensation,
             "threads": self.settings.threads,
             "derivatives": self.settings.derivatives,
@@ -144,6 +148,7 @@ class MPCResult:
                 "max": float(np.max(s)),
                 "mean": float(np.mean(s)),
             },
+            "solve_cpu_seconds": _percentiles(self.cpu_seconds),
             "controller_realtime_factor": period / float(np.mean(s)) if np.mean(s) > 0 else None,
             "realtime_factor": sim / self.wall_seconds if self.wall_seconds > 0 else None,
             "wall_seconds": self.wall_seconds,
@@ -196,6 +201,19 @@ class MPCResult:
             "mpc",
             "",
         )
+
+
+def _percentiles(seconds: list[float]) -> dict | None:
+    """p50, p95, max and mean of per-update seconds (None: no update)."""
+    if not seconds:
+        return None
+    s = np.array(seconds, float)
+    return {
+        "p50": float(np.percentile(s, 50)),
+        "p95": float(np.percentile(s, 95)),
+        "max": float(s.max()),
+        "mean": float(s.mean()),
+    }
 
 
 def sampling_stats(per_update: list[dict]) -> dict | None:
@@ -368,6 +386,7 @@ class ClosedLoop:
         self.x = task.x0.copy()
         self.X, self.U, self.U_asked = [self.x], [], []
         self.upd_t, self.solve_s, self.iters = [], [], []
+        self.cpu_s: list[float] = []  # process time of each update after the first plan
         self.failures, self.k = 0, 0
         self.plan, self.t_plan = None, 0.0
         self.failure, self.interrupted = "", False
@@ -463,7 +482,7 @@ class ClosedLoop:
                 raise  # nothing simulated yet: nothing to keep
             del self.X[len(self.U) + 1 :]
             n = min(len(self.upd_t), len(self.solve_s), len(self.iters))
-            del self.upd_t[n:], self.solve_s[n:], self.iters[n:]
+            del self.upd_t[n:], self.solve_s[n:], self.iters[n:], self.cpu_s[max(0, n - 1) :]
         return self.result(time.perf_counter() - wall0)
 
     def update(self, t_now: float) -> bool:
@@ -475,21 +494,25 @@ class ClosedLoop:
         on = s.deadline and s.realtime
         deadline = t0 + s.deadline / s.rate if on else None
         K = self.settings.iterations_per_update  # later updates: at most K iterations
-        ahead = self.period_steps if (s.realtime and s.delay_compensation) else 0
+        late = s.realtime or s.lockstep_latency > 0  # the old plan runs during the update
+        ahead = self.period_steps if (late and s.delay_compensation) else 0
         x_from, t_from = (
             (self.predict(ahead), t_now + ahead * self.dt) if ahead else (self.x, t_now)
         )
         if x_from is None:  # the prediction failed: plan from the measured state
             x_from, t_from, ahead = self.x, t_now, 0
+        c0 = time.process_time()
         new_plan, ok = self.ctrl.update(x_from, t_from, K, deadline=deadline)
+        self.cpu_s.append(time.process_time() - c0)
         w = time.perf_counter() - t0
         self.failures += 0 if ok else 1
         self.solve_s.append(w)
         self.iters.append(new_plan.iterations if (ok and new_plan) else 0)
         self.upd_t.append(t_now)
         # The old policy keeps running while the controller thinks (with delay compensation,
-        # at least until the time the new plan starts from).
-        if s.realtime and not self.simulate(max(int(math.ceil(w / self.dt)), ahead)):
+        # at least until the time the new plan starts from); lock-step: for lockstep_latency.
+        felt = w / self.dt if s.realtime else s.lockstep_latency / self.dt - 1e-9
+        if late and not self.simulate(max(int(math.ceil(felt)), ahead)):
             return False
         if ok:
             self.plan, self.t_plan = new_plan, t_from
@@ -547,4 +570,5 @@ class ClosedLoop:
             np.array(self.U_asked[: len(self.U)]),
             self.first_info,
             list(getattr(ctrl, "sampling", [])[1:]),
+            list(self.cpu_s),
         )

@@ -93,6 +93,7 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
             f"mpc rate {settings.rate:g} Hz: an update period of {steps:g} time steps of the "
             f"{which} ({h:g} s); the period must be whole steps, e.g. {near}"
         )
+    _check_latency(settings)
     if settings.delay_compensation:
         m = 1.0 / (settings.rate * dt)
         if settings.shrinking_horizon or m < 1 - 1e-9 or abs(m - round(m)) > 1e-4 * m:
@@ -112,6 +113,21 @@ def _check_timing(settings: MPCConfig, dt: float) -> None:
         raise ConfigError(
             f"mpc rate {settings.rate:g} Hz: its update period ({1.0 / settings.rate:g} s) is "
             f"not shorter than the duration ({settings.duration:g} s): no update would run"
+        )
+
+
+def _check_latency(settings: MPCConfig) -> None:
+    """mpc.lockstep_latency: finite, >= 0, shorter than the run, and lock-step only."""
+    lat = settings.lockstep_latency
+    if isinstance(lat, bool) or not (math.isfinite(lat) and 0 <= lat < settings.duration):
+        raise ConfigError(
+            f"mpc.lockstep_latency: seconds from 0 to below the duration "
+            f"({settings.duration:g} s), got {lat!r}"
+        )
+    if lat > 0 and settings.realtime:
+        raise ConfigError(
+            "mpc.lockstep_latency: lock-step only (--realtime feels the controller's own "
+            "latency); add --set mpc.lockstep_latency=0 or --no-realtime"
         )
 
 

@@ -128,6 +128,7 @@ def write_mpc(
             t=res.t,
             update_times=np.array(res.update_times),
             solve_seconds=np.array(res.solve_seconds),
+            cpu_seconds=np.array(res.cpu_seconds),
         )
         plot_mpc(task, res, stage / "mpc.png")
         if replay:

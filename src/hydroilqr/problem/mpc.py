@@ -108,6 +108,12 @@ class LoopSettings:
     # plan steps it holds the step's feed-forward and feeds back against the plan's state
     # interpolated in time. 0: the plan's step (the simulation steps as the controller plans).
     plant_time_step: float = 0.0
+    # Lock-step only: each update is taken to last this many seconds of simulated time, as
+    # --realtime feels the controller's wall time: the plan in force keeps running for them
+    # (whole steps of the simulated robot, rounded up; with delay_compensation, at least one
+    # period) before the new plan takes over. A real-time run whose updates all take as many
+    # steps runs the same. 0: none (the new plan applies at once).
+    lockstep_latency: float = 0.0
     # key=value overrides for the simulated plant only (model mismatch), e.g. ball.friction=0.3
     truth_overrides: list[str] = field(default_factory=list)
     # External pushes (control.mpc.Push: time, body, force, duration); Python / --push only.

@@ -371,7 +371,8 @@ def kernel_table(docs: Sequence[dict]) -> str:
 
 
 def _robustness_source(doc: dict) -> str:
-    """Where a robustness record came from: its command, code, kernels, load and runs."""
+    """Where a robustness record came from: its command, code, kernels, load and runs, and
+    what was removed from it since."""
     env = doc.get("environment", {})
     runs = (
         f"{doc['runs']} closed loops per task (lock-step), each first plan's initial guess "
@@ -390,7 +391,15 @@ def _robustness_source(doc: dict) -> str:
             if doc.get("transfer")
             else "."
         )
+        + _removed(doc)
     )
+
+
+def _removed(doc: dict) -> str:
+    """What was taken out of a record after its run (its ``removed``: task -> why), so that its
+    command, which still names those tasks, is not read as the whole record."""
+    gone = doc.get("removed") or {}
+    return "".join(f" Since removed: `{task}` ({why})." for task, why in gone.items())
 
 
 def search_table(results: Sequence[TaskResult], context: Context) -> Section | None:
