@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 
+import numpy as np
 from rich.console import Console
 
 from hydroilqr.studies.check import _autodiff_point_warning
@@ -49,3 +50,27 @@ def test_check_tables_keep_names_whole_in_80_columns(monkeypatch):
     assert "…" not in out
     for n in names:
         assert n in out
+
+
+def test_check_warns_of_search_damping_an_explicit_step_cannot_keep_stable():
+    """hopper-hop's position-space search at its own kd is inside every joint's 2·I/dt (no
+    warning); at a kd between its two lowest joints' bounds the warning names exactly the
+    joint whose bound is below it; no search, no warning."""
+    from hydroilqr.model.pd import damping_bounds
+    from hydroilqr.model.task import Task
+    from hydroilqr.problem.load import load_task
+    from hydroilqr.studies.check import pd_damping_warning
+
+    task = Task(load_task("hopper-hop"))
+    dyn = task.dynamics
+    bounds = damping_bounds(dyn.plant, task.x0, dyn.dt)
+    joints = [
+        dyn.plant.get_joint_actuator(i).joint().name() for i in dyn.plant.GetJointActuatorIndices()
+    ]
+    assert pd_damping_warning(dyn, task.x0, task.config.search) == ""
+    kd = (sorted(bounds)[0] + sorted(bounds)[1]) / 2
+    low = Task(load_task("hopper-hop", [f"search.kd={kd}"]))
+    w = pd_damping_warning(low.dynamics, low.x0, low.config.search)
+    named = [j for j in joints if f"{j} (" in w]
+    assert named == [joints[int(np.argmin(bounds))]], w
+    assert pd_damping_warning(dyn, task.x0, None) == ""

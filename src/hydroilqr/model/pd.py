@@ -36,6 +36,20 @@ def actuated_indices(plant) -> tuple[np.ndarray, np.ndarray]:
     return np.array(qi, int), np.array(vi, int)
 
 
+def damping_bounds(plant, x, dt: float) -> np.ndarray:
+    """The largest damping the PD+ law, held over a step of ``dt``, keeps stable on each
+    actuated joint moving freely: kd < 2 I_j / dt, with I_j = 1 / (M⁻¹)_jj the joint's
+    effective inertia at the state x (the mass matrix, reflected rotor inertia included, from
+    Drake). Above it a joint out of contact overshoots its own damping each step and rings to
+    its effort limit. x: [nx] -> [nu], in actuator order."""
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositionsAndVelocities(ctx, np.asarray(x, float))
+    m_inv = np.linalg.inv(plant.CalcMassMatrix(ctx))
+    _, vi = actuated_indices(plant)
+    j = vi - plant.num_positions()
+    return 2.0 / (np.diag(m_inv)[j] * dt)
+
+
 def reference_velocities(Q_ref: np.ndarray, dt: float) -> np.ndarray:
     """v̄_k = (q̄_{k+1} − q̄_k) / dt: Q_ref [N+1, n] -> [N, n] (the reference's own motion)."""
     Q_ref = np.asarray(Q_ref, float)

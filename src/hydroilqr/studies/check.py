@@ -41,6 +41,7 @@ from hydroilqr.model.contacts import (
 from hydroilqr.model.guess import describe as describe_guess
 from hydroilqr.model.guess import rollout_report
 from hydroilqr.model.names import body_labels
+from hydroilqr.model.pd import damping_bounds
 from hydroilqr.model.plant import SimulationError, geometry_hits, hydroelastic_kind
 from hydroilqr.problem.solver import DerivativeMethod
 from hydroilqr.solver.realize import report as realize_report
@@ -223,7 +224,7 @@ def check_task(task, rollout_steps: int = ROLLOUT_STEPS, on_section=None) -> dic
     out["geometries"] = [{k: v for k, v in g.items() if k != "id"} for g in geoms]
     out["geometry_overrides"] = _geometry_overrides(dyn, task.config.geometry)
     done("geometries")
-    _geometry_warnings(cfg, geoms, warn)
+    _settings_warnings(task, geoms, warn)
 
     pairs = candidate_pairs(dyn, x0, geoms)
     out["pairs"] = pairs
@@ -272,8 +273,13 @@ def _autodiff_point_warning(pairs: list[dict], derivatives: str) -> str:
     )
 
 
-def _geometry_warnings(cfg, geoms: list, warn) -> None:
-    """No collision geometry at all; rigid geometry given a hydroelastic modulus."""
+def _settings_warnings(task, geoms: list, warn) -> None:
+    """No collision geometry at all; rigid geometry given a hydroelastic modulus; a search's
+    PD+ damping an explicit step cannot keep stable (``pd_damping_warning``)."""
+    cfg = task.config
+    w = pd_damping_warning(task.dynamics, task.x0, cfg.search)
+    if w:
+        warn(w)
     if not geoms:
         warn("no collision geometry: the task has no contact at all")
     props = [(f"geometry.{k}", p) for k, p in cfg.geometry.items()]
@@ -397,6 +403,29 @@ def _fd(dyn, fd_forces: bool) -> dict:
         "fd_forces": bool(fd_forces),
         "qualifies": dyn.force_path() is not None,
     }
+
+
+def pd_damping_warning(dyn, x0, search) -> str:
+    """A search in position space whose PD+ damping ``search.kd`` is at or above the bound an
+    explicit step keeps stable on a freely moving joint (``model.pd.damping_bounds`` at x0):
+    the joints it names ring in the air ("" when none, or no such search)."""
+    if search is None or search.space != "position":
+        return ""
+    bounds = damping_bounds(dyn.plant, x0, dyn.dt)
+    over = [
+        (dyn.plant.get_joint_actuator(i).joint().name(), b)
+        for i, b in zip(dyn.plant.GetJointActuatorIndices(), bounds)
+        if search.kd >= b
+    ]
+    if not over:
+        return ""
+    names = ", ".join(f"{n} ({b:.3g})" for n, b in over[:4])
+    more = f" and {len(over) - 4} more" if len(over) > 4 else ""
+    return (
+        f"search.kd {search.kd:g} is at or above the damping a {dyn.dt:g} s step keeps stable "
+        f"on a joint moving freely, 2·I/dt, for {names}{more}: out of contact such a joint rings "
+        "towards its effort limit; lower search.kd below the smallest, or shorten the time step"
+    )
 
 
 def _actuators(dyn) -> list[dict]:
