@@ -236,9 +236,10 @@ def _print_summary(data: dict, settings, task) -> None:
         f"{data['realtime_factor']:.2f}"
     )
     cpu = data.get("solve_cpu_seconds")
-    if cpu:  # the process's own time: what an idle core would take
+    if cpu:  # the process's own time, summed over its threads (one thread: an idle core's)
         console.print(
-            f"CPU per update: p50 {1e3 * cpu['p50']:.1f} ms, p95 {1e3 * cpu['p95']:.1f} ms, "
+            "CPU per update (summed over threads): "
+            f"p50 {1e3 * cpu['p50']:.1f} ms, p95 {1e3 * cpu['p95']:.1f} ms, "
             f"max {1e3 * cpu['max']:.1f} ms"
         )
     sp = data.get("sampling")

@@ -142,12 +142,7 @@ class MPCResult:
             "delay_compensation": self.settings.delay_compensation,
             "threads": self.settings.threads,
             "derivatives": self.settings.derivatives,
-            "solve_seconds": {
-                "p50": float(np.percentile(s, 50)),
-                "p95": float(np.percentile(s, 95)),
-                "max": float(np.max(s)),
-                "mean": float(np.mean(s)),
-            },
+            "solve_seconds": _percentiles(list(s)),
             "solve_cpu_seconds": _percentiles(self.cpu_seconds),
             "controller_realtime_factor": period / float(np.mean(s)) if np.mean(s) > 0 else None,
             "realtime_factor": sim / self.wall_seconds if self.wall_seconds > 0 else None,

@@ -125,5 +125,6 @@ def validate_search(sc: SearchConfig | None, steps: int, goal: bool = True) -> N
     if sc.restarts and not (goal and sc.polish >= 1):
         raise ConfigError(
             f"search.restarts: {sc.restarts} needs search.polish >= 1 and a goal: section (a "
-            "restart searches again when no polished plan meets the goal)"
+            "restart searches again when no polished plan meets the goal; set "
+            "search.restarts=0 to search once)"
         )

@@ -9,8 +9,9 @@ the same samples, costs and best with any number of workers.
 
 ``polish(task_ref, candidates, ...)`` solves the task with iLQR from each candidate's
 torques (as Dask jobs too), and with ``search.polish_guess`` from the task's own initial guess
-as iLQR alone solves it (its continuation stages included; the last candidate), and
-``select`` picks among them: the first (lowest search cost, the guess last)
+as iLQR alone solves it (its continuation stages included; after the first search's
+candidates), then each restart's (``search.restarts``), and ``select`` picks among them in
+that order: the first
 whose plan meets the task's goal, else the lowest final cost (``search.select: goal``); the
 lowest final cost (``cost``); the first whose PD+ playback at half speed on the finer
 simulation meets the goal, else as ``goal`` (``transfer``); among those that meet the goal,
@@ -216,7 +217,7 @@ class SearchRun:
 
     def met(self) -> bool:
         """Whether a polished plan meets the task's goal."""
-        return any(r.goal.get("met") is True for r in self.polished)
+        return any_met(self.polished)
 
     def record(self) -> dict:
         """summary.json's ``search``: the search (``solver.search.record``), and the polish."""
@@ -446,8 +447,8 @@ def _tag_restart(on_iteration, restart: int):
 
 
 def select(polished: list, how: str = "goal") -> int | None:
-    """The chosen polished plan, the candidates in order of search cost (the task's guess,
-    when polished, last): ``goal``: the first
+    """The chosen polished plan, the candidates in order (the first search's by search
+    cost, the task's guess when polished, then each restart's): ``goal``: the first
     whose goal is met, else the lowest final cost; ``cost``: the lowest final cost;
     ``transfer``: the first whose playback meets the goal, else as ``goal``; ``robust``: of
     those whose goal is met, the one whose perturbed re-solves meet it most often (the first
@@ -575,13 +576,18 @@ def search_start(task_ref: dict, k: int, seed: int, noise: float = 0.0) -> Searc
     return res
 
 
+def any_met(polished: list) -> bool:
+    """Whether a plan among ``polished`` meets the task's goal."""
+    return any(p.goal.get("met") is True for p in polished)
+
+
 def _restart_here(task, task_ref: dict, settings, polished: list) -> int:
     """``_restart`` in this process: while no plan in ``polished`` meets the goal, restart r's
     search and polish (appended to ``polished``), at most ``search.restarts`` times. -> the
     restarts run."""
     done = 0
     for r in range(1, settings.restarts + 1):
-        if any(p.goal.get("met") is True for p in polished):
+        if any_met(polished):
             break
         space, result = search_mod.run_search(task, settings=restart_settings(settings, r))
         starts = polish_starts(task, space, result, with_guess=False)
